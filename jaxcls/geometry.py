@@ -1,0 +1,193 @@
+"""Camera model, poses and the viewpoint hemisphere.
+
+Conventions (DESIGN.md): metres; world z up; OpenCV camera (x right, y down, z forward); a camera pose is
+the 4x4 camera-to-world transform ``T_wc``. Functions take ``...`` leading batch axes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+# MuJoCo cameras look along their -z with y up; OpenCV cameras look along +z with y down.
+_CV_TO_MJ = np.diag([1.0, -1.0, -1.0])
+
+
+@struct.dataclass
+class Intrinsics:
+    """Pinhole intrinsics in pixels; pixel (u, v) has its centre at integer coordinates.
+
+    All fields are static, so a change of sensor recompiles and a pose batch does not.
+    """
+
+    width: int = struct.field(pytree_node=False)
+    height: int = struct.field(pytree_node=False)
+    fx: float = struct.field(pytree_node=False)
+    fy: float = struct.field(pytree_node=False)
+    cx: float = struct.field(pytree_node=False)
+    cy: float = struct.field(pytree_node=False)
+
+    @classmethod
+    def kinect_v1(cls, scale: float = 1.0) -> Intrinsics:
+        """Kinect v1 (640x480, f = 525 px); ``scale`` < 1 gives the same field of view at lower resolution."""
+        return cls.from_fovy(round(640 * scale), round(480 * scale), fovy_deg=fovy_deg(525.0, 480))
+
+    @classmethod
+    def from_fovy(cls, width: int, height: int, fovy_deg: float) -> Intrinsics:
+        """Square pixels, principal point at the image centre: the camera model MuJoCo renders."""
+        f = 0.5 * height / math.tan(math.radians(fovy_deg) / 2)
+        return cls(width=width, height=height, fx=f, fy=f, cx=(width - 1) / 2, cy=(height - 1) / 2)
+
+    @property
+    def fovy_deg(self) -> float:
+        return fovy_deg(self.fy, self.height)
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """[3, 3] the OpenCV camera matrix K."""
+        return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1]])
+
+    def validate_mujoco(self) -> None:
+        """MuJoCo renders square pixels about the image centre; anything else cannot be rendered exactly."""
+        if not (math.isclose(self.fx, self.fy, rel_tol=1e-6)
+                and math.isclose(self.cx, (self.width - 1) / 2, abs_tol=1e-6)
+                and math.isclose(self.cy, (self.height - 1) / 2, abs_tol=1e-6)):
+            raise ValueError(f"MuJoCo cameras need fx == fy and a centred principal point, got {self}")
+
+
+@dataclasses.dataclass(frozen=True)
+class CameraConfig:
+    """A pinhole sensor; the default is the paper's Kinect v1 (640x480, f = 525 px)."""
+
+    width: int = 640
+    height: int = 480
+    fx: float = 525.0
+    fy: float = 525.0
+    cx: float = 319.5
+    cy: float = 239.5
+
+    def intrinsics(self) -> Intrinsics:
+        if min(self.width, self.height) < 1 or min(self.fx, self.fy) <= 0:
+            raise ValueError(f"camera: need positive size and focal lengths, got {self}")
+        return Intrinsics(width=self.width, height=self.height, fx=self.fx, fy=self.fy, cx=self.cx, cy=self.cy)
+
+
+@dataclasses.dataclass(frozen=True)
+class ViewpointConfig:
+    """The view hemisphere around the scene centroid (paper Sec. 4: 100 views, r = 1 m, z >= 0)."""
+
+    count: int = 100
+    radius: float = 1.0
+    min_elevation_deg: float = 0.0
+    candidate_radius: float = 0.5  # views within this of the current one are a move's candidates (Sec. 3.3)
+
+
+def fovy_deg(fy: float, height: int) -> float:
+    """Vertical field of view in degrees of a pinhole with focal length ``fy`` px over ``height`` rows."""
+    return math.degrees(2 * math.atan(0.5 * height / fy))
+
+
+def pixel_rays(intrinsics: Intrinsics) -> np.ndarray:
+    """[H, W, 3] ray directions in the camera frame, scaled so that their z is 1 (z-depth = ray length)."""
+    u = (np.arange(intrinsics.width) - intrinsics.cx) / intrinsics.fx
+    v = (np.arange(intrinsics.height) - intrinsics.cy) / intrinsics.fy
+    uu, vv = np.meshgrid(u, v)
+    return np.stack([uu, vv, np.ones_like(uu)], axis=-1)
+
+
+def transform_points(T: jnp.ndarray, points: jnp.ndarray) -> jnp.ndarray:
+    """Apply ``T: [..., 4, 4]`` to ``points: [..., P, 3]``."""
+    return jnp.einsum("...ij,...pj->...pi", T[..., :3, :3], points) + T[..., None, :3, 3]
+
+
+def backproject(depth: jnp.ndarray, intrinsics: Intrinsics, T_wc: jnp.ndarray) -> jnp.ndarray:
+    """World points of a depth map.
+
+    depth: [..., H, W] z-depth in metres (0 = no return); T_wc: [..., 4, 4].
+    Returns [..., H, W, 3] world points; pixels without a return map to the camera centre.
+    """
+    rays = jnp.asarray(pixel_rays(intrinsics), depth.dtype)
+    points_c = rays * depth[..., None]
+    R, t = T_wc[..., :3, :3], T_wc[..., :3, 3]
+    return jnp.einsum("...ij,...hwj->...hwi", R, points_c) + t[..., None, None, :]
+
+
+def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:
+    """[..., 4, 4] ``T_wc`` of OpenCV cameras at ``eye: [..., 3]`` looking at ``target: [..., 3]``.
+
+    Image "down" points along -``up``; a camera looking straight along ``up`` uses world y as its up.
+    """
+    eye, target = np.broadcast_arrays(np.asarray(eye, float), np.asarray(target, float))
+    forward = target - eye
+    dist = np.linalg.norm(forward, axis=-1, keepdims=True)
+    if np.any(dist < 1e-9):
+        raise ValueError("look_at: eye and target coincide")
+    forward = forward / dist
+    up = np.broadcast_to(np.asarray(up, float), forward.shape)
+    parallel = np.abs(np.sum(forward * up, axis=-1, keepdims=True)) > 1 - 1e-6
+    up = np.where(parallel, np.array([0.0, 1.0, 0.0]), up)
+    right = np.cross(forward, up)
+    right /= np.linalg.norm(right, axis=-1, keepdims=True)
+    down = np.cross(forward, right)
+    T = np.zeros((*forward.shape[:-1], 4, 4))
+    T[..., :3, 0], T[..., :3, 1], T[..., :3, 2], T[..., :3, 3] = right, down, forward, eye
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def hemisphere_viewpoints(center: np.ndarray, count: int = 100, radius: float = 1.0,
+                          min_elevation_deg: float = 0.0) -> np.ndarray:
+    """[count, 4, 4] ``T_wc`` of near-uniform viewpoints on the upper hemisphere, each looking at ``center``.
+
+    A Fibonacci lattice over the spherical zone above ``min_elevation_deg``: equal-area bands in z, golden-
+    angle steps in azimuth (the paper's 100 views at r = 1 m, Sec. 4).
+    """
+    if count < 1 or radius <= 0 or not 0 <= min_elevation_deg < 90:
+        raise ValueError(f"hemisphere_viewpoints: bad count={count}, radius={radius}, "
+                         f"min_elevation_deg={min_elevation_deg}")
+    z_min = math.sin(math.radians(min_elevation_deg))
+    k = np.arange(count)
+    z = z_min + (1 - z_min) * (k + 0.5) / count
+    azimuth = k * math.pi * (3 - math.sqrt(5))
+    ring = np.sqrt(1 - z**2)
+    directions = np.stack([ring * np.cos(azimuth), ring * np.sin(azimuth), z], axis=-1)
+    center = np.asarray(center, float)
+    return look_at(center + radius * directions, center)
+
+
+def candidate_views(view_positions: np.ndarray, current: np.ndarray, radius: float) -> np.ndarray:
+    """[V] bool: views within ``radius`` (Euclidean) of ``current: [3]``, the current position excluded.
+
+    view_positions: [V, 3]. The paper's candidate set of a move (Sec. 3.3, r = 0.5 m).
+    """
+    d = jnp.linalg.norm(jnp.asarray(view_positions) - jnp.asarray(current), axis=-1)
+    return (d <= radius) & (d > 1e-9)
+
+
+def opencv_to_mujoco_rotation(R_wc: np.ndarray) -> np.ndarray:
+    """[..., 3, 3] rotation of the MuJoCo camera frame that sees what the OpenCV frame ``R_wc`` sees."""
+    return np.asarray(R_wc) @ _CV_TO_MJ
+
+
+def rotation_to_quat(R: np.ndarray) -> np.ndarray:
+    """[..., 4] unit quaternions (w, x, y, z), MuJoCo's order, of rotation matrices ``R: [..., 3, 3]``."""
+    from scipy.spatial.transform import Rotation
+
+    R = np.asarray(R, float)
+    xyzw = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_quat()
+    return np.concatenate([xyzw[:, 3:], xyzw[:, :3]], axis=-1).reshape(*R.shape[:-2], 4)
+
+
+def is_rigid(T: np.ndarray, atol: float = 1e-4) -> np.ndarray:
+    """[...] bool: ``T: [..., 4, 4]`` is finite, its rotation orthonormal with det +1, its last row 0 0 0 1."""
+    T = np.asarray(T, float)
+    R = T[..., :3, :3]
+    finite = np.all(np.isfinite(T), axis=(-2, -1))
+    ortho = np.all(np.abs(R @ np.swapaxes(R, -1, -2) - np.eye(3)) < atol, axis=(-2, -1))
+    det = np.abs(np.linalg.det(np.where(finite[..., None, None], R, np.eye(3))) - 1) < atol
+    last = np.all(np.abs(T[..., 3, :] - np.array([0, 0, 0, 1.0])) < atol, axis=-1)
+    return finite & ortho & det & last

@@ -1,0 +1,67 @@
+import dataclasses
+from typing import Literal
+
+import pytest
+
+from jaxcls.config import ConfigError, load_config, save_config
+
+
+@dataclasses.dataclass(frozen=True)
+class Inner:
+    count: int = 3
+    mode: Literal["a", "b"] = "a"
+
+
+@dataclasses.dataclass(frozen=True)
+class Outer:
+    name: str = "x"
+    radius: float = 1.0
+    views: tuple[int, ...] = (0, 1)
+    inner: Inner = dataclasses.field(default_factory=Inner)
+
+
+def test_yaml_then_overrides_fill_a_frozen_dataclass(tmp_path):
+    path = tmp_path / "c.yaml"
+    path.write_text("name: y\ninner:\n  count: 7\n")
+    cfg = load_config(Outer, path, ["inner.mode=b", "radius=2.5"])
+    assert cfg == Outer(name="y", radius=2.5, inner=Inner(count=7, mode="b"))
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cfg.name = "z"
+
+
+def test_defaults_without_file():
+    assert load_config(Outer) == Outer()
+
+
+@pytest.mark.parametrize(("text", "key"), [
+    ("inner:\n  cuont: 7\n", "inner.cuont"),
+    ("radius: far\n", "radius"),
+    ("inner:\n  mode: c\n", "inner.mode"),
+])
+def test_bad_keys_and_types_name_the_key_and_file(tmp_path, text, key):
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=rf"bad\.yaml.*{key}"):
+        load_config(Outer, path)
+
+
+def test_bad_override_names_the_key():
+    with pytest.raises(ConfigError, match=r"command line.*inner\.count"):
+        load_config(Outer, None, ["inner.count=many"])
+    with pytest.raises(ConfigError, match="key.sub=value"):
+        load_config(Outer, None, ["radius"])
+
+
+def test_missing_and_malformed_files(tmp_path):
+    with pytest.raises(ConfigError, match="nope.yaml.*not found"):
+        load_config(Outer, tmp_path / "nope.yaml")
+    path = tmp_path / "list.yaml"
+    path.write_text("- 1\n- 2\n")
+    with pytest.raises(ConfigError, match="list.yaml.*mapping"):
+        load_config(Outer, path)
+
+
+def test_saved_config_loads_back_identically(tmp_path):
+    cfg = Outer(name="q", radius=0.25, views=(4, 5, 6), inner=Inner(count=1, mode="b"))
+    path = save_config(cfg, tmp_path / "run" / "config.yaml")
+    assert load_config(Outer, path) == cfg
