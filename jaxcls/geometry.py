@@ -110,6 +110,7 @@ def backproject(depth: jnp.ndarray, intrinsics: Intrinsics, T_wc: jnp.ndarray) -
     depth: [..., H, W] z-depth in metres (0 = no return); T_wc: [..., 4, 4].
     Returns [..., H, W, 3] world points; pixels without a return map to the camera centre.
     """
+    depth = jnp.asarray(depth)
     rays = jnp.asarray(pixel_rays(intrinsics), depth.dtype)
     points_c = rays * depth[..., None]
     R, t = T_wc[..., :3, :3], T_wc[..., :3, 3]

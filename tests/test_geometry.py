@@ -1,0 +1,105 @@
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.distance import cdist
+
+from jaxcls import geometry
+
+CENTER = np.array([0.1, -0.2, 0.05])
+
+
+def test_kinect_intrinsics_match_the_paper():
+    intr = geometry.Intrinsics.kinect_v1()
+    assert (intr.width, intr.height) == (640, 480)
+    assert intr.fx == pytest.approx(525) and intr.fy == pytest.approx(525)
+    assert (intr.cx, intr.cy) == (319.5, 239.5)
+    assert intr.fovy_deg == pytest.approx(math.degrees(2 * math.atan(240 / 525)))
+    assert geometry.CameraConfig().intrinsics() == intr
+
+
+@pytest.mark.parametrize(("count", "radius", "min_elev"), [(100, 1.0, 0.0), (138, 0.9, 10.0), (7, 0.5, 30.0)])
+def test_viewpoints_count_radius_and_look_at_centre(count, radius, min_elev):
+    T = geometry.hemisphere_viewpoints(CENTER, count, radius, min_elev)
+    assert T.shape == (count, 4, 4) and geometry.is_rigid(T).all()
+    eye = T[:, :3, 3]
+    np.testing.assert_allclose(np.linalg.norm(eye - CENTER, axis=1), radius, atol=1e-12)
+    elevation = np.degrees(np.arcsin((eye - CENTER)[:, 2] / radius))
+    assert elevation.min() >= min_elev
+    # The optical axis (camera +z) points at the centre, and image "down" has no upward component.
+    forward = T[:, :3, 2]
+    np.testing.assert_allclose(forward, (CENTER - eye) / radius, atol=1e-12)
+    assert (T[:, 2, 1] <= 1e-12).all()
+
+
+def test_viewpoints_are_near_uniform():
+    eye = geometry.hemisphere_viewpoints(CENTER, 100, 1.0)[:, :3, 3]
+    d = cdist(eye, eye)
+    np.fill_diagonal(d, np.inf)
+    nearest = d.min(axis=1)
+    # 100 points on a unit hemisphere (area 2*pi) have a spacing near sqrt(2*pi/100) ~ 0.25.
+    assert 0.18 < nearest.mean() < 0.3
+    assert nearest.min() > 0.7 * nearest.mean() and nearest.max() < 1.3 * nearest.mean()
+
+
+def test_candidate_views_within_radius_exclude_current():
+    T = geometry.hemisphere_viewpoints(CENTER, 100, 1.0)
+    eye = T[:, :3, 3]
+    mask = np.asarray(geometry.candidate_views(eye, eye[17], 0.5))
+    d = np.linalg.norm(eye - eye[17], axis=1)
+    assert not mask[17]
+    np.testing.assert_array_equal(mask, (d <= 0.5) & (np.arange(100) != 17))
+    assert 5 <= mask.sum() <= 25
+
+
+def test_look_at_straight_down_is_well_defined():
+    T = geometry.look_at([0, 0, 1.0], [0, 0, 0])
+    assert geometry.is_rigid(T)
+    np.testing.assert_allclose(T[:3, 2], [0, 0, -1], atol=1e-12)
+
+
+def test_backproject_inverts_projection():
+    intr = geometry.Intrinsics.kinect_v1(0.1)
+    T = geometry.look_at([0.4, -0.3, 0.7], [0.0, 0.05, 0.02])
+    rng = np.random.default_rng(0)
+    depth = rng.uniform(0.5, 1.5, (intr.height, intr.width))
+    world = np.asarray(geometry.backproject(depth, intr, T))
+    cam = (world - T[:3, 3]) @ T[:3, :3]
+    np.testing.assert_allclose(cam[..., 2], depth, rtol=1e-6)
+    u = intr.fx * cam[..., 0] / cam[..., 2] + intr.cx
+    v = intr.fy * cam[..., 1] / cam[..., 2] + intr.cy
+    uu, vv = np.meshgrid(np.arange(intr.width), np.arange(intr.height))
+    np.testing.assert_allclose(u, uu, atol=1e-4)
+    np.testing.assert_allclose(v, vv, atol=1e-4)
+
+
+def test_mujoco_camera_rotation_and_quaternion():
+    T = geometry.look_at([0.3, 0.4, 0.5], [0, 0, 0])
+    R = geometry.opencv_to_mujoco_rotation(T[:3, :3])
+    np.testing.assert_allclose(R[:, 2], -T[:3, 2])  # MuJoCo cameras look along their -z
+    np.testing.assert_allclose(R[:, 1], -T[:3, 1])  # and have y up
+    q = geometry.rotation_to_quat(R)
+    w, x, y, z = q
+    R_back = np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+    np.testing.assert_allclose(R_back, R, atol=1e-12)
+
+
+def test_is_rigid_rejects_bad_transforms():
+    T = np.eye(4)
+    assert geometry.is_rigid(T)
+    for bad in (np.diag([1, 1, -1, 1.0]), np.diag([2, 1, 1, 1.0]), np.full((4, 4), np.nan)):
+        assert not geometry.is_rigid(bad)
+    shear = np.eye(4)
+    shear[3, 0] = 1
+    assert not geometry.is_rigid(shear)
+
+
+def test_bad_viewpoint_arguments():
+    with pytest.raises(ValueError, match="count"):
+        geometry.hemisphere_viewpoints(CENTER, 0)
+    with pytest.raises(ValueError, match="min_elevation"):
+        geometry.hemisphere_viewpoints(CENTER, 10, 1.0, 95)
