@@ -1,0 +1,290 @@
+"""Cluttered table-top scenes: sampling, the MuJoCo model, and a small JSON form.
+
+A scene is N object instances standing upright on the table (z = table height) with a random yaw, packed
+close enough to occlude one another but never interpenetrating: each new object is slid in from a random
+direction until the convex hulls of the footprints keep a gap drawn from ``[min_gap, max_gap]``. Upright
+objects whose footprint hulls are disjoint cannot touch in 3D.
+
+The MuJoCo model follows the contract the renderers rely on: bodies ``object_0 .. object_{N-1}`` hold the
+object meshes, a box geom ``table`` has its top face at the table height, and a mocap body ``camera``
+carries the depth camera ``depth`` (Kinect v1 by default), so that each element of a batch can set its
+own camera pose through ``mocap_pos`` / ``mocap_quat``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+from typing import Literal
+
+import mujoco
+import numpy as np
+
+from jaxcls import geometry
+from jaxcls.assets import ObjectModel, ObjectSet, ObjectSetConfig, object_set_from_config
+
+SCENE_FORMAT = "jaxcls-scene"
+SCENE_VERSION = 1
+
+
+@dataclasses.dataclass(frozen=True)
+class SceneConfig:
+    """How scenes are drawn. Gaps are between footprint hulls, metres."""
+
+    num_objects: int = 5
+    num_clutter: int = 0  # of which non-target clutter (the paper's real scenes: 3 targets + 2 clutter)
+    split: Literal["train", "test", "all"] = "test"
+    distinct_classes: bool = True  # no class twice in a scene while there are enough classes
+    min_gap: float = 0.003
+    max_gap: float = 0.03
+    table_height: float = 0.0
+    table_half_size: float = 0.75
+
+
+@dataclasses.dataclass(frozen=True)
+class PlacedObject:
+    """One instance on the table: its footprint centre in world xy, its yaw about z (rad)."""
+
+    name: str
+    class_name: str
+    position: tuple[float, float]
+    yaw: float
+    target: bool = True
+
+
+@dataclasses.dataclass(frozen=True)
+class Scene:
+    """A scene's description; the meshes come from ``object_set`` by instance name."""
+
+    objects: tuple[PlacedObject, ...]
+    object_set: ObjectSetConfig
+    table_height: float = 0.0
+    table_half_size: float = 0.75
+    seed: int | None = None
+
+    @property
+    def num_objects(self) -> int:
+        return len(self.objects)
+
+    def object_poses(self) -> np.ndarray:
+        """[N, 4, 4] model-to-world transforms."""
+        return np.stack([_pose(o.position, o.yaw, self.table_height) for o in self.objects])
+
+    def to_dict(self) -> dict:
+        return {
+            "format": SCENE_FORMAT,
+            "version": SCENE_VERSION,
+            "seed": self.seed,
+            "object_set": dataclasses.asdict(self.object_set),
+            "table_height": self.table_height,
+            "table_half_size": self.table_half_size,
+            "objects": [
+                {"name": o.name, "class": o.class_name, "position": list(o.position), "yaw": o.yaw,
+                 "target": o.target}
+                for o in self.objects
+            ],
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "scene") -> Scene:
+        """Inverse of ``to_dict``; ``source`` names the file in errors."""
+        def need(d: dict, key: str, where: str):
+            if key not in d:
+                raise ValueError(f"{source}: missing key '{where}{key}'")
+            return d[key]
+
+        if data.get("format") != SCENE_FORMAT:
+            raise ValueError(f"{source}: key 'format' must be '{SCENE_FORMAT}', got {data.get('format')!r}")
+        try:
+            objects = tuple(
+                PlacedObject(
+                    name=str(need(o, "name", f"objects[{i}].")),
+                    class_name=str(need(o, "class", f"objects[{i}].")),
+                    position=tuple(float(v) for v in need(o, "position", f"objects[{i}].")),
+                    yaw=float(need(o, "yaw", f"objects[{i}].")),
+                    target=bool(o.get("target", True)),
+                )
+                for i, o in enumerate(need(data, "objects", ""))
+            )
+            object_set = ObjectSetConfig(**need(data, "object_set", ""))
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"{source}: {e}") from None
+        if any(len(o.position) != 2 for o in objects):
+            raise ValueError(f"{source}: each objects[i].position must be [x, y]")
+        return cls(objects=objects, object_set=object_set, table_height=float(data.get("table_height", 0.0)),
+                   table_half_size=float(data.get("table_half_size", 0.75)), seed=data.get("seed"))
+
+    def save(self, path: str | Path) -> Path:
+        path = Path(path)
+        path.write_text(json.dumps(self.to_dict(), indent=2))
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> Scene:
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: scene file not found")
+        try:
+            data = json.loads(path.read_text())
+        except json.JSONDecodeError as e:
+            raise ValueError(f"{path}: not valid JSON: {e}") from None
+        return cls.from_dict(data, source=str(path))
+
+
+def _pose(position, yaw: float, z: float) -> np.ndarray:
+    c, s = math.cos(yaw), math.sin(yaw)
+    T = np.eye(4)
+    T[:2, :2] = [[c, -s], [s, c]]
+    T[:3, 3] = [position[0], position[1], z]
+    return T
+
+
+def _place_footprint(hull: np.ndarray, position: np.ndarray, yaw: float) -> np.ndarray:
+    c, s = math.cos(yaw), math.sin(yaw)
+    return hull @ np.array([[c, s], [-s, c]]) + position
+
+
+def footprint_separation(a: np.ndarray, b: np.ndarray) -> float:
+    """Separating-axis gap between convex polygons ``a: [K, 2]`` and ``b: [L, 2]`` (CCW), metres.
+
+    Positive: disjoint, and the Euclidean distance is at least this; <= 0: they overlap.
+    """
+    best = -np.inf
+    for p, q in ((a, b), (b, a)):
+        edges = np.roll(p, -1, axis=0) - p
+        normals = np.stack([edges[:, 1], -edges[:, 0]], axis=-1)
+        normals /= np.linalg.norm(normals, axis=-1, keepdims=True) + 1e-12
+        gap = (q @ normals.T).min(axis=0) - np.einsum("kd,kd->k", p, normals)
+        best = max(best, float(gap.max()))
+    return best
+
+
+def sample_scene(object_set: ObjectSet, config: SceneConfig, seed: int,
+                 object_set_config: ObjectSetConfig | None = None) -> Scene:
+    """Draw a cluttered scene from ``object_set`` (same seed, same scene)."""
+    if not 0 <= config.num_clutter <= config.num_objects or config.num_objects < 1:
+        raise ValueError(f"scene: need 1 <= num_objects and 0 <= num_clutter <= num_objects, got {config}")
+    if not 0 < config.min_gap <= config.max_gap:
+        raise ValueError(f"scene: need 0 < min_gap <= max_gap, got {config.min_gap}, {config.max_gap}")
+    rng = np.random.default_rng(seed)
+    pool = object_set.split(config.split)
+    if not pool:
+        raise ValueError(f"scene: object set '{object_set.name}' has no '{config.split}' instances")
+    models = _draw_instances(rng, pool, config.num_objects, config.distinct_classes)
+    hulls: list[np.ndarray] = []
+    placed: list[PlacedObject] = []
+    for i, model in enumerate(models):
+        yaw = float(rng.uniform(-math.pi, math.pi))
+        hull = model.footprint()
+        if not hulls:
+            position = np.zeros(2)
+        else:
+            gap = rng.uniform(config.min_gap, config.max_gap)
+            anchor = np.mean([h.mean(axis=0) for h in hulls], axis=0)
+            position = _slide_in(hull, yaw, hulls, anchor, rng.uniform(0, 2 * math.pi), gap)
+        hulls.append(_place_footprint(hull, position, yaw))
+        placed.append(PlacedObject(name=model.name, class_name=model.class_name,
+                                   position=(float(position[0]), float(position[1])), yaw=yaw,
+                                   target=i < config.num_objects - config.num_clutter))
+    # Centre the cluster on the table origin.
+    shift = -np.mean([h.mean(axis=0) for h in hulls], axis=0)
+    placed = [dataclasses.replace(o, position=(o.position[0] + shift[0], o.position[1] + shift[1]))
+              for o in placed]
+    order = rng.permutation(len(placed))  # clutter is not always drawn last
+    return Scene(objects=tuple(placed[k] for k in order),
+                 object_set=object_set_config or ObjectSetConfig(), table_height=config.table_height,
+                 table_half_size=config.table_half_size, seed=seed)
+
+
+def _draw_instances(rng: np.random.Generator, pool, count: int, distinct: bool) -> list[ObjectModel]:
+    classes = sorted({m.class_name for m in pool})
+    if distinct and count <= len(classes):
+        chosen = rng.choice(len(classes), size=count, replace=False)
+        by_class = {c: [m for m in pool if m.class_name == c] for c in classes}
+        return [by_class[classes[k]][rng.integers(len(by_class[classes[k]]))] for k in chosen]
+    return [pool[k] for k in rng.integers(len(pool), size=count)]
+
+
+def _slide_in(hull: np.ndarray, yaw: float, placed: list[np.ndarray], anchor: np.ndarray,
+              direction: float, gap: float, step: float = 0.002) -> np.ndarray:
+    """Bring a footprint from ``anchor`` outwards along ``direction`` until it clears every hull by ``gap``."""
+    d = np.array([math.cos(direction), math.sin(direction)])
+    t = 0.0
+    while True:
+        position = anchor + t * d
+        moved = _place_footprint(hull, position, yaw)
+        if min(footprint_separation(moved, h) for h in placed) >= gap:
+            return position
+        t += step
+
+
+def scene_models(scene: Scene, object_set: ObjectSet | None = None) -> tuple[ObjectModel, ...]:
+    """The object models of ``scene`` in scene order, from ``object_set`` or the one its JSON names."""
+    object_set = object_set or object_set_from_config(scene.object_set)
+    by_name = {m.name: m for m in object_set.split("all")}
+    missing = [o.name for o in scene.objects if o.name not in by_name]
+    if missing:
+        raise ValueError(f"scene: instances {missing} are not in object set '{object_set.name}'")
+    return tuple(by_name[o.name] for o in scene.objects)
+
+
+def scene_centroid(scene: Scene, models: tuple[ObjectModel, ...]) -> np.ndarray:
+    """[3] mean of the objects' bounding-cuboid centres in the world: the centre of the view hemisphere."""
+    centres = []
+    for obj, model, T in zip(scene.objects, models, scene.object_poses(), strict=True):
+        del obj
+        centre = model.bounds.mean(axis=0)
+        centres.append(T[:3, :3] @ centre + T[:3, 3])
+    return np.mean(centres, axis=0)
+
+
+def build_model(scene: Scene, models: tuple[ObjectModel, ...] | None = None,
+                intrinsics: geometry.Intrinsics | None = None) -> mujoco.MjModel:
+    """The MuJoCo model of ``scene`` with the depth camera on a mocap body (see the module docstring)."""
+    models = models if models is not None else scene_models(scene)
+    intrinsics = intrinsics or geometry.Intrinsics.kinect_v1()
+    intrinsics.validate_mujoco()
+    spec = mujoco.MjSpec()
+    spec.modelname = "jaxcls_scene"
+    spec.add_material(name="table", rgba=[0.55, 0.45, 0.35, 1])
+    spec.add_material(name="object", rgba=[0.8, 0.8, 0.8, 1])
+    world = spec.worldbody
+    h, half = scene.table_height, scene.table_half_size
+    world.add_geom(name="table", type=mujoco.mjtGeom.mjGEOM_BOX, size=[half, half, 0.01],
+                   pos=[0, 0, h - 0.01], material="table")
+    world.add_light(name="top", pos=[0, 0, h + 3], dir=[0, 0, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
+    for i, (obj, model) in enumerate(zip(scene.objects, models, strict=True)):
+        mesh_name = f"mesh_{i}"
+        spec.add_mesh(name=mesh_name, uservert=model.mesh.vertices.astype(np.float32).ravel().tolist(),
+                      userface=model.mesh.faces.astype(np.int32).ravel().tolist())
+        T = _pose(obj.position, obj.yaw, h)
+        body = world.add_body(name=f"object_{i}", pos=T[:3, 3].tolist(),
+                              quat=geometry.rotation_to_quat(T[:3, :3]).tolist())
+        body.add_geom(name=f"object_{i}", type=mujoco.mjtGeom.mjGEOM_MESH, meshname=mesh_name,
+                      material="object")
+    camera = world.add_body(name="camera", mocap=True, pos=[0, 0, h + 1])
+    camera.add_camera(name="depth", fovy=intrinsics.fovy_deg, resolution=[intrinsics.width, intrinsics.height])
+    try:
+        return spec.compile()
+    except ValueError as e:
+        raise ValueError(f"scene: MuJoCo could not compile the scene model: {e}") from None
+
+
+def object_distances(model: mujoco.MjModel, distmax: float = 0.1) -> np.ndarray:
+    """[N, N] MuJoCo's signed distance between object geoms (C ``mj_geomDistance``); the diagonal is inf.
+
+    Negative means interpenetration. Pairs farther than ``distmax`` read ``distmax``.
+    """
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    geoms = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, f"object_{i}")
+             for i in range(model.nbody)]
+    geoms = [g for g in geoms if g >= 0]
+    n = len(geoms)
+    out = np.full((n, n), np.inf)
+    for i in range(n):
+        for j in range(i + 1, n):
+            out[i, j] = out[j, i] = mujoco.mj_geomDistance(model, data, geoms[i], geoms[j], distmax, None)
+    return out

@@ -1,0 +1,146 @@
+import dataclasses
+import json
+import math
+
+import mujoco
+import numpy as np
+import pytest
+
+from jaxcls import geometry, scenes
+from jaxcls.assets import ObjectSetConfig, builtin_object_set
+
+
+@pytest.fixture(scope="module")
+def object_set():
+    return builtin_object_set()
+
+
+def _hulls(scene, object_set):
+    models = scenes.scene_models(scene, object_set)
+    return [scenes._place_footprint(m.footprint(), np.array(o.position), o.yaw)
+            for o, m in zip(scene.objects, models, strict=True)]
+
+
+def test_same_seed_same_scene(object_set):
+    cfg = scenes.SceneConfig()
+    a, b = (scenes.sample_scene(object_set, cfg, seed=11) for _ in range(2))
+    assert a == b
+    assert scenes.sample_scene(object_set, cfg, seed=12) != a
+
+
+def test_scene_draws_from_the_split_with_distinct_classes(object_set):
+    scene = scenes.sample_scene(object_set, scenes.SceneConfig(num_objects=5, num_clutter=2), seed=3)
+    test_names = {m.name for m in object_set.test}
+    assert all(o.name in test_names for o in scene.objects)
+    assert len({o.class_name for o in scene.objects}) == 5
+    assert sum(o.target for o in scene.objects) == 3
+
+
+def test_footprint_separation_is_a_signed_gap():
+    square = np.array([[0, 0], [1, 0], [1, 1], [0, 1.0]])
+    assert scenes.footprint_separation(square, square + [1.5, 0]) == pytest.approx(0.5)
+    assert scenes.footprint_separation(square, square + [0.5, 0.5]) < 0
+    # Diagonal neighbours: SAT gives a lower bound of the Euclidean distance sqrt(2) * 0.5.
+    gap = scenes.footprint_separation(square, square + [1.5, 1.5])
+    assert 0 < gap <= math.sqrt(2) * 0.5 + 1e-9
+
+
+@pytest.mark.parametrize(("min_gap", "max_gap"), [(0.003, 0.03), (0.001, 0.005)])
+def test_no_interpenetration_and_clutter_over_many_seeds(object_set, min_gap, max_gap):
+    cfg = scenes.SceneConfig(min_gap=min_gap, max_gap=max_gap)
+    for seed in range(25):
+        scene = scenes.sample_scene(object_set, cfg, seed)
+        hulls = _hulls(scene, object_set)
+        n = len(hulls)
+        sep = np.full((n, n), np.inf)
+        for i in range(n):
+            for j in range(i + 1, n):
+                sep[i, j] = sep[j, i] = scenes.footprint_separation(hulls[i], hulls[j])
+        assert sep.min() >= min_gap - 1e-9, f"seed {seed}: footprints overlap ({sep.min():.4f} m)"
+        # Clutter: every object stands within the largest gap (plus the slide step) of a neighbour.
+        assert sep.min(axis=1).max() <= max_gap + 0.0021, f"seed {seed}: an object stands apart"
+        # The peer: MuJoCo's own collision distance between the object meshes.
+        dist = scenes.object_distances(scenes.build_model(scene, scenes.scene_models(scene, object_set),
+                                                          geometry.Intrinsics.kinect_v1(0.1)))
+        assert dist.min() > 0, f"seed {seed}: MuJoCo finds interpenetration ({dist.min():.4f} m)"
+
+
+def test_json_round_trip(tmp_path, object_set):
+    scene = scenes.sample_scene(object_set, scenes.SceneConfig(num_clutter=2), seed=5)
+    path = scene.save(tmp_path / "scene.json")
+    loaded = scenes.Scene.load(path)
+    assert loaded == scene
+    np.testing.assert_array_equal(loaded.object_poses(), scene.object_poses())
+    data = json.loads(path.read_text())
+    assert data["format"] == "jaxcls-scene" and len(data["objects"]) == 5
+    # The JSON alone rebuilds the scene: the object set comes from its config.
+    models = scenes.scene_models(loaded)
+    assert [m.name for m in models] == [o.name for o in scene.objects]
+
+
+@pytest.mark.parametrize(("edit", "match"), [
+    (lambda d: d.pop("objects"), "objects"),
+    (lambda d: d["objects"][1].pop("yaw"), r"objects\[1\]\.yaw"),
+    (lambda d: d.update(format="other"), "format"),
+    (lambda d: d["objects"][0].update(position=[1.0]), "position"),
+])
+def test_bad_scene_json_names_the_key(tmp_path, object_set, edit, match):
+    data = scenes.sample_scene(object_set, scenes.SceneConfig(), seed=1).to_dict()
+    edit(data)
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(ValueError, match=match):
+        scenes.Scene.load(path)
+
+
+def test_unknown_instance_is_a_clear_error(object_set):
+    scene = scenes.sample_scene(object_set, scenes.SceneConfig(), seed=1)
+    renamed = dataclasses.replace(scene, objects=(dataclasses.replace(scene.objects[0], name="teapot_9"),
+                                                  *scene.objects[1:]))
+    with pytest.raises(ValueError, match="teapot_9"):
+        scenes.scene_models(renamed, object_set)
+
+
+def test_model_follows_the_renderer_contract(object_set):
+    cfg = scenes.SceneConfig(table_height=0.7)
+    scene = scenes.sample_scene(object_set, cfg, seed=2)
+    intr = geometry.Intrinsics.kinect_v1()
+    model = scenes.build_model(scene, scenes.scene_models(scene, object_set), intr)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    table = model.geom("table")
+    assert data.geom_xpos[table.id][2] + table.size[2] == pytest.approx(0.7)
+    cam_body = model.body("camera")
+    assert cam_body.mocapid[0] >= 0
+    cam = model.camera("depth")
+    assert cam.bodyid[0] == cam_body.id
+    assert model.cam_fovy[cam.id] == pytest.approx(intr.fovy_deg)
+    np.testing.assert_array_equal(model.cam_resolution[cam.id], [640, 480])
+    models = scenes.scene_models(scene, object_set)
+    for i, (obj, m) in enumerate(zip(scene.objects, models, strict=True)):
+        geom = model.geom(f"object_{i}")
+        assert model.geom_bodyid[geom.id] == model.body(f"object_{i}").id
+        assert model.geom_matid[geom.id] >= 0
+        # Every object rests on the table: its lowest world vertex is at the table height.
+        vert = model.mesh_vert[model.mesh_vertadr[geom.dataid[0]]:][:model.mesh_vertnum[geom.dataid[0]]]
+        world = vert @ data.geom_xmat[geom.id].reshape(3, 3).T + data.geom_xpos[geom.id]
+        assert world[:, 2].min() == pytest.approx(0.7, abs=1e-5)
+        expected = m.mesh.vertices @ scene.object_poses()[i][:3, :3].T + scene.object_poses()[i][:3, 3]
+        np.testing.assert_allclose(np.sort(world[:, 0]), np.sort(expected[:, 0]), atol=1e-5)
+        del obj
+
+
+def test_centroid_is_the_mean_of_object_centres(object_set):
+    scene = scenes.sample_scene(object_set, scenes.SceneConfig(), seed=4)
+    models = scenes.scene_models(scene, object_set)
+    centroid = scenes.scene_centroid(scene, models)
+    assert abs(centroid[0]) < 0.05 and abs(centroid[1]) < 0.05  # the cluster is centred on the table
+    assert 0.02 < centroid[2] < 0.12
+
+
+def test_bad_scene_config(object_set):
+    with pytest.raises(ValueError, match="num_clutter"):
+        scenes.sample_scene(object_set, scenes.SceneConfig(num_objects=3, num_clutter=4), 0)
+    with pytest.raises(ValueError, match="min_gap"):
+        scenes.sample_scene(object_set, scenes.SceneConfig(min_gap=0.0), 0)
+    assert ObjectSetConfig().source == "builtin"
