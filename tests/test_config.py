@@ -48,16 +48,16 @@ def test_bad_keys_and_types_name_the_key_and_file(tmp_path, text, key):
 def test_bad_override_names_the_key():
     with pytest.raises(ConfigError, match=r"command line.*inner\.count"):
         load_config(Outer, None, ["inner.count=many"])
-    with pytest.raises(ConfigError, match="key.sub=value"):
+    with pytest.raises(ConfigError, match=r"key\.sub=value"):
         load_config(Outer, None, ["radius"])
 
 
 def test_missing_and_malformed_files(tmp_path):
-    with pytest.raises(ConfigError, match="nope.yaml.*not found"):
+    with pytest.raises(ConfigError, match=r"nope\.yaml.*not found"):
         load_config(Outer, tmp_path / "nope.yaml")
     path = tmp_path / "list.yaml"
     path.write_text("- 1\n- 2\n")
-    with pytest.raises(ConfigError, match="list.yaml.*mapping"):
+    with pytest.raises(ConfigError, match=r"list\.yaml.*mapping"):
         load_config(Outer, path)
 
 

@@ -38,10 +38,10 @@ def test_scene_draws_from_the_split_with_distinct_classes(object_set):
 
 def test_footprint_separation_is_a_signed_gap():
     square = np.array([[0, 0], [1, 0], [1, 1], [0, 1.0]])
-    assert scenes.footprint_separation(square, square + [1.5, 0]) == pytest.approx(0.5)
-    assert scenes.footprint_separation(square, square + [0.5, 0.5]) < 0
+    assert scenes.footprint_separation(square, square + np.array([1.5, 0])) == pytest.approx(0.5)
+    assert scenes.footprint_separation(square, square + np.array([0.5, 0.5])) < 0
     # Diagonal neighbours: SAT gives a lower bound of the Euclidean distance sqrt(2) * 0.5.
-    gap = scenes.footprint_separation(square, square + [1.5, 1.5])
+    gap = scenes.footprint_separation(square, square + np.array([1.5, 1.5]))
     assert 0 < gap <= math.sqrt(2) * 0.5 + 1e-9
 
 
