@@ -1,0 +1,175 @@
+"""Viewpoint datasets: scenes x every hemisphere viewpoint, rendered to compressed arrays on disk.
+
+Layout of a dataset folder::
+
+    <out_dir>/
+      config.yaml          the resolved DatasetConfig that made it
+      scene_000.npz        one file per scene, written atomically (see SceneViews for its arrays)
+      scene_001.npz
+      ...
+
+A run that is interrupted resumes: finished scene files are kept, a half-written one never exists (each is
+written to a temporary name and renamed), and a folder made by a different config is refused rather than
+mixed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from pathlib import Path
+from typing import Literal
+
+import jax
+import numpy as np
+from tqdm.auto import tqdm
+
+from jaxcls import geometry, recording, scenes
+from jaxcls.assets import ObjectSetConfig, object_set_from_config
+from jaxcls.config import save_config, to_yaml
+from jaxcls.render import DepthFrames, default_backend, make_renderer
+from jaxcls.render.sensor import SensorConfig, apply_sensor, perturb_poses
+
+
+@dataclasses.dataclass(frozen=True)
+class DatasetConfig:
+    """``jaxcls dataset``: which scenes, which views, which sensor, where to."""
+
+    name: str = "synthetic"
+    out_dir: str = "data/synthetic"
+    num_scenes: int = 7
+    seed: int = 0
+    backend: Literal["auto", "mujoco", "mjx", "warp"] = "auto"
+    batch_size: int = 50  # views rendered together
+    objects: ObjectSetConfig = dataclasses.field(default_factory=ObjectSetConfig)
+    scene: scenes.SceneConfig = dataclasses.field(default_factory=scenes.SceneConfig)
+    camera: geometry.CameraConfig = dataclasses.field(default_factory=geometry.CameraConfig)
+    viewpoints: geometry.ViewpointConfig = dataclasses.field(default_factory=geometry.ViewpointConfig)
+    sensor: SensorConfig = dataclasses.field(default_factory=SensorConfig.ideal)
+
+
+@dataclasses.dataclass(frozen=True)
+class SceneViews:
+    """One scene seen from every viewpoint.
+
+    depth: [V, H, W] f32 metres, 0 = no return (after the sensor model, if on)
+    object_id: [V, H, W] i16 index into ``scene.objects``, -1 = table or nothing (ideal, before noise)
+    T_wc: [V, 4, 4] the camera poses the pipeline is given (with hand-eye noise, if on)
+    T_wc_true: [V, 4, 4] the poses the frames were rendered from
+    """
+
+    scene: scenes.Scene
+    intrinsics: geometry.Intrinsics
+    depth: np.ndarray
+    object_id: np.ndarray
+    T_wc: np.ndarray
+    T_wc_true: np.ndarray
+
+    def save(self, path: str | Path) -> Path:
+        """Write atomically: a temporary file renamed into place."""
+        path = Path(path)
+        tmp = path.with_name(path.name + ".tmp.npz")
+        intr = self.intrinsics
+        np.savez_compressed(
+            tmp, depth=self.depth.astype(np.float32), object_id=self.object_id.astype(np.int16),
+            T_wc=self.T_wc, T_wc_true=self.T_wc_true,
+            intrinsics=np.array([intr.width, intr.height, intr.fx, intr.fy, intr.cx, intr.cy]),
+            scene_json=np.array(json.dumps(self.scene.to_dict())))
+        os.replace(tmp, path)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> SceneViews:
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: scene views file not found")
+        keys = ("depth", "object_id", "T_wc", "T_wc_true", "intrinsics", "scene_json")
+        try:
+            with np.load(path) as f:
+                missing = [k for k in keys if k not in f]
+                if missing:
+                    raise ValueError(f"{path}: missing arrays {missing}")
+                arrays = {k: f[k] for k in keys}
+        except (OSError, EOFError) as e:
+            raise ValueError(f"{path}: not a readable .npz file: {e}") from None
+        w, h, fx, fy, cx, cy = arrays["intrinsics"].tolist()
+        return cls(scene=scenes.Scene.from_dict(json.loads(str(arrays["scene_json"])), source=str(path)),
+                   intrinsics=geometry.Intrinsics(width=int(w), height=int(h), fx=fx, fy=fy, cx=cx, cy=cy),
+                   depth=arrays["depth"], object_id=arrays["object_id"].astype(np.int32),
+                   T_wc=arrays["T_wc"], T_wc_true=arrays["T_wc_true"])
+
+    def to_recording(self) -> recording.Recording:
+        """The recorded-sequence form a real sensor would produce (depth rounded to millimetres)."""
+        return recording.Recording(depth=self.depth, T_wc=self.T_wc, intrinsics=self.intrinsics,
+                                   table_height=self.scene.table_height, scene=self.scene.to_dict())
+
+
+def scene_seeds(seed: int, count: int) -> list[int]:
+    """Independent per-scene seeds, stable under a change of ``count``."""
+    return [int(s.generate_state(1)[0]) for s in np.random.SeedSequence(seed).spawn(count)]
+
+
+def scene_file(out_dir: str | Path, index: int) -> Path:
+    return Path(out_dir) / f"scene_{index:03d}.npz"
+
+
+def render_scene_views(config: DatasetConfig, scene: scenes.Scene, key: jax.Array,
+                       object_set=None, progress: tqdm | None = None) -> SceneViews:
+    """Render ``scene`` from every viewpoint of ``config`` and apply its sensor model."""
+    models = scenes.scene_models(scene, object_set)
+    intrinsics = config.camera.intrinsics()
+    model = scenes.build_model(scene, models, intrinsics)
+    vp = config.viewpoints
+    T_wc = geometry.hemisphere_viewpoints(scenes.scene_centroid(scene, models), vp.count, vp.radius,
+                                          vp.min_elevation_deg)
+    backend = default_backend() if config.backend == "auto" else config.backend
+    renderer = make_renderer(model, intrinsics, backend)
+    depth, object_id = [], []
+    for start in range(0, len(T_wc), config.batch_size):
+        frames: DepthFrames = renderer.render(T_wc[start:start + config.batch_size])
+        depth.append(np.asarray(frames.depth))
+        object_id.append(np.asarray(frames.object_id))
+        if progress is not None:
+            progress.update(len(frames.depth))
+    depth = np.concatenate(depth)
+    key_depth, key_pose = jax.random.split(key)
+    depth = np.asarray(apply_sensor(key_depth, depth, intrinsics, config.sensor))
+    T_believed = T_wc  # float64: a pass through jax would round exact poses to float32
+    if config.sensor.pose_noise:
+        T_believed = np.asarray(perturb_poses(key_pose, T_wc, config.sensor), dtype=np.float64)
+    return SceneViews(scene=scene, intrinsics=intrinsics, depth=depth, object_id=np.concatenate(object_id),
+                      T_wc=T_believed, T_wc_true=T_wc)
+
+
+def build_dataset(config: DatasetConfig, overwrite: bool = False, show_progress: bool = True) -> Path:
+    """Render ``config.num_scenes`` scenes x all viewpoints into ``config.out_dir``; resumes if interrupted."""
+    out = Path(config.out_dir)
+    resolved = to_yaml(config)
+    config_file = out / "config.yaml"
+    if config_file.exists() and not overwrite and config_file.read_text() != resolved:
+        raise ValueError(f"{config_file}: this folder holds a dataset made by a different config; "
+                         "choose another out_dir or pass --overwrite")
+    out.mkdir(parents=True, exist_ok=True)
+    if overwrite:
+        for stale in out.glob("scene_*.npz"):
+            stale.unlink()
+    save_config(config, config_file)
+    object_set = object_set_from_config(config.objects)
+    todo = [i for i in range(config.num_scenes) if not scene_file(out, i).exists()]
+    seeds = scene_seeds(config.seed, config.num_scenes)
+    root_key = jax.random.PRNGKey(config.seed)
+    with tqdm(total=len(todo) * config.viewpoints.count, desc=f"dataset {config.name}", unit="view",
+              disable=not show_progress) as bar:
+        for i in todo:
+            bar.set_postfix(scene=i)
+            scene = scenes.sample_scene(object_set, config.scene, seeds[i], config.objects)
+            views = render_scene_views(config, scene, jax.random.fold_in(root_key, i), object_set, bar)
+            views.save(scene_file(out, i))
+    return out
+
+
+def export_recording(scene_views_file: str | Path, folder: str | Path, overwrite: bool = False) -> Path:
+    """Write one rendered scene as a recorded sequence (``jaxcls.recording``'s folder format)."""
+    views = SceneViews.load(scene_views_file)
+    return recording.write_recording(folder, views.to_recording(), overwrite=overwrite)
