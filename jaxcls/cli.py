@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 from jaxcls.config import ConfigError, load_config, to_yaml
+from jaxcls.dataset import DatasetConfig, build_dataset, export_recording
+from jaxcls.viz import ShowConfig, show
 
 _OVERRIDES_HELP = "dotted overrides applied after the config file, e.g. scene.num_objects=4 seed=3"
 
@@ -18,29 +21,15 @@ def _add_config_args(parser: argparse.ArgumentParser, default_config: str | None
     parser.add_argument("overrides", nargs="*", metavar="key=value", help=_OVERRIDES_HELP)
 
 
-def _cmd_show(args: argparse.Namespace) -> None:
-    from jaxcls.viz import ShowConfig, show
-
-    config = load_config(ShowConfig, args.config, args.overrides)
-    if args.print_config:
-        print(to_yaml(config))
-        return
-    print(f"wrote {show(config)}")
-
-
-def _cmd_dataset(args: argparse.Namespace) -> None:
-    from jaxcls.dataset import DatasetConfig, build_dataset
-
-    config = load_config(DatasetConfig, args.config, args.overrides)
-    if args.print_config:
-        print(to_yaml(config))
-        return
-    print(f"dataset in {build_dataset(config, overwrite=args.overwrite)}")
+def _configured(schema: type, run: Callable[[Any, argparse.Namespace], str]) -> Callable[[argparse.Namespace], None]:
+    """A subcommand that loads its config (file, then overrides), prints it or runs ``run(config, args)``."""
+    def command(args: argparse.Namespace) -> None:
+        config = load_config(schema, args.config, args.overrides)
+        print(to_yaml(config) if args.print_config else run(config, args))
+    return command
 
 
 def _cmd_export(args: argparse.Namespace) -> None:
-    from jaxcls.dataset import export_recording
-
     print(f"recording in {export_recording(args.scene_views, args.folder, overwrite=args.overwrite)}")
 
 
@@ -48,18 +37,19 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="jaxcls", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
 
-    show = sub.add_parser("show", help="save a PNG of a scene: depth of a few views and the view hemisphere",
+    show_cmd = sub.add_parser("show", help="save a PNG of a scene: depth of a few views and the view hemisphere",
                           description="Draw (or load) a scene, render a few viewpoints and save "
                                       "<out_dir>/scene.png, scene.json and config.yaml.")
-    _add_config_args(show, None)
-    show.set_defaults(run=_cmd_show)
+    _add_config_args(show_cmd, None)
+    show_cmd.set_defaults(run=_configured(ShowConfig, lambda config, _: f"wrote {show(config)}"))
 
     dataset = sub.add_parser("dataset", help="render scenes x all viewpoints to disk (resumable)",
                              description="Render num_scenes scenes from every hemisphere viewpoint into "
                                          "out_dir/scene_XXX.npz. An interrupted run resumes.")
     _add_config_args(dataset, "configs/synthetic.yaml")
     dataset.add_argument("--overwrite", action="store_true", help="discard what out_dir holds")
-    dataset.set_defaults(run=_cmd_dataset)
+    dataset.set_defaults(run=_configured(
+        DatasetConfig, lambda config, args: f"dataset in {build_dataset(config, overwrite=args.overwrite)}"))
 
     export = sub.add_parser("export", help="write one rendered scene as a recorded sequence",
                             description="Convert a dataset's scene_XXX.npz into the recorded-sequence folder "

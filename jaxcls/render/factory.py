@@ -1,0 +1,39 @@
+"""Choosing and building a depth backend."""
+
+from __future__ import annotations
+
+import mujoco
+
+from jaxcls.geometry import Intrinsics
+from jaxcls.render.types import BACKENDS, Backend, Renderer
+
+
+def default_backend() -> str:
+    """``"warp"`` where a CUDA GPU and warp-lang are present (MJX's batch renderer), else ``"mujoco"``."""
+    from jaxcls.render.warp import warp_unavailable_reason
+
+    return "warp" if warp_unavailable_reason() is None else "mujoco"
+
+
+def make_renderer(model: mujoco.MjModel, intrinsics: Intrinsics, backend: Backend = "mujoco",
+                  **options: object) -> Renderer:
+    """A depth renderer of the static scene ``model`` (the scene contract, ``render.contract``).
+
+    backend: ``"mujoco"`` (C ray casting on CPU threads; options ``workers: int | None``, default all
+    cores, and ``cull: bool = True``, casting in C only near objects), ``"mjx"`` (pure-JAX ray casting;
+    option ``chunk: int``, rays per vmapped chunk) or ``"warp"`` (MJX's batch renderer on a CUDA GPU;
+    option ``kinematics: "forward" | "static"``, see ``render.warp``).
+    """
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown render backend {backend!r}; choose one of {BACKENDS}")
+    if backend == "mujoco":
+        from jaxcls.render.native import NativeRenderer
+
+        return NativeRenderer(model, intrinsics, **options)
+    if backend == "mjx":
+        from jaxcls.render.mjx_ray import MJXRenderer
+
+        return MJXRenderer(model, intrinsics, **options)
+    from jaxcls.render.warp import WarpRenderer
+
+    return WarpRenderer(model, intrinsics, **options)
