@@ -288,3 +288,23 @@ def object_distances(model: mujoco.MjModel, distmax: float = 0.1) -> np.ndarray:
         for j in range(i + 1, n):
             out[i, j] = out[j, i] = mujoco.mj_geomDistance(model, data, geoms[i], geoms[j], distmax, None)
     return out
+
+
+def occlusion_counts(scene: Scene, models: tuple[ObjectModel, ...], intrinsics: geometry.Intrinsics,
+                     T_wc: np.ndarray, backend: str = "mujoco") -> tuple[np.ndarray, np.ndarray]:
+    """How much of each object the others hide: (seen [V, N], alone [V, N]) pixel counts, i32.
+
+    ``seen``: pixels of object j in the scene seen from ``T_wc: [V, 4, 4]``; ``alone``: its pixels with
+    the other objects removed (the table stays). ``seen / alone`` is the visible fraction, where alone > 0.
+    """
+    from jaxcls.render import make_renderer
+
+    def counts(sub: Scene, sub_models: tuple[ObjectModel, ...]) -> np.ndarray:
+        frames = make_renderer(build_model(sub, sub_models, intrinsics), intrinsics, backend).render(T_wc)
+        ids = np.asarray(frames.object_id)
+        return np.stack([(ids == j).sum(axis=(1, 2)) for j in range(sub.num_objects)], axis=-1)
+
+    seen = counts(scene, models)
+    alone = np.concatenate([counts(dataclasses.replace(scene, objects=(obj,)), (model,))
+                            for obj, model in zip(scene.objects, models, strict=True)], axis=-1)
+    return seen.astype(np.int32), alone.astype(np.int32)

@@ -144,3 +144,20 @@ def test_bad_scene_config(object_set):
     with pytest.raises(ValueError, match="min_gap"):
         scenes.sample_scene(object_set, scenes.SceneConfig(min_gap=0.0), 0)
     assert ObjectSetConfig().source == "builtin"
+
+
+def test_occlusion_counts(object_set):
+    """Objects in clutter hide each other from some views; alone, nothing is hidden."""
+    scene = scenes.sample_scene(object_set, scenes.SceneConfig(), seed=0)
+    models = scenes.scene_models(scene, object_set)
+    intr = geometry.Intrinsics.kinect_v1(0.25)
+    T_wc = geometry.hemisphere_viewpoints(scenes.scene_centroid(scene, models), 24, 1.0)
+    seen, alone = scenes.occlusion_counts(scene, models, intr, T_wc)
+    assert seen.shape == alone.shape == (24, 5)
+    assert (seen <= alone).all()
+    fraction = seen[alone > 0] / alone[alone > 0]
+    assert fraction.min() < 0.75  # some object loses over a quarter of its pixels in some view
+    assert np.median(fraction) > 0.5
+    single = dataclasses.replace(scene, objects=scene.objects[:1])
+    seen1, alone1 = scenes.occlusion_counts(single, models[:1], intr, T_wc)
+    np.testing.assert_array_equal(seen1, alone1)
