@@ -17,7 +17,7 @@ import sys
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaxcls import geometry, scenes
+from jaxcls import scenes
 from jaxcls.assets import object_set_from_config
 from jaxcls.config import load_config
 from jaxcls.dataset import DatasetConfig, scene_seeds
@@ -36,9 +36,7 @@ def main(argv: list[str] | None = None) -> None:
     for i, seed in enumerate(tqdm(scene_seeds(cfg.seed, cfg.num_scenes), desc="scenes")):
         scene = scenes.sample_scene(object_set, cfg.scene, seed, cfg.objects)
         models = scenes.scene_models(scene, object_set)
-        vp = cfg.viewpoints
-        T_wc = geometry.hemisphere_viewpoints(scenes.scene_centroid(scene, models), vp.count, vp.radius,
-                                              vp.min_elevation_deg)
+        T_wc = scenes.viewpoints(scene, models, cfg.viewpoints)
         seen, alone = scenes.occlusion_counts(scene, models, intrinsics, T_wc)
         in_view = alone > 0
         fraction = seen[in_view] / alone[in_view]

@@ -66,7 +66,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         args.run(args)
-    except (ConfigError, ValueError, FileNotFoundError) as e:
+    except (ConfigError, ValueError, OSError, RuntimeError) as e:  # bad input, files, missing GPU
         print(f"jaxcls {args.command}: error: {e}", file=sys.stderr)
         return 2
     return 0

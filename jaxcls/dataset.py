@@ -18,6 +18,8 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import warnings
+import zipfile
 from pathlib import Path
 from typing import Literal
 
@@ -27,8 +29,8 @@ from tqdm.auto import tqdm
 
 from jaxcls import geometry, recording, scenes
 from jaxcls.assets import ObjectSetConfig, object_set_from_config
-from jaxcls.config import save_config, to_yaml
-from jaxcls.render import DepthFrames, default_backend, make_renderer
+from jaxcls.config import load_config, save_config
+from jaxcls.render import DepthFrames, make_renderer, resolve_backend
 from jaxcls.render.sensor import SensorConfig, apply_sensor, perturb_poses
 
 
@@ -48,6 +50,15 @@ class DatasetConfig:
     viewpoints: geometry.ViewpointConfig = dataclasses.field(default_factory=geometry.ViewpointConfig)
     sensor: SensorConfig = dataclasses.field(default_factory=SensorConfig.ideal)
 
+    def __post_init__(self) -> None:
+        for key in ("num_scenes", "batch_size"):
+            if getattr(self, key) < 1:
+                raise ValueError(f"dataset: '{key}' must be >= 1, got {getattr(self, key)}")
+
+    def output_defining(self) -> DatasetConfig:
+        """This config without the fields that do not change what is written (where, how many at once)."""
+        return dataclasses.replace(self, out_dir="", batch_size=1)
+
 
 @dataclasses.dataclass(frozen=True)
 class SceneViews:
@@ -57,6 +68,7 @@ class SceneViews:
     object_id: [V, H, W] i16 index into ``scene.objects``, -1 = table or nothing (ideal, before noise)
     T_wc: [V, 4, 4] the camera poses the pipeline is given (with hand-eye noise, if on)
     T_wc_true: [V, 4, 4] the poses the frames were rendered from
+    backend: the renderer that made the frames (backends agree within 1 mm, not bit for bit)
     """
 
     scene: scenes.Scene
@@ -65,18 +77,25 @@ class SceneViews:
     object_id: np.ndarray
     T_wc: np.ndarray
     T_wc_true: np.ndarray
+    backend: str = "mujoco"
 
     def save(self, path: str | Path) -> Path:
-        """Write atomically: a temporary file renamed into place."""
+        """Write atomically: a temporary file, flushed to disk, renamed into place; never a partial file."""
         path = Path(path)
-        tmp = path.with_name(path.name + ".tmp.npz")
+        tmp = path.with_name(f".{path.name}.tmp")
         intr = self.intrinsics
-        np.savez_compressed(
-            tmp, depth=self.depth.astype(np.float32), object_id=self.object_id.astype(np.int16),
-            T_wc=self.T_wc, T_wc_true=self.T_wc_true,
-            intrinsics=np.array([intr.width, intr.height, intr.fx, intr.fy, intr.cx, intr.cy]),
-            scene_json=np.array(json.dumps(self.scene.to_dict())))
-        os.replace(tmp, path)
+        try:
+            with open(tmp, "wb") as f:
+                np.savez_compressed(
+                    f, depth=self.depth.astype(np.float32), object_id=self.object_id.astype(np.int16),
+                    T_wc=self.T_wc, T_wc_true=self.T_wc_true,
+                    intrinsics=np.array([intr.width, intr.height, intr.fx, intr.fy, intr.cx, intr.cy]),
+                    scene_json=np.array(json.dumps(self.scene.to_dict())), backend=np.array(self.backend))
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, path)
+        finally:
+            tmp.unlink(missing_ok=True)
         return path
 
     @classmethod
@@ -86,18 +105,19 @@ class SceneViews:
             raise FileNotFoundError(f"{path}: scene views file not found")
         keys = ("depth", "object_id", "T_wc", "T_wc_true", "intrinsics", "scene_json")
         try:
-            with np.load(path) as f:
-                missing = [k for k in keys if k not in f]
-                if missing:
-                    raise ValueError(f"{path}: missing arrays {missing}")
-                arrays = {k: f[k] for k in keys}
-        except (OSError, EOFError) as e:
-            raise ValueError(f"{path}: not a readable .npz file: {e}") from None
+            with np.load(path, allow_pickle=False) as f:
+                arrays = {k: f[k] for k in (*keys, "backend") if k in f}
+        except (OSError, EOFError, ValueError, zipfile.BadZipFile) as e:
+            raise ValueError(f"{path}: not a readable scene views file ({type(e).__name__}: {e})") from None
+        missing = [k for k in keys if k not in arrays]
+        if missing:
+            raise ValueError(f"{path}: missing arrays {missing}")
         w, h, fx, fy, cx, cy = arrays["intrinsics"].tolist()
         return cls(scene=scenes.Scene.from_dict(json.loads(str(arrays["scene_json"])), source=str(path)),
                    intrinsics=geometry.Intrinsics(width=int(w), height=int(h), fx=fx, fy=fy, cx=cx, cy=cy),
                    depth=arrays["depth"], object_id=arrays["object_id"].astype(np.int32),
-                   T_wc=arrays["T_wc"], T_wc_true=arrays["T_wc_true"])
+                   T_wc=arrays["T_wc"], T_wc_true=arrays["T_wc_true"],
+                   backend=str(arrays.get("backend", "unknown")))
 
     def to_recording(self) -> recording.Recording:
         """The recorded-sequence form a real sensor would produce (depth rounded to millimetres)."""
@@ -120,10 +140,8 @@ def render_scene_views(config: DatasetConfig, scene: scenes.Scene, key: jax.Arra
     models = scenes.scene_models(scene, object_set)
     intrinsics = config.camera.intrinsics()
     model = scenes.build_model(scene, models, intrinsics)
-    vp = config.viewpoints
-    T_wc = geometry.hemisphere_viewpoints(scenes.scene_centroid(scene, models), vp.count, vp.radius,
-                                          vp.min_elevation_deg)
-    backend = default_backend() if config.backend == "auto" else config.backend
+    T_wc = scenes.viewpoints(scene, models, config.viewpoints)
+    backend = resolve_backend(config.backend)
     renderer = make_renderer(model, intrinsics, backend)
     depth, object_id = [], []
     for start in range(0, len(T_wc), config.batch_size):
@@ -139,24 +157,25 @@ def render_scene_views(config: DatasetConfig, scene: scenes.Scene, key: jax.Arra
     if config.sensor.pose_noise:
         T_believed = np.asarray(perturb_poses(key_pose, T_wc, config.sensor), dtype=np.float64)
     return SceneViews(scene=scene, intrinsics=intrinsics, depth=depth, object_id=np.concatenate(object_id),
-                      T_wc=T_believed, T_wc_true=T_wc)
+                      T_wc=T_believed, T_wc_true=T_wc, backend=backend)
 
 
 def build_dataset(config: DatasetConfig, overwrite: bool = False, show_progress: bool = True) -> Path:
     """Render ``config.num_scenes`` scenes x all viewpoints into ``config.out_dir``; resumes if interrupted."""
     out = Path(config.out_dir)
-    resolved = to_yaml(config)
     config_file = out / "config.yaml"
-    if config_file.exists() and not overwrite and config_file.read_text() != resolved:
-        raise ValueError(f"{config_file}: this folder holds a dataset made by a different config; "
-                         "choose another out_dir or pass --overwrite")
+    if config_file.exists() and not overwrite:
+        previous = load_config(DatasetConfig, config_file)
+        if previous.output_defining() != config.output_defining():
+            raise ValueError(f"{config_file}: this folder holds a dataset made by a different config; "
+                             "choose another out_dir or pass --overwrite")
     out.mkdir(parents=True, exist_ok=True)
     if overwrite:
         for stale in out.glob("scene_*.npz"):
             stale.unlink()
     save_config(config, config_file)
     object_set = object_set_from_config(config.objects)
-    todo = [i for i in range(config.num_scenes) if not scene_file(out, i).exists()]
+    todo = [i for i in range(config.num_scenes) if not _finished(scene_file(out, i))]
     seeds = scene_seeds(config.seed, config.num_scenes)
     root_key = jax.random.PRNGKey(config.seed)
     with tqdm(total=len(todo) * config.viewpoints.count, desc=f"dataset {config.name}", unit="view",
@@ -167,6 +186,18 @@ def build_dataset(config: DatasetConfig, overwrite: bool = False, show_progress:
             views = render_scene_views(config, scene, jax.random.fold_in(root_key, i), object_set, bar)
             views.save(scene_file(out, i))
     return out
+
+
+def _finished(path: Path) -> bool:
+    """A scene file that exists and reads back; a damaged one is rendered again."""
+    if not path.exists():
+        return False
+    try:
+        SceneViews.load(path)
+    except ValueError as e:
+        warnings.warn(f"{e}: rendering it again", stacklevel=3)
+        return False
+    return True
 
 
 def export_recording(scene_views_file: str | Path, folder: str | Path, overwrite: bool = False) -> Path:

@@ -13,8 +13,9 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-# MuJoCo cameras look along their -z with y up; OpenCV cameras look along +z with y down.
-_CV_TO_MJ = np.diag([1.0, -1.0, -1.0])
+# MuJoCo cameras look along their -z with y up; OpenCV cameras look along +z with y down. The same
+# matrix maps back (it is its own inverse).
+CV_TO_MJ = np.diag([1.0, -1.0, -1.0])
 
 
 @struct.dataclass
@@ -171,7 +172,7 @@ def candidate_views(view_positions: np.ndarray, current: np.ndarray, radius: flo
 
 def opencv_to_mujoco_rotation(R_wc: np.ndarray) -> np.ndarray:
     """[..., 3, 3] rotation of the MuJoCo camera frame that sees what the OpenCV frame ``R_wc`` sees."""
-    return np.asarray(R_wc) @ _CV_TO_MJ
+    return np.asarray(R_wc) @ CV_TO_MJ
 
 
 def rotation_to_quat(R: np.ndarray) -> np.ndarray:

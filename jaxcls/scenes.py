@@ -89,32 +89,41 @@ class Scene:
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "scene") -> Scene:
-        """Inverse of ``to_dict``; ``source`` names the file in errors."""
-        def need(d: dict, key: str, where: str):
-            if key not in d:
+        """Inverse of ``to_dict``; errors name ``source`` (the file) and the key."""
+        def need(d: dict, key: str, where: str = ""):
+            if not isinstance(d, dict) or key not in d:
                 raise ValueError(f"{source}: missing key '{where}{key}'")
             return d[key]
 
+        def number(value, key: str) -> float:
+            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+                raise ValueError(f"{source}: key '{key}' must be a finite number, got {value!r}")
+            return float(value)
+
         if data.get("format") != SCENE_FORMAT:
             raise ValueError(f"{source}: key 'format' must be '{SCENE_FORMAT}', got {data.get('format')!r}")
+        if data.get("version") != SCENE_VERSION:
+            raise ValueError(f"{source}: key 'version' must be {SCENE_VERSION}, got {data.get('version')!r}")
+        seed = data.get("seed")
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
+            raise ValueError(f"{source}: key 'seed' must be an integer or null, got {seed!r}")
+        objects = []
+        for i, o in enumerate(need(data, "objects")):
+            at = f"objects[{i}]."
+            position = need(o, "position", at)
+            if not isinstance(position, list) or len(position) != 2:
+                raise ValueError(f"{source}: key '{at}position' must be [x, y], got {position!r}")
+            objects.append(PlacedObject(
+                name=str(need(o, "name", at)), class_name=str(need(o, "class", at)),
+                position=(number(position[0], at + "position"), number(position[1], at + "position")),
+                yaw=number(need(o, "yaw", at), at + "yaw"), target=bool(o.get("target", True))))
         try:
-            objects = tuple(
-                PlacedObject(
-                    name=str(need(o, "name", f"objects[{i}].")),
-                    class_name=str(need(o, "class", f"objects[{i}].")),
-                    position=tuple(float(v) for v in need(o, "position", f"objects[{i}].")),
-                    yaw=float(need(o, "yaw", f"objects[{i}].")),
-                    target=bool(o.get("target", True)),
-                )
-                for i, o in enumerate(need(data, "objects", ""))
-            )
-            object_set = ObjectSetConfig(**need(data, "object_set", ""))
-        except (TypeError, ValueError) as e:
-            raise ValueError(f"{source}: {e}") from None
-        if any(len(o.position) != 2 for o in objects):
-            raise ValueError(f"{source}: each objects[i].position must be [x, y]")
-        return cls(objects=objects, object_set=object_set, table_height=float(data.get("table_height", 0.0)),
-                   table_half_size=float(data.get("table_half_size", 0.75)), seed=data.get("seed"))
+            object_set = ObjectSetConfig(**need(data, "object_set"))
+        except TypeError as e:
+            raise ValueError(f"{source}: key 'object_set': {e}") from None
+        return cls(objects=tuple(objects), object_set=object_set,
+                   table_height=number(data.get("table_height", 0.0), "table_height"),
+                   table_half_size=number(data.get("table_half_size", 0.75), "table_half_size"), seed=seed)
 
     def save(self, path: str | Path) -> Path:
         path = Path(path)
@@ -171,7 +180,8 @@ def sample_scene(object_set: ObjectSet, config: SceneConfig, seed: int,
     rng = np.random.default_rng(seed)
     pool = object_set.split(config.split)
     if not pool:
-        raise ValueError(f"scene: object set '{object_set.name}' has no '{config.split}' instances")
+        raise ValueError(f"scene: object set '{object_set.name}' has no '{config.split}' instances; set "
+                         "scene.split=all, or hold some out with objects.test_fraction")
     models = _draw_instances(rng, pool, config.num_objects, config.distinct_classes)
     hulls: list[np.ndarray] = []
     placed: list[PlacedObject] = []
@@ -192,6 +202,10 @@ def sample_scene(object_set: ObjectSet, config: SceneConfig, seed: int,
     shift = -np.mean([h.mean(axis=0) for h in hulls], axis=0)
     placed = [dataclasses.replace(o, position=(o.position[0] + shift[0], o.position[1] + shift[1]))
               for o in placed]
+    reach = max(float(np.abs(h + shift).max()) for h in hulls)
+    if reach > config.table_half_size:
+        raise ValueError(f"scene: the objects reach {reach:.3f} m from the table centre, beyond "
+                         f"table_half_size = {config.table_half_size} m")
     order = rng.permutation(len(placed))  # clutter is not always drawn last
     return Scene(objects=tuple(placed[k] for k in order),
                  object_set=object_set_config or ObjectSetConfig(), table_height=config.table_height,
@@ -232,12 +246,15 @@ def scene_models(scene: Scene, object_set: ObjectSet | None = None) -> tuple[Obj
 
 def scene_centroid(scene: Scene, models: tuple[ObjectModel, ...]) -> np.ndarray:
     """[3] mean of the objects' bounding-cuboid centres in the world: the centre of the view hemisphere."""
-    centres = []
-    for obj, model, T in zip(scene.objects, models, scene.object_poses(), strict=True):
-        del obj
-        centre = model.bounds.mean(axis=0)
-        centres.append(T[:3, :3] @ centre + T[:3, 3])
+    centres = [T[:3, :3] @ model.bounds.mean(axis=0) + T[:3, 3]
+               for model, T in zip(models, scene.object_poses(), strict=True)]
     return np.mean(centres, axis=0)
+
+
+def viewpoints(scene: Scene, models: tuple[ObjectModel, ...], config: geometry.ViewpointConfig) -> np.ndarray:
+    """[V, 4, 4] ``T_wc`` of the scene's view hemisphere, centred on ``scene_centroid``."""
+    return geometry.hemisphere_viewpoints(scene_centroid(scene, models), config.count, config.radius,
+                                          config.min_elevation_deg)
 
 
 def build_model(scene: Scene, models: tuple[ObjectModel, ...] | None = None,

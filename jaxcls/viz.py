@@ -12,7 +12,7 @@ from matplotlib.figure import Figure
 from jaxcls import geometry, scenes
 from jaxcls.assets import ObjectSetConfig, object_set_from_config
 from jaxcls.config import save_config
-from jaxcls.render import default_backend, make_renderer
+from jaxcls.render import make_renderer, resolve_backend
 
 
 @dataclasses.dataclass(frozen=True)
@@ -42,13 +42,11 @@ def show(config: ShowConfig) -> Path:
         scene = scenes.sample_scene(object_set, config.scene, config.seed, config.objects)
     models = scenes.scene_models(scene, object_set)
     intrinsics = config.camera.intrinsics()
-    vp = config.viewpoints
-    T_wc = geometry.hemisphere_viewpoints(scenes.scene_centroid(scene, models), vp.count, vp.radius,
-                                          vp.min_elevation_deg)
+    T_wc = scenes.viewpoints(scene, models, config.viewpoints)
     bad = [v for v in config.views if not 0 <= v < len(T_wc)]
     if bad:
         raise ValueError(f"show: views {bad} are outside 0..{len(T_wc) - 1}")
-    backend = default_backend() if config.backend == "auto" else config.backend
+    backend = resolve_backend(config.backend)
     renderer = make_renderer(scenes.build_model(scene, models, intrinsics), intrinsics, backend)
     frames = renderer.render(T_wc[list(config.views)])
     figure = plot_scene(scene, T_wc, config.views, np.asarray(frames.depth), np.asarray(frames.object_id))

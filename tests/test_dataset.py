@@ -32,6 +32,7 @@ def test_dataset_matches_a_direct_render_and_resumes(tmp_path):
     views = dataset.SceneViews.load(files[1])
     assert views.depth.shape == (6, 48, 64) and views.object_id.shape == (6, 48, 64)
     assert views.depth.dtype == np.float32 and views.object_id.dtype == np.int32
+    assert views.backend == "mujoco"
     # Ideal sensor: the stored frames are what the renderer gives for the stored poses.
     intr = cfg.camera.intrinsics()
     model = scenes.build_model(views.scene, scenes.scene_models(views.scene), intr)
@@ -74,10 +75,49 @@ def test_interrupted_run_leaves_no_partial_file_and_resumes(tmp_path, monkeypatc
     assert len(list(out.glob("scene_*.npz"))) == 2
 
 
+def test_interrupted_write_leaves_no_file(tmp_path, monkeypatch):
+    """The atomic write itself: a crash half-way through writing leaves neither the file nor debris."""
+    cfg = _config(tmp_path, extra=["num_scenes=1"])
+    real = np.savez_compressed
+
+    def crash(file, **arrays):
+        file.write(b"PK\x03\x04 half a zip")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(np, "savez_compressed", crash)
+    with pytest.raises(KeyboardInterrupt):
+        dataset.build_dataset(cfg, show_progress=False)
+    assert sorted(p.name for p in (tmp_path / "ds").iterdir()) == ["config.yaml"]
+    monkeypatch.setattr(np, "savez_compressed", real)
+    dataset.build_dataset(cfg, show_progress=False)
+    assert dataset.SceneViews.load(tmp_path / "ds" / "scene_000.npz").depth.shape == (6, 48, 64)
+
+
+def test_damaged_scene_file_is_named_and_rendered_again(tmp_path):
+    cfg = _config(tmp_path, extra=["num_scenes=1"])
+    path = dataset.build_dataset(cfg, show_progress=False) / "scene_000.npz"
+    good = dataset.SceneViews.load(path).depth
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    with pytest.raises(ValueError, match=r"scene_000\.npz.*not a readable"):
+        dataset.SceneViews.load(path)
+    with pytest.warns(UserWarning, match="rendering it again"):
+        dataset.build_dataset(cfg, show_progress=False)
+    np.testing.assert_array_equal(dataset.SceneViews.load(path).depth, good)
+
+
 def test_a_different_config_is_refused_in_the_same_folder(tmp_path):
     dataset.build_dataset(_config(tmp_path), show_progress=False)
     with pytest.raises(ValueError, match="different config"):
         dataset.build_dataset(_config(tmp_path, extra=["seed=1"]), show_progress=False)
+    # Where and how many at a time do not change the output: resuming with them changed is fine.
+    dataset.build_dataset(_config(tmp_path, extra=["batch_size=3"]), show_progress=False)
+
+
+def test_bad_dataset_config_names_the_key():
+    with pytest.raises(ValueError, match="batch_size"):
+        load_config(dataset.DatasetConfig, None, ["batch_size=0"])
+    with pytest.raises(ValueError, match="num_scenes"):
+        load_config(dataset.DatasetConfig, None, ["num_scenes=-1"])
 
 
 def test_real_like_sensor_and_pose_noise(tmp_path):

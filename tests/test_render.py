@@ -388,8 +388,9 @@ def test_unpack_frames():
     assert frames.depth.shape == frames.object_id.shape == (B, H, W)
     assert frames.depth.dtype == jnp.float32 and frames.object_id.dtype == jnp.int32
     hit = (geom >= 0) & (kind == int(mujoco.mjtObj.mjOBJ_GEOM))
-    expect_id = np.where(hit, np.asarray(geom_object)[np.maximum(geom, 0)], -1)
-    expect_depth = np.where(hit & np.isfinite(depth), depth, 0.0)
+    valid = hit & np.isfinite(depth) & (depth > 0)
+    expect_id = np.where(valid, np.asarray(geom_object)[np.maximum(geom, 0)], -1)  # depth 0 <-> id -1
+    expect_depth = np.where(valid, depth, 0.0)
     np.testing.assert_array_equal(np.asarray(frames.object_id), expect_id.reshape(B, H, W))
     np.testing.assert_array_equal(np.asarray(frames.depth), expect_depth.reshape(B, H, W))
 

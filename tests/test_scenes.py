@@ -83,6 +83,11 @@ def test_json_round_trip(tmp_path, object_set):
     (lambda d: d["objects"][1].pop("yaw"), r"objects\[1\]\.yaw"),
     (lambda d: d.update(format="other"), "format"),
     (lambda d: d["objects"][0].update(position=[1.0]), "position"),
+    (lambda d: d["objects"][0].update(position=5), r"objects\[0\]\.position"),
+    (lambda d: d["objects"][2].update(yaw=float("nan")), r"objects\[2\]\.yaw.*finite"),
+    (lambda d: d.update(version=99), "version"),
+    (lambda d: d.update(seed="x"), "seed"),
+    (lambda d: d.update(table_height="abc"), "table_height"),
 ])
 def test_bad_scene_json_names_the_key(tmp_path, object_set, edit, match):
     data = scenes.sample_scene(object_set, scenes.SceneConfig(), seed=1).to_dict()
@@ -136,6 +141,35 @@ def test_centroid_is_the_mean_of_object_centres(object_set):
     centroid = scenes.scene_centroid(scene, models)
     assert abs(centroid[0]) < 0.05 and abs(centroid[1]) < 0.05  # the cluster is centred on the table
     assert 0.02 < centroid[2] < 0.12
+
+
+def test_objects_must_fit_on_the_table(object_set):
+    with pytest.raises(ValueError, match="table_half_size"):
+        scenes.sample_scene(object_set, scenes.SceneConfig(table_half_size=0.05), 0)
+
+
+def test_image_axes_follow_the_world(object_set):
+    """An absolute check of the camera convention, independent of pixel_rays: from straight above
+    (image right = world +x, image down = world -y), an object at +x lands right of centre, one at -y
+    below it; from the side, the far table is higher in the image than the near table."""
+    from jaxcls.render import make_renderer
+
+    scene = scenes.sample_scene(object_set, scenes.SceneConfig(num_objects=2), seed=0)
+    scene = dataclasses.replace(scene, objects=(dataclasses.replace(scene.objects[0], position=(0.2, 0.0)),
+                                                dataclasses.replace(scene.objects[1], position=(0.0, -0.2))))
+    models = scenes.scene_models(scene, object_set)
+    intr = geometry.Intrinsics.kinect_v1(0.25)
+    renderer = make_renderer(scenes.build_model(scene, models, intr), intr, "mujoco")
+    top = geometry.look_at([0, 0, 1.0], [0, 0, 0])
+    side = geometry.look_at([0, -1.0, 0.5], [0, 0, 0])
+    frames = renderer.render(np.stack([top, side]))
+    v, u = np.nonzero(frames.object_id[0] == 0)
+    assert u.mean() > intr.cx + 10 and abs(v.mean() - intr.cy) < 5
+    v, u = np.nonzero(frames.object_id[0] == 1)
+    assert v.mean() > intr.cy + 10 and abs(u.mean() - intr.cx) < 5
+    column = frames.depth[1][:, intr.width // 2]
+    rows = np.nonzero(column > 0)[0]
+    assert column[rows[0]] > column[rows[-1]]  # top rows see farther
 
 
 def test_bad_scene_config(object_set):

@@ -186,3 +186,10 @@ def test_pose_noise_is_rigid_with_configured_spread(shared):
         np.testing.assert_allclose(rotvec.std(0), math.radians(0.5), rtol=0.1)
         np.testing.assert_allclose(trans.std(0), 0.004, rtol=0.1)
         np.testing.assert_allclose(rotvec.mean(0), 0, atol=math.radians(0.5) * 0.1)
+
+
+def test_depth_of_the_wrong_size_is_a_clear_error():
+    intr = Intrinsics.kinect_v1(0.1)
+    for config in (SensorConfig(), SensorConfig.ideal()):
+        with pytest.raises(ValueError, match=r"\(2, 30, 40\).*48, 64"):
+            apply_sensor(jax.random.PRNGKey(0), np.ones((2, 30, 40), np.float32), intr, config)

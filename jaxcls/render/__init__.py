@@ -5,7 +5,7 @@ Conventions (DESIGN.md): metres; OpenCV cameras given by camera-to-world ``T_wc`
 """
 
 from jaxcls.render.contract import object_ids_of_geoms
-from jaxcls.render.factory import default_backend, make_renderer
+from jaxcls.render.factory import default_backend, make_renderer, resolve_backend
 from jaxcls.render.sensor import SensorConfig, apply_sensor, perturb_poses
 from jaxcls.render.types import BACKENDS, Backend, DepthFrames, Renderer
 
@@ -20,4 +20,5 @@ __all__ = [
     "make_renderer",
     "object_ids_of_geoms",
     "perturb_poses",
+    "resolve_backend",
 ]

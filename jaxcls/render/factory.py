@@ -15,6 +15,15 @@ def default_backend() -> str:
     return "warp" if warp_unavailable_reason() is None else "mujoco"
 
 
+def resolve_backend(name: str) -> Backend:
+    """A config's backend name: ``"auto"`` becomes ``default_backend()``; others are checked."""
+    if name == "auto":
+        return default_backend()
+    if name not in BACKENDS:
+        raise ValueError(f"unknown render backend {name!r}; choose 'auto' or one of {BACKENDS}")
+    return name
+
+
 def make_renderer(model: mujoco.MjModel, intrinsics: Intrinsics, backend: Backend = "mujoco",
                   **options: object) -> Renderer:
     """A depth renderer of the static scene ``model`` (the scene contract, ``render.contract``).

@@ -90,6 +90,9 @@ def apply_sensor(key: jax.Array, depth: jax.Array, intrinsics: Intrinsics, confi
     value that leaves the measurable range becomes 0 too. Never NaN. ``key``: one PRNG key for the batch.
     """
     depth = jnp.asarray(depth, jnp.float32)
+    if depth.ndim < 2 or depth.shape[-2:] != (intrinsics.height, intrinsics.width):
+        raise ValueError(f"apply_sensor: depth has shape {tuple(depth.shape)}, the intrinsics need "
+                         f"[..., {intrinsics.height}, {intrinsics.width}]")
     k_noise, k_edge, k_drop = jax.random.split(key, 3)
     valid = depth > 0
     cos_incidence = None

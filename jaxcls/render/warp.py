@@ -32,7 +32,7 @@ import numpy as np
 from flax import struct
 from mujoco import mjx
 
-from jaxcls.geometry import Intrinsics
+from jaxcls.geometry import CV_TO_MJ, Intrinsics
 from jaxcls.render import contract
 from jaxcls.render.types import NO_DEPTH, NO_OBJECT, Backend, DepthFrames
 
@@ -74,7 +74,7 @@ def unpack_frames(depth_buf: jax.Array, seg_buf: jax.Array, layout: BufferLayout
     depth_buf: [B, P] f32 planar depth in metres (0 = miss); seg_buf: [B, P', 2] i32 (id, mjtObj type),
     (-1, -1) for background; geom_object: [ngeom] i32 object index per geom (-1 table).
     Returns [B, H, W] f32 depth (0 where no geom was hit or the value is not a positive finite number)
-    and i32 object ids (-1 for the table, flexes and misses).
+    and i32 object ids (-1 for the table, flexes, misses and wherever depth is 0).
     """
     n = layout.width * layout.height
     shape = (depth_buf.shape[0], layout.height, layout.width)
@@ -83,7 +83,7 @@ def unpack_frames(depth_buf: jax.Array, seg_buf: jax.Array, layout: BufferLayout
     geom, kind = seg[..., 0], seg[..., 1]
     hit = (kind == _GEOM_TYPE) & (geom >= 0) & (geom < geom_object.shape[0])
     valid = hit & jnp.isfinite(depth) & (depth > 0)
-    object_id = jnp.where(hit, geom_object[jnp.clip(geom, 0, geom_object.shape[0] - 1)], NO_OBJECT)
+    object_id = jnp.where(valid, geom_object[jnp.clip(geom, 0, geom_object.shape[0] - 1)], NO_OBJECT)
     return DepthFrames(depth=jnp.where(valid, depth, NO_DEPTH).astype(jnp.float32),
                        object_id=object_id.astype(jnp.int32))
 
@@ -100,7 +100,8 @@ def camera_in_body(model: mujoco.MjModel, cam: int) -> np.ndarray:
 def mocap_poses(T_wc: jax.Array, T_body_cam: np.ndarray) -> tuple[jax.Array, jax.Array]:
     """Mocap (pos [B, 3], quat [B, 4] w x y z) that put a MuJoCo camera mounted at ``T_body_cam`` (its
     body frame) where the OpenCV camera ``T_wc: [B, 4, 4]`` is. Pure JAX, so it traces under jit."""
-    cv_to_mj = np.diag([1.0, -1.0, -1.0, 1.0])  # x kept, y and z flipped
+    cv_to_mj = np.eye(4)
+    cv_to_mj[:3, :3] = CV_TO_MJ
     T_cam_body = jnp.asarray(cv_to_mj @ np.linalg.inv(T_body_cam), T_wc.dtype)
     # full f32 matmul: GPUs default to TF32, whose 10-bit mantissa moves the camera by millimetres
     T_wb = jnp.matmul(T_wc, T_cam_body, precision=jax.lax.Precision.HIGHEST)
@@ -150,7 +151,7 @@ def posed_data_forward(mx: Any, dx0: Any, T_wc: jax.Array, T_body_cam: np.ndarra
 def posed_data_static(dx0: Any, T_wc: jax.Array, geom_xpos: jax.Array, geom_xmat: jax.Array, cam_id: int) -> Any:
     """[B]-batched data of a static scene: geom poses given (from the host's ``mj_forward``), the camera
     frame written straight from ``T_wc: [B, 4, 4]``. Skips ``mjx.forward``: about a quarter of the time."""
-    cv_to_mj = jnp.asarray(np.diag([1.0, -1.0, -1.0]), T_wc.dtype)
+    cv_to_mj = jnp.asarray(CV_TO_MJ, T_wc.dtype)
 
     def pose_world(T: jax.Array) -> Any:
         R = jnp.matmul(T[:3, :3], cv_to_mj, precision=jax.lax.Precision.HIGHEST)
