@@ -1,0 +1,267 @@
+"""TSDF fusion against analytic planes, against itself (scan, vmap), Open3D, the ground-truth meshes, bad
+inputs and finite differences."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from jaxcls import scenes, tsdf
+from jaxcls.assets import builtin_object_set
+from jaxcls.geometry import Intrinsics, hemisphere_viewpoints, look_at
+from jaxcls.render import make_renderer
+
+SMALL = Intrinsics.kinect_v1(0.25)  # 160 x 120, the Kinect's field of view
+# f32 arithmetic on values of order 1: only rounding separates the TSDF from the analytic signed distance.
+_VALUE_TOL = 1e-5
+# Linear interpolation of a zero between voxels of an exactly linear TSDF: rounding only; 0.1 voxel is the brief.
+_PLANE_TOL_VOXELS = 0.1
+# Open3D's legacy UniformTSDFVolume fuses the same projective TSDF: one voxel is the brief's bound.
+_PEER_CHAMFER_VOXELS = 1.0
+# Ideal depth, 10 views, 4.7 mm voxels: the brief's bound on the median distance to the true surface.
+_GT_MEDIAN_M = 2e-3
+
+
+def _down_camera(height: float, xy=(0.0, 0.0)) -> np.ndarray:
+    """[4, 4] T_wc of a camera at ``height`` m above the point ``xy`` on z = 0, looking straight down."""
+    eye = np.array([xy[0], xy[1], height])
+    return look_at(eye, eye - np.array([0.0, 0.0, 1.0]))
+
+
+def _wall(intr: Intrinsics, distance: float) -> np.ndarray:
+    """[H, W] f32 depth of a fronto-parallel plane at ``distance`` m."""
+    return np.full((intr.height, intr.width), distance, np.float32)
+
+
+def _voxel_centres(volume: tsdf.TSDFVolume) -> np.ndarray:
+    """[X, Y, Z, 3] world voxel centres."""
+    idx = np.stack(np.meshgrid(*[np.arange(n) for n in volume.shape], indexing="ij"), axis=-1)
+    return np.asarray(volume.origin) + volume.voxel_size * idx
+
+
+def _surface_points(surface: tsdf.Surface) -> tuple[np.ndarray, np.ndarray]:
+    mask = np.asarray(surface.mask)
+    return np.asarray(surface.points)[mask], np.asarray(surface.normals)[mask]
+
+
+def test_create_volume_is_a_cube_of_voxel_centres():
+    vol = tsdf.create_volume(np.array([0.1, -0.2, 0.3]), size=0.6, resolution=128)
+    assert vol.shape == (128, 128, 128)
+    assert vol.tsdf.dtype == jnp.float32 and vol.weight.dtype == jnp.float32 and vol.origin.dtype == jnp.float32
+    assert np.all(np.asarray(vol.tsdf) == 1) and np.all(np.asarray(vol.weight) == 0)
+    np.testing.assert_allclose(vol.voxel_size, 0.6 / 128)
+    # Voxel centres are symmetric about the centre: the first at corner + half a voxel.
+    np.testing.assert_allclose(np.asarray(vol.origin), np.array([0.1, -0.2, 0.3]) - 0.3 + 0.3 / 128, atol=1e-6)
+    assert 4 * vol.voxel_size <= vol.truncation <= 5 * vol.voxel_size
+    with pytest.raises(ValueError, match="center"):
+        tsdf.create_volume(np.array([0.0, np.nan, 0.0]))
+
+
+def test_plane_tsdf_is_signed_distance_and_surface_lies_on_it():
+    """Camera 0.5 m above the table looking down: TSDF = height above z = 0 over the truncation."""
+    vol = tsdf.create_volume(np.array([0.01, -0.02, 0.003]), size=0.2, resolution=32)
+    out = tsdf.integrate(vol, jnp.asarray(_wall(SMALL, 0.5)), SMALL, jnp.asarray(_down_camera(0.5), jnp.float32))
+    height = _voxel_centres(vol)[..., 2]
+    seen = height >= -vol.truncation  # the rest is behind the band: untouched
+    np.testing.assert_allclose(np.asarray(out.weight), seen.astype(np.float32), err_msg="weight")
+    expected = np.where(seen, np.clip(height / vol.truncation, -1, 1), 1.0)
+    np.testing.assert_allclose(np.asarray(out.tsdf), expected, atol=_VALUE_TOL, err_msg="tsdf")
+
+    surface = tsdf.extract_surface(out, max_points=4096)
+    points, normals = _surface_points(surface)
+    assert len(points) == 32 * 32  # one crossing per vertical column, none at the band's far edge
+    assert np.abs(points[:, 2]).max() <= _PLANE_TOL_VOXELS * vol.voxel_size
+    np.testing.assert_allclose(normals, np.tile([0.0, 0.0, 1.0], (len(points), 1)), atol=1e-4, err_msg="normals")
+    assert not np.any(np.asarray(surface.points)[~np.asarray(surface.mask)])  # padding is zero
+
+
+def test_oblique_wall_surface_and_normals_face_the_camera():
+    """A wall seen off-axis: zero crossings on the plane, normals towards the camera."""
+    intr = Intrinsics.kinect_v1(0.5)
+    T_wc = look_at(np.array([0.3, -0.2, 0.6]), np.zeros(3))
+    distance = float(np.linalg.norm([0.3, -0.2, 0.6]))
+    vol = tsdf.create_volume(np.zeros(3), size=0.2, resolution=40)
+    out = tsdf.integrate(vol, jnp.asarray(_wall(intr, distance)), intr, jnp.asarray(T_wc, jnp.float32))
+    points, normals = _surface_points(tsdf.extract_surface(out, max_points=20000))
+    assert len(points) > 1000
+    axis = T_wc[:3, 2]  # the plane is z_cam = distance: normal -axis
+    offset = (points - T_wc[:3, 3]) @ axis - distance
+    assert np.abs(offset).max() <= _PLANE_TOL_VOXELS * vol.voxel_size
+    assert np.min(normals @ -axis) > 0.99
+
+
+def test_scan_equals_one_by_one_and_vmap_over_volumes():
+    rng = np.random.default_rng(0)
+    views = hemisphere_viewpoints(np.zeros(3), count=8)[::3]  # 3 views
+    depths = np.stack([rng.uniform(0.9, 1.1, (SMALL.height, SMALL.width)) for _ in views]).astype(np.float32)
+    depths[0, :10] = 0.0
+    vol = tsdf.create_volume(np.zeros(3), size=0.3, resolution=24)
+    scanned = tsdf.integrate_frames(vol, jnp.asarray(depths), SMALL, jnp.asarray(views, jnp.float32))
+    single = vol
+    for d, T in zip(depths, views, strict=True):
+        single = tsdf.integrate(single, jnp.asarray(d), SMALL, jnp.asarray(T, jnp.float32))
+    assert np.asarray(single.weight).max() == 3
+    np.testing.assert_allclose(np.asarray(scanned.tsdf), np.asarray(single.tsdf), atol=1e-6, err_msg="tsdf")
+    np.testing.assert_array_equal(np.asarray(scanned.weight), np.asarray(single.weight), err_msg="weight")
+
+    # A batch of episodes: one volume per view, vmapped, equals each integrated alone.
+    batch = jax.tree.map(lambda x: jnp.stack([x] * len(views)), vol)
+    fused = jax.vmap(lambda v, d, T: tsdf.integrate(v, d, SMALL, T))(
+        batch, jnp.asarray(depths), jnp.asarray(views, jnp.float32))
+    for b in range(len(views)):
+        alone = tsdf.integrate(vol, jnp.asarray(depths[b]), SMALL, jnp.asarray(views[b], jnp.float32))
+        np.testing.assert_allclose(np.asarray(fused.tsdf[b]), np.asarray(alone.tsdf), atol=1e-6)
+
+
+@pytest.fixture(scope="module")
+def scene_frames():
+    """A builtin 5-object scene and its depth at 10 hemisphere views, 640x480 (ideal sensor)."""
+    object_set = builtin_object_set()
+    scene = scenes.sample_scene(object_set, scenes.SceneConfig(), seed=0)
+    models = scenes.scene_models(scene, object_set)
+    centre = scenes.scene_centroid(scene, models)
+    intr = Intrinsics.kinect_v1()
+    views = hemisphere_viewpoints(centre, count=100)[::10]
+    frames = make_renderer(scenes.build_model(scene, models, intr), intr, "mujoco").render(views)
+    return scene, models, centre, intr, views, np.asarray(frames.depth)
+
+
+@pytest.fixture(scope="module")
+def fused_scene(scene_frames):
+    _, _, centre, intr, views, depths = scene_frames
+    vol = tsdf.integrate_frames(tsdf.create_volume(centre), jnp.asarray(depths), intr,
+                                jnp.asarray(views, jnp.float32))
+    return vol, tsdf.extract_surface(vol, max_points=100_000)
+
+
+def test_same_surface_as_open3d(scene_frames, fused_scene):
+    o3d = pytest.importorskip("open3d")
+    integration = o3d.pipelines.integration
+    _, _, centre, intr, views, depths = scene_frames
+    vol, surface = fused_scene
+    # Open3D's origin is the cube's corner; its voxel centres sit half a voxel inside (found empirically:
+    # with the corner the surfaces agree to ~0.01 voxel, with the centre convention they are ~0.8 apart).
+    peer = integration.UniformTSDFVolume(0.6, 128, vol.truncation, integration.TSDFVolumeColorType.NoColor,
+                                         np.asarray(centre, float) - 0.3)
+    K = o3d.camera.PinholeCameraIntrinsic(intr.width, intr.height, intr.fx, intr.fy, intr.cx, intr.cy)
+    for depth, T_wc in zip(depths, views, strict=True):
+        rgbd = o3d.geometry.RGBDImage.create_from_color_and_depth(
+            o3d.geometry.Image(np.zeros((*depth.shape, 3), np.uint8)), o3d.geometry.Image(depth.astype(np.float32)),
+            depth_scale=1.0, depth_trunc=100.0, convert_rgb_to_intensity=False)
+        peer.integrate(rgbd, K, np.linalg.inv(T_wc))
+    theirs = np.asarray(peer.extract_point_cloud().points)
+    ours, _ = _surface_points(surface)
+    assert len(ours) < 100_000, "raise max_points: the surface was subsampled"
+    assert 0.8 < len(ours) / len(theirs) < 1.25, (len(ours), len(theirs))
+    chamfer = 0.5 * (cKDTree(theirs).query(ours)[0].mean() + cKDTree(ours).query(theirs)[0].mean())
+    assert chamfer <= _PEER_CHAMFER_VOXELS * vol.voxel_size, f"chamfer {chamfer / vol.voxel_size:.3f} voxels"
+
+
+def test_surface_matches_the_object_meshes(scene_frames, fused_scene):
+    o3d = pytest.importorskip("open3d")
+    scene, models, _, _, _, _ = scene_frames
+    _, surface = fused_scene
+    points, normals = _surface_points(surface)
+    assert np.all(np.isfinite(points)) and np.all(np.isfinite(normals))
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=-1), 1.0, atol=1e-5, err_msg="unit normals")
+    on_objects = points[:, 2] > scene.table_height + 0.005
+    assert on_objects.sum() > 2000
+    # Exact point-to-triangle distance to the union of the posed meshes (Open3D's raycasting scene).
+    raycast = o3d.t.geometry.RaycastingScene()
+    for model, pose in zip(models, scene.object_poses(), strict=True):
+        mesh = model.mesh.copy().apply_transform(pose)
+        raycast.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
+                              o3d.core.Tensor(mesh.faces.astype(np.uint32)))
+    distance = raycast.compute_distance(o3d.core.Tensor(points[on_objects].astype(np.float32))).numpy()
+    assert np.median(distance) <= _GT_MEDIAN_M, f"median {np.median(distance) * 1e3:.2f} mm"
+    # The table's points lie on the table plane (within ~0.2 voxel: nearest-pixel depth at oblique views).
+    table = points[np.abs(points[:, 2] - scene.table_height) < 0.005]
+    assert np.median(np.abs(table[:, 2] - scene.table_height)) < 1e-3
+
+
+def test_empty_and_subsampled_extraction():
+    vol = tsdf.create_volume(np.zeros(3), size=0.2, resolution=32)
+    empty = tsdf.extract_surface(vol, max_points=64)
+    assert not np.any(np.asarray(empty.mask)) and np.all(np.asarray(empty.points) == 0)
+    out = tsdf.integrate(vol, jnp.asarray(_wall(SMALL, 0.5)), SMALL, jnp.asarray(_down_camera(0.5), jnp.float32))
+    full, _ = _surface_points(tsdf.extract_surface(out, max_points=4096))
+    sub = tsdf.extract_surface(out, max_points=100)
+    points, _ = _surface_points(sub)
+    assert len(points) == 100 and len(np.unique(points, axis=0)) == 100
+    assert cKDTree(full).query(points)[0].max() < 1e-6  # a subset of the full surface
+    assert np.ptp(points[:, 0]) > 0.8 * np.ptp(full[:, 0])  # spread over it, not its first rows
+
+
+def test_bad_depth_is_ignored():
+    vol = tsdf.create_volume(np.zeros(3), size=0.2, resolution=32)
+    T = jnp.asarray(_down_camera(0.5), jnp.float32)
+    same = tsdf.integrate(vol, jnp.zeros((SMALL.height, SMALL.width)), SMALL, T)
+    np.testing.assert_array_equal(np.asarray(same.tsdf), np.asarray(vol.tsdf))
+    np.testing.assert_array_equal(np.asarray(same.weight), np.asarray(vol.weight))
+
+    depth = _wall(SMALL, 0.5)
+    bad = depth.copy()
+    bad[:, :40] = np.nan
+    bad[:20] = np.inf
+    bad[-20:] = -np.inf
+    bad[50:60, 50:60] = -0.5
+    clean = np.where(np.isfinite(bad) & (bad > 0), bad, 0.0).astype(np.float32)
+    got = tsdf.integrate(vol, jnp.asarray(bad), SMALL, T)
+    want = tsdf.integrate(vol, jnp.asarray(clean), SMALL, T)
+    assert np.all(np.isfinite(np.asarray(got.tsdf))) and np.all(np.isfinite(np.asarray(got.weight)))
+    np.testing.assert_array_equal(np.asarray(got.tsdf), np.asarray(want.tsdf))
+    np.testing.assert_array_equal(np.asarray(got.weight), np.asarray(want.weight))
+    assert np.asarray(got.weight).sum() < np.asarray(tsdf.integrate(vol, jnp.asarray(depth), SMALL, T).weight).sum()
+    # Returns beyond max_depth count as no return.
+    far = tsdf.integrate(vol, jnp.asarray(depth), SMALL, T, max_depth=0.4)
+    np.testing.assert_array_equal(np.asarray(far.weight), np.asarray(vol.weight))
+
+
+def test_check_frame_names_the_problem():
+    depth = _wall(SMALL, 0.5)
+    T = _down_camera(0.5)
+    tsdf.check_frame(depth, SMALL, T)  # fine
+    with pytest.raises(ValueError, match=r"depth has shape \(160, 120\)"):
+        tsdf.check_frame(depth.T, SMALL, T)
+    with pytest.raises(ValueError, match="shape"):
+        tsdf.check_frame(depth[None], SMALL, T)
+    with pytest.raises(ValueError, match="not rigid"):
+        tsdf.check_frame(depth, SMALL, T @ np.diag([1.0, 1.0, 1.1, 1.0]))
+    with pytest.raises(ValueError, match="not rigid"):
+        tsdf.check_frame(depth, SMALL, np.where(np.eye(4) > 0, np.nan, T))
+    with pytest.raises(ValueError, match=r"\[4, 4\]"):
+        tsdf.check_frame(depth, SMALL, T[:3])
+
+
+def test_gradient_wrt_depth_matches_finite_differences():
+    """Camera 0.3 m above a bumpy table; every voxel is >= 2 mm away from the band's kinks, where the
+    TSDF is linear in depth, so central differences are exact up to f32 rounding."""
+    intr = Intrinsics.kinect_v1(0.1)  # 64 x 48
+    vol = tsdf.create_volume(np.zeros(3), size=0.1, resolution=16)  # centres at +-3.125 mm, +-9.375 mm, ...
+    rng = np.random.default_rng(1)
+    bumps = rng.uniform(-1e-3, 1e-3, (intr.height, intr.width))
+    depth = (0.3 - bumps).astype(np.float32)
+    depth[0, 0] = np.nan  # a bad pixel must not poison the gradient
+    T = jnp.asarray(_down_camera(0.3), jnp.float32)
+    coeff = jnp.asarray(rng.normal(size=vol.shape), jnp.float32)
+
+    def loss(d: jax.Array) -> jax.Array:
+        out = tsdf.integrate(vol, d, intr, T)
+        out = tsdf.integrate(out, d + vol.voxel_size, intr, T)  # kinks stay midway between voxels
+        return jnp.sum(coeff * out.tsdf)
+
+    grad = np.asarray(jax.grad(loss)(jnp.asarray(depth)))
+    assert np.all(np.isfinite(grad))
+    assert grad[0, 0] == 0
+    pixels = np.argwhere(np.abs(grad) > 1e-3)
+    assert len(pixels) > 10
+    eps = 5e-4
+    for v, u in pixels[rng.choice(len(pixels), 8, replace=False)]:
+        hi, lo = depth.copy(), depth.copy()
+        hi[v, u] += eps
+        lo[v, u] -= eps
+        fd = (float(loss(jnp.asarray(hi))) - float(loss(jnp.asarray(lo)))) / (2 * eps)
+        np.testing.assert_allclose(grad[v, u], fd, rtol=2e-2, atol=1e-2, err_msg=f"pixel {(v, u)}")
