@@ -2,8 +2,8 @@
 
 The modules follow the pipeline (``../shared/DESIGN.md``): ``assets`` (object sets) -> ``scenes``
 (cluttered tables as MuJoCo models) -> ``render`` (depth and object ids; sensor model) -> ``dataset`` /
-``recording`` (frames on disk) -> ``tsdf`` (fusion, surface extraction). ``geometry`` holds cameras, poses and viewpoints; ``config`` the YAML
-configs; ``cli`` the ``jaxcls`` command.
+``recording`` (frames on disk) -> ``tsdf`` (fusion, surface extraction). ``geometry`` holds cameras,
+poses and viewpoints; ``config`` the YAML configs; ``cli`` the ``jaxcls`` command.
 """
 
 from jaxcls import assets, config, dataset, geometry, recording, render, scenes, tsdf
