@@ -1,0 +1,163 @@
+"""Foreground extraction and segmentation: rendered scenes scored against the posed object surfaces
+(adjusted Rand index), synthetic point blobs for the N-segment contract, padding and bad inputs."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+from sklearn.metrics import adjusted_rand_score
+
+from jaxcls import scenes, segment, tsdf
+from jaxcls.assets import builtin_object_set
+from jaxcls.geometry import Intrinsics, hemisphere_viewpoints
+from jaxcls.render import make_renderer
+
+SMALL = Intrinsics.kinect_v1(0.5)  # 320 x 240
+VIEWS = (20, 35, 50, 65, 80)  # five hemisphere views from low to high elevation
+CFG = segment.SegmentConfig()
+# A point farther than this from every posed object surface is table or noise: left out of the ARI.
+_GT_RADIUS = 0.01
+# Measured on these seeds with the footprint-erosion splitter (see the report): regression floors, not
+# the issue's 0.9 target, which is tracked by the xfail tests below.
+_ARI_FLOOR_SYNTHETIC = 0.75
+_ARI_FLOOR_TOUCHING = 0.6
+_ARI_TARGET = 0.9
+
+
+def _scene_frames(config: scenes.SceneConfig, seed: int, views=VIEWS):
+    object_set = builtin_object_set()
+    scene = scenes.sample_scene(object_set, config, seed)
+    models = scenes.scene_models(scene, object_set)
+    Ts = hemisphere_viewpoints(scenes.scene_centroid(scene, models), 100)[list(views)]
+    frames = make_renderer(scenes.build_model(scene, models, SMALL), SMALL, "mujoco").render(Ts)
+    samples = [(T[:3, :3] @ m.surface_points.T).T + T[:3, 3] for m, T in zip(models, scene.object_poses(), strict=True)]
+    return frames, Ts, samples
+
+
+def _ground_truth(points: np.ndarray, mask: np.ndarray, samples: list[np.ndarray]) -> np.ndarray:
+    """[P] i64 index of the nearest posed object surface, -1 beyond ``_GT_RADIUS`` or masked."""
+    allp = np.concatenate(samples)
+    owner = np.concatenate([np.full(len(s), i) for i, s in enumerate(samples)])
+    d, idx = cKDTree(allp).query(points)
+    return np.where(mask & (d < _GT_RADIUS), owner[idx], -1)
+
+
+def _fused(config: scenes.SceneConfig, seed: int):
+    frames, Ts, samples = _scene_frames(config, seed)
+    depths = np.stack([np.asarray(segment.foreground_depth(jnp.asarray(d), SMALL, jnp.asarray(T, jnp.float32), CFG))
+                       for d, T in zip(frames.depth, Ts, strict=True)])
+    vol = tsdf.create_volume(np.asarray(CFG.roi_center), size=CFG.roi_size, resolution=128)
+    vol = tsdf.integrate_frames(vol, jnp.asarray(depths), SMALL, jnp.asarray(Ts, jnp.float32))
+    surf = tsdf.extract_surface(vol, 32768)
+    points, mask = np.asarray(surf.points), np.asarray(surf.mask)
+    return points, np.asarray(surf.normals), mask, _ground_truth(points, mask, samples)
+
+
+def _ari(labels: np.ndarray, gt: np.ndarray) -> float:
+    sel = gt >= 0
+    return adjusted_rand_score(gt[sel], np.asarray(labels)[sel])
+
+
+@pytest.fixture(scope="module")
+def fused_scenes():
+    synthetic = [_fused(scenes.SceneConfig(), s) for s in (0, 1, 2)]
+    touching = [_fused(scenes.SceneConfig(min_gap=0.001, max_gap=0.005), s) for s in (0, 1, 2)]
+    return synthetic, touching
+
+
+def test_foreground_depth_drops_table_and_far_pixels_keeps_objects():
+    frames, Ts, _ = _scene_frames(scenes.SceneConfig(), 0, views=(30,))
+    depth, ids, T = frames.depth[0], frames.object_id[0], Ts[0]
+    fg = np.asarray(segment.foreground_depth(jnp.asarray(depth), SMALL, jnp.asarray(T, jnp.float32), CFG))
+    assert fg.dtype == np.float32 and np.all(np.isfinite(fg))
+    from jaxcls.geometry import backproject
+    z = np.asarray(backproject(jnp.asarray(fg), SMALL, jnp.asarray(T, jnp.float32)))[..., 2]
+    kept = fg > 0
+    assert np.all(z[kept] > CFG.table_height + CFG.table_eps), "table points kept"
+    assert np.all(fg[kept] <= CFG.max_depth), "far points kept"
+    # Object pixels above the table band are all kept (the bottom table_eps of every object is cut by design).
+    z_raw = np.asarray(backproject(jnp.asarray(depth), SMALL, jnp.asarray(T, jnp.float32)))[..., 2]
+    obj = (ids >= 0) & (depth > 0) & (z_raw > CFG.table_height + CFG.table_eps)
+    assert kept[obj].mean() >= 0.99, f"object pixels kept: {kept[obj].mean():.3f}"
+    near = np.asarray(segment.foreground_depth(jnp.asarray(depth), SMALL, jnp.asarray(T, jnp.float32),
+                                               segment.SegmentConfig(max_depth=0.9)))
+    assert np.all(near <= 0.9)
+    bad = depth.copy()
+    bad[:10] = np.nan
+    bad[10:20] = np.inf
+    out = np.asarray(segment.foreground_depth(jnp.asarray(bad), SMALL, jnp.asarray(T, jnp.float32), CFG))
+    assert np.all(np.isfinite(out)) and np.all(out[:20] == 0)
+
+
+def _blobs(centres, n=200, spread=0.01, seed=0):
+    rng = np.random.default_rng(seed)
+    pts = np.concatenate([c + spread * rng.standard_normal((n, 3)) for c in centres])
+    return pts.astype(np.float32), np.zeros_like(pts, np.float32), np.ones(len(pts), bool)
+
+
+@pytest.mark.parametrize("count", [1, 3, 5, 8])
+def test_exactly_n_segments_for_fewer_or_more_clusters(count):
+    angles = np.linspace(0, 2 * np.pi, count, endpoint=False)
+    centres = [np.array([0.15 * np.cos(a), 0.15 * np.sin(a), 0.08]) for a in angles]
+    pts, nrm, m = _blobs(centres)
+    seg = segment.segment(pts, nrm, m, CFG)
+    assert seg.points.shape == (5, CFG.points_per_segment, 3) and seg.mask.shape == (5, CFG.points_per_segment)
+    assert seg.labels.dtype == jnp.int32
+    assert all(int(k) > 0 for k in np.asarray(seg.mask).sum(1)), "an empty segment"
+    assert set(np.unique(np.asarray(seg.labels))) <= set(range(5)) | {-1}
+
+
+def test_only_noise_and_empty_inputs_give_defined_outputs():
+    rng = np.random.default_rng(0)
+    noise = (rng.uniform(-0.25, 0.25, (40, 3)) + np.array([0, 0, 0.25])).astype(np.float32)  # sparse: DBSCAN noise
+    seg = segment.segment(noise, np.zeros_like(noise), np.ones(40, bool), CFG)
+    assert not np.any(np.isnan(np.asarray(seg.points)))
+    empty = segment.segment(np.zeros((10, 3), np.float32), np.zeros((10, 3), np.float32), np.zeros(10, bool), CFG)
+    assert not np.asarray(empty.mask).any() and np.all(np.asarray(empty.labels) == -1)
+    few = segment.segment(np.full((3, 3), 0.1, np.float32), np.zeros((3, 3), np.float32), np.ones(3, bool), CFG)
+    assert not np.asarray(few.mask).any()
+    nan = np.full((10, 3), np.nan, np.float32)
+    out = segment.segment(nan, nan, np.ones(10, bool), CFG)
+    assert not np.asarray(out.mask).any() and not np.any(np.isnan(np.asarray(out.points)))
+
+
+def test_padding_invariance_and_determinism():
+    centres = [np.array([x, 0.0, 0.08]) for x in (-0.2, -0.1, 0.0, 0.1, 0.2)]
+    pts, nrm, m = _blobs(centres, spread=0.008)
+    a = segment.segment(pts, nrm, m, CFG, seed=3)
+    pad = np.concatenate([pts, np.full((100, 3), 0.05, np.float32)])
+    b = segment.segment(pad, np.concatenate([nrm, nrm[:100]]), np.concatenate([m, np.zeros(100, bool)]), CFG, seed=3)
+    np.testing.assert_array_equal(np.asarray(a.labels), np.asarray(b.labels)[: len(pts)])
+    assert np.all(np.asarray(b.labels)[len(pts):] == -1)
+    c = segment.segment(pts, nrm, m, CFG, seed=3)
+    np.testing.assert_array_equal(np.asarray(a.points), np.asarray(c.points))
+    assert adjusted_rand_score(np.repeat(np.arange(5), 200), np.asarray(a.labels)) > 0.95  # DBSCAN marks a few outliers as noise (-1)
+
+
+def test_fused_scenes_ari_floor(fused_scenes):
+    synthetic, touching = fused_scenes
+    s = [_ari(segment.segment(p, n, m, CFG).labels, gt) for p, n, m, gt in synthetic]
+    t = [_ari(segment.segment(p, n, m, CFG).labels, gt) for p, n, m, gt in touching]
+    print(f"ARI synthetic {np.round(s, 3)}, touching {np.round(t, 3)}")
+    assert min(s) >= _ARI_FLOOR_SYNTHETIC and min(t) >= _ARI_FLOOR_TOUCHING, (s, t)
+
+
+@pytest.mark.xfail(reason="issue 11 target ARI >= 0.9 after 5 views not reached yet (see report)", strict=False)
+def test_fused_scenes_ari_target(fused_scenes):
+    for p, n, m, gt in fused_scenes[0] + fused_scenes[1]:
+        assert _ari(segment.segment(p, n, m, CFG).labels, gt) >= _ARI_TARGET
+
+
+def test_single_view_points_static_and_segmented():
+    frames, Ts, samples = _scene_frames(scenes.SceneConfig(), 0, views=(50,))
+    pts, m = segment.single_view_points(jnp.asarray(frames.depth[0]), SMALL, jnp.asarray(Ts[0], jnp.float32), CFG,
+                                        8192)
+    assert pts.shape == (8192, 3) and m.shape == (8192,) and int(m.sum()) > 1000
+    pts, m = np.asarray(pts), np.asarray(m)
+    assert np.all(pts[m, 2] > CFG.table_height + CFG.table_eps) and not np.any(pts[~m])
+    gt = _ground_truth(pts, m, samples)
+    ari = _ari(segment.segment(pts, np.zeros_like(pts), m, CFG).labels, gt)
+    print(f"single-view ARI {ari:.3f}")
+    assert ari >= 0.5
