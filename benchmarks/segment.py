@@ -42,7 +42,8 @@ def main(argv: list[str] | None = None) -> None:
     intr = Intrinsics.kinect_v1(args.scale)
     object_set = builtin_object_set()
     rows, ari = [], {}
-    for kind, sc in (("synthetic", scenes.SceneConfig()), ("touching", scenes.SceneConfig(min_gap=0.001, max_gap=0.005))):
+    touching = scenes.SceneConfig(min_gap=0.001, max_gap=0.005)
+    for kind, sc in (("synthetic", scenes.SceneConfig()), ("touching", touching)):
         for seed in args.seeds:
             scene = scenes.sample_scene(object_set, sc, seed)
             models = scenes.scene_models(scene, object_set)
