@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import datetime
 import platform
-import shlex
 import sys
 import time
 from collections.abc import Callable
@@ -22,6 +21,7 @@ from collections.abc import Callable
 import jax
 import numpy as np
 
+from jaxcls import report
 from jaxcls.geometry import Intrinsics, hemisphere_viewpoints
 from jaxcls.render import DepthFrames, make_renderer
 from jaxcls.render import testing as scenes
@@ -144,7 +144,7 @@ def main(argv: list[str] | None = None) -> None:
                          f"{len(batch) / seconds:.1f} (first call {compile_s:.1f} s)", agreement(ref, check)))
             print(rows[-1], file=sys.stderr)
 
-    command = "python " + " ".join(shlex.quote(a) for a in [sys.argv[0], *(argv or sys.argv[1:])])
+    command = report.command_line(argv)
     lines = [
         f"### Depth rendering, {res}, {args.scene} scene ({args.objects} objects, {triangles} triangles), "
         f"{datetime.date.today()}",
@@ -157,10 +157,7 @@ def main(argv: list[str] | None = None) -> None:
     ]
     lines += [""] + [f"- {note}" for note in notes] if notes else []
     table = "\n".join(lines) + "\n"
-    print(table)
-    if args.out:
-        with open(args.out, "a") as f:
-            f.write("\n" + table)
+    report.publish(table, args.out)
 
 
 if __name__ == "__main__":

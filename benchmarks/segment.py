@@ -12,9 +12,7 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import shlex
 import statistics
-import sys
 import time
 
 import jax
@@ -23,7 +21,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from sklearn.metrics import adjusted_rand_score
 
-from jaxcls import scenes, segment, tsdf
+from jaxcls import report, scenes, segment, tsdf
 from jaxcls.assets import builtin_object_set
 from jaxcls.geometry import Intrinsics, hemisphere_viewpoints
 from jaxcls.render import make_renderer
@@ -83,7 +81,7 @@ def main(argv: list[str] | None = None) -> None:
                  f"{statistics.median(seg_times) * 1e3:.0f}"))
     rows.append(("5 x (foreground + integrate) + extract + reference segment", cpu,
                  f"{statistics.median(times) * 1e3:.0f}"))
-    cmd = "python " + " ".join(shlex.quote(a) for a in [sys.argv[0], *(argv if argv is not None else sys.argv[1:])])
+    cmd = report.command_line(argv)
     lines = [f"## Segmentation ({intr.width}x{intr.height}, jax {jax.__version__})", "", f"`{cmd}`", "",
              "| what | device | median ms |", "|---|---|---|"]
     lines += [f"| {a} | {b} | {c} |" for a, b, c in rows]
@@ -92,10 +90,7 @@ def main(argv: list[str] | None = None) -> None:
         lines.append(f"| {kind}, {n} view(s) | {args.seeds} | {min(v):.3f} | {np.mean(v):.3f} |")
     lines += ["", "JAX twin rows: not implemented yet."]
     text = "\n".join(lines) + "\n"
-    print(text)
-    if args.out:
-        with open(args.out, "a") as f:
-            f.write("\n" + text)
+    report.publish(text, args.out)
 
 
 if __name__ == "__main__":

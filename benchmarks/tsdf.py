@@ -16,7 +16,6 @@ import argparse
 import datetime
 import os
 import platform
-import shlex
 import statistics
 import sys
 import time
@@ -26,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxcls import scenes, tsdf
+from jaxcls import report, scenes, tsdf
 from jaxcls.assets import builtin_object_set
 from jaxcls.geometry import Intrinsics, hemisphere_viewpoints
 from jaxcls.render import make_renderer
@@ -139,7 +138,7 @@ def main(argv: list[str] | None = None) -> None:
     else:
         notes.append("GPU rows skipped: JAX sees no GPU")
 
-    command = "python " + " ".join(shlex.quote(a) for a in [sys.argv[0], *(argv or sys.argv[1:])])
+    command = report.command_line(argv)
     lines = [
         f"### TSDF fusion, {res} depth into {grid} voxels ({args.size} m cube, "
         f"{volume.voxel_size * 1e3:.2f} mm voxels), {datetime.date.today()}",
@@ -152,10 +151,7 @@ def main(argv: list[str] | None = None) -> None:
     ]
     lines += [""] + [f"- {note}" for note in notes] if notes else []
     table = "\n".join(lines) + "\n"
-    print(table)
-    if args.out:
-        with open(args.out, "a") as f:
-            f.write("\n" + table)
+    report.publish(table, args.out)
 
 
 if __name__ == "__main__":

@@ -11,13 +11,11 @@ always fully visible would make the choice of view pointless.
 from __future__ import annotations
 
 import argparse
-import shlex
-import sys
 
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaxcls import scenes
+from jaxcls import report, scenes
 from jaxcls.assets import object_set_from_config
 from jaxcls.config import load_config
 from jaxcls.dataset import DatasetConfig, scene_seeds
@@ -46,7 +44,7 @@ def main(argv: list[str] | None = None) -> None:
                     f"{np.mean(fraction < 0.75):.2f} | {np.mean(fraction < 0.5):.2f} | "
                     f"{np.mean(worst < 0.5):.2f} |")
     every = np.concatenate(fractions)
-    command = "python " + " ".join(shlex.quote(a) for a in [sys.argv[0], *(argv or sys.argv[1:])])
+    command = report.command_line(argv)
     table = "\n".join([
         f"### Occlusion in `{args.config}` {' '.join(args.overrides)}".rstrip(),
         "",
@@ -61,10 +59,7 @@ def main(argv: list[str] | None = None) -> None:
         *rows,
         f"| all | | {every.mean():.2f} | {np.mean(every < 0.75):.2f} | {np.mean(every < 0.5):.2f} | |",
     ]) + "\n"
-    print(table)
-    if args.out:
-        with open(args.out, "a") as f:
-            f.write("\n" + table)
+    report.publish(table, args.out)
 
 
 if __name__ == "__main__":

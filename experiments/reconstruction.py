@@ -13,8 +13,6 @@ error. Reports the median and 90th percentile per scene and over all.
 from __future__ import annotations
 
 import argparse
-import shlex
-import sys
 
 import jax
 import jax.numpy as jnp
@@ -22,7 +20,7 @@ import numpy as np
 import open3d as o3d
 from tqdm.auto import tqdm
 
-from jaxcls import scenes, tsdf
+from jaxcls import report, scenes, tsdf
 from jaxcls.assets import object_set_from_config
 from jaxcls.config import load_config
 from jaxcls.dataset import DatasetConfig, render_scene_views, scene_seeds
@@ -65,7 +63,7 @@ def main(argv: list[str] | None = None) -> None:
         every.append(d)
         rows.append(f"| {i} | {len(objects)} | {np.median(d):.2f} | {np.percentile(d, 90):.2f} |")
     d = np.concatenate(every)
-    command = "python " + " ".join(shlex.quote(a) for a in [sys.argv[0], *(argv or sys.argv[1:])])
+    command = report.command_line(argv)
     table = "\n".join([
         f"### TSDF surface error, `{args.config}` {' '.join(args.overrides)}".rstrip(),
         "",
@@ -79,10 +77,7 @@ def main(argv: list[str] | None = None) -> None:
         *rows,
         f"| all | {len(d)} | {np.median(d):.2f} | {np.percentile(d, 90):.2f} |",
     ]) + "\n"
-    print(table)
-    if args.out:
-        with open(args.out, "a") as f:
-            f.write("\n" + table)
+    report.publish(table, args.out)
 
 
 if __name__ == "__main__":

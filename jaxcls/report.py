@@ -1,0 +1,22 @@
+"""Markdown output of benchmark and experiment scripts: every table carries the command that made it."""
+
+from __future__ import annotations
+
+import shlex
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+
+def command_line(argv: Sequence[str] | None = None) -> str:
+    """The command that ran this script, as a reader would retype it (``argv`` as given to ``main``)."""
+    args = sys.argv[1:] if argv is None else list(argv)
+    return "python " + " ".join(shlex.quote(a) for a in [sys.argv[0], *args])
+
+
+def publish(markdown: str, out: str | Path | None = None) -> None:
+    """Print a Markdown section and, with ``out``, append it to that file (BENCHMARKS.md, RESULTS.md)."""
+    print(markdown)
+    if out:
+        with open(out, "a") as f:
+            f.write("\n" + markdown)

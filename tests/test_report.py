@@ -1,0 +1,19 @@
+import shlex
+import sys
+
+from jaxcls import report
+
+
+def test_command_line_is_retypeable(monkeypatch):
+    monkeypatch.setattr(sys, "argv", ["benchmarks/x.py", "ignored"])
+    line = report.command_line(["--out", "B.md", "scene.split=all", "a b"])
+    assert shlex.split(line) == ["python", "benchmarks/x.py", "--out", "B.md", "scene.split=all", "a b"]
+
+
+def test_publish_appends_sections(tmp_path, capsys):
+    out = tmp_path / "R.md"
+    out.write_text("# R\n")
+    report.publish("| a |\n", out)
+    report.publish("| b |\n", out)
+    assert out.read_text() == "# R\n\n| a |\n\n| b |\n"
+    assert "| b |" in capsys.readouterr().out
