@@ -144,19 +144,10 @@ def main(argv: list[str] | None = None) -> None:
                          f"{len(batch) / seconds:.1f} (first call {compile_s:.1f} s)", agreement(ref, check)))
             print(rows[-1], file=sys.stderr)
 
-    command = report.command_line(argv)
-    lines = [
-        f"### Depth rendering, {res}, {args.scene} scene ({args.objects} objects, {triangles} triangles), "
-        f"{datetime.date.today()}",
-        "",
-        f"`{command}`",
-        "",
-        "| backend | device | batch | frames/s | agreement with mujoco |",
-        "| --- | --- | --- | --- | --- |",
-        *[f"| {' | '.join(row)} |" for row in rows],
-    ]
-    lines += [""] + [f"- {note}" for note in notes] if notes else []
-    table = "\n".join(lines) + "\n"
+    table = report.section(
+        f"Depth rendering, {res}, {args.scene} scene ({args.objects} objects, {triangles} triangles), "
+        f"{datetime.date.today()}", argv,
+        ("backend", "device", "batch", "frames/s", "agreement with mujoco"), rows, notes=notes)
     report.publish(table, args.out)
 
 

@@ -138,19 +138,10 @@ def main(argv: list[str] | None = None) -> None:
     else:
         notes.append("GPU rows skipped: JAX sees no GPU")
 
-    command = report.command_line(argv)
-    lines = [
-        f"### TSDF fusion, {res} depth into {grid} voxels ({args.size} m cube, "
-        f"{volume.voxel_size * 1e3:.2f} mm voxels), {datetime.date.today()}",
-        "",
-        f"`{command}`",
-        "",
-        f"| operation | device | median ms ({args.repeats} calls) | first call ms | notes |",
-        "| --- | --- | --- | --- | --- |",
-        *[f"| {' | '.join(row)} |" for row in rows],
-    ]
-    lines += [""] + [f"- {note}" for note in notes] if notes else []
-    table = "\n".join(lines) + "\n"
+    table = report.section(
+        f"TSDF fusion, {res} depth into {grid} voxels ({args.size} m cube, {volume.voxel_size * 1e3:.2f} mm "
+        f"voxels), {datetime.date.today()}", argv,
+        ("operation", "device", f"median ms ({args.repeats} calls)", "first call ms", "notes"), rows, notes=notes)
     report.publish(table, args.out)
 
 

@@ -26,7 +26,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--config", default="configs/synthetic.yaml")
     parser.add_argument("--out", help="append the table to this Markdown file")
     parser.add_argument("overrides", nargs="*")
-    args = parser.parse_args(argv)
+    args = parser.parse_intermixed_args(argv)  # overrides may come before or after options
     cfg = load_config(DatasetConfig, args.config, args.overrides)
     object_set = object_set_from_config(cfg.objects)
     intrinsics = cfg.camera.intrinsics()
@@ -40,25 +40,18 @@ def main(argv: list[str] | None = None) -> None:
         fraction = seen[in_view] / alone[in_view]
         fractions.append(fraction)
         worst = np.where(in_view, seen / np.maximum(alone, 1), 1.0).min(axis=0)  # [N] worst view per object
-        rows.append(f"| {i} | {', '.join(o.class_name for o in scene.objects)} | {fraction.mean():.2f} | "
-                    f"{np.mean(fraction < 0.75):.2f} | {np.mean(fraction < 0.5):.2f} | "
-                    f"{np.mean(worst < 0.5):.2f} |")
+        rows.append((i, ", ".join(o.class_name for o in scene.objects), f"{fraction.mean():.2f}",
+                     f"{np.mean(fraction < 0.75):.2f}", f"{np.mean(fraction < 0.5):.2f}",
+                     f"{np.mean(worst < 0.5):.2f}"))
     every = np.concatenate(fractions)
-    command = report.command_line(argv)
-    table = "\n".join([
-        f"### Occlusion in `{args.config}` {' '.join(args.overrides)}".rstrip(),
-        "",
-        f"`{command}`",
-        "",
-        f"{cfg.num_scenes} scenes x {cfg.viewpoints.count} views, {intrinsics.width}x{intrinsics.height}, "
-        f"gaps {cfg.scene.min_gap * 1000:.0f}-{cfg.scene.max_gap * 1000:.0f} mm between footprints.",
-        "",
-        "| scene | objects | mean visible fraction | views < 75% visible | views < 50% visible "
-        "| objects < 50% visible in some view |",
-        "| --- | --- | --- | --- | --- | --- |",
-        *rows,
-        f"| all | | {every.mean():.2f} | {np.mean(every < 0.75):.2f} | {np.mean(every < 0.5):.2f} | |",
-    ]) + "\n"
+    rows.append(("all", "", f"{every.mean():.2f}", f"{np.mean(every < 0.75):.2f}", f"{np.mean(every < 0.5):.2f}",
+                 ""))
+    table = report.section(
+        f"Occlusion in `{args.config}` {' '.join(args.overrides)}".rstrip(), argv,
+        ("scene", "objects", "mean visible fraction", "views < 75% visible", "views < 50% visible",
+         "objects < 50% visible in some view"), rows,
+        intro=f"{cfg.num_scenes} scenes x {cfg.viewpoints.count} views, {intrinsics.width}x{intrinsics.height}, "
+              f"gaps {cfg.scene.min_gap * 1000:.0f}-{cfg.scene.max_gap * 1000:.0f} mm between footprints.")
     report.publish(table, args.out)
 
 

@@ -42,7 +42,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--views", type=int, default=10)
     parser.add_argument("--out", help="append the table to this Markdown file")
     parser.add_argument("overrides", nargs="*")
-    args = parser.parse_args(argv)
+    args = parser.parse_intermixed_args(argv)  # overrides may come before or after options
     cfg = load_config(DatasetConfig, args.config, args.overrides)
     object_set = object_set_from_config(cfg.objects)
     intrinsics = cfg.camera.intrinsics()
@@ -61,22 +61,14 @@ def main(argv: list[str] | None = None) -> None:
         closer = to_objects <= np.abs(points[:, 2] - scene.table_height)
         objects, d = points[closer], to_objects[closer] * 1000
         every.append(d)
-        rows.append(f"| {i} | {len(objects)} | {np.median(d):.2f} | {np.percentile(d, 90):.2f} |")
+        rows.append((i, len(objects), f"{np.median(d):.2f}", f"{np.percentile(d, 90):.2f}"))
     d = np.concatenate(every)
-    command = report.command_line(argv)
-    table = "\n".join([
-        f"### TSDF surface error, `{args.config}` {' '.join(args.overrides)}".rstrip(),
-        "",
-        f"`{command}`",
-        "",
-        f"{args.views} views (indices {chosen.tolist()}) fused into 0.6 m / 128^3 "
-        f"({volume.voxel_size * 1000:.2f} mm voxels), {intrinsics.width}x{intrinsics.height}.",
-        "",
-        "| scene | object points | median error (mm) | 90th percentile (mm) |",
-        "| --- | --- | --- | --- |",
-        *rows,
-        f"| all | {len(d)} | {np.median(d):.2f} | {np.percentile(d, 90):.2f} |",
-    ]) + "\n"
+    rows.append(("all", len(d), f"{np.median(d):.2f}", f"{np.percentile(d, 90):.2f}"))
+    table = report.section(
+        f"TSDF surface error, `{args.config}` {' '.join(args.overrides)}".rstrip(), argv,
+        ("scene", "object points", "median error (mm)", "90th percentile (mm)"), rows,
+        intro=f"{args.views} views (indices {chosen.tolist()}) fused into 0.6 m / 128^3 "
+              f"({volume.voxel_size * 1000:.2f} mm voxels), {intrinsics.width}x{intrinsics.height}.")
     report.publish(table, args.out)
 
 

@@ -17,3 +17,11 @@ def test_publish_appends_sections(tmp_path, capsys):
     report.publish("| b |\n", out)
     assert out.read_text() == "# R\n\n| a |\n\n| b |\n"
     assert "| b |" in capsys.readouterr().out
+
+
+def test_section_is_a_markdown_table_with_its_command(monkeypatch):
+    monkeypatch.setattr(sys, "argv", ["experiments/x.py"])
+    text = report.section("Title", ["--n", "3"], ("a", "b"), [(1, "x"), ("all", 2.5)], intro="Intro.",
+                          notes=["skipped y"])
+    assert text == ("### Title\n\n`python experiments/x.py --n 3`\n\nIntro.\n\n| a | b |\n| --- | --- |\n"
+                    "| 1 | x |\n| all | 2.5 |\n\n- skipped y\n")
