@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -96,41 +97,48 @@ def _blobs(centres, n=200, spread=0.01, seed=0):
     return pts.astype(np.float32), np.zeros_like(pts, np.float32), np.ones(len(pts), bool)
 
 
+PATHS = {"reference": segment.segment, "jax": segment.segment_jax}
+
+
+@pytest.mark.parametrize("path", PATHS)
 @pytest.mark.parametrize("count", [1, 3, 5, 8])
-def test_exactly_n_segments_for_fewer_or_more_clusters(count):
+def test_exactly_n_segments_for_fewer_or_more_clusters(count, path):
     angles = np.linspace(0, 2 * np.pi, count, endpoint=False)
     centres = [np.array([0.15 * np.cos(a), 0.15 * np.sin(a), 0.08]) for a in angles]
     pts, nrm, m = _blobs(centres)
-    seg = segment.segment(pts, nrm, m, CFG)
+    seg = PATHS[path](pts, nrm, m, CFG)
     assert seg.points.shape == (5, CFG.points_per_segment, 3) and seg.mask.shape == (5, CFG.points_per_segment)
     assert seg.labels.dtype == jnp.int32
     assert all(int(k) > 0 for k in np.asarray(seg.mask).sum(1)), "an empty segment"
     assert set(np.unique(np.asarray(seg.labels))) <= set(range(5)) | {-1}
 
 
-def test_only_noise_and_empty_inputs_give_defined_outputs():
+@pytest.mark.parametrize("path", PATHS)
+def test_only_noise_and_empty_inputs_give_defined_outputs(path):
     rng = np.random.default_rng(0)
     noise = (rng.uniform(-0.25, 0.25, (40, 3)) + np.array([0, 0, 0.25])).astype(np.float32)  # sparse: DBSCAN noise
-    seg = segment.segment(noise, np.zeros_like(noise), np.ones(40, bool), CFG)
+    seg = PATHS[path](noise, np.zeros_like(noise), np.ones(40, bool), CFG)
     assert not np.any(np.isnan(np.asarray(seg.points)))
-    empty = segment.segment(np.zeros((10, 3), np.float32), np.zeros((10, 3), np.float32), np.zeros(10, bool), CFG)
+    empty = PATHS[path](np.zeros((10, 3), np.float32), np.zeros((10, 3), np.float32), np.zeros(10, bool), CFG)
     assert not np.asarray(empty.mask).any() and np.all(np.asarray(empty.labels) == -1)
-    few = segment.segment(np.full((3, 3), 0.1, np.float32), np.zeros((3, 3), np.float32), np.ones(3, bool), CFG)
+    few = PATHS[path](np.full((3, 3), 0.1, np.float32), np.zeros((3, 3), np.float32), np.ones(3, bool), CFG)
     assert not np.asarray(few.mask).any()
     nan = np.full((10, 3), np.nan, np.float32)
-    out = segment.segment(nan, nan, np.ones(10, bool), CFG)
+    out = PATHS[path](nan, nan, np.ones(10, bool), CFG)
     assert not np.asarray(out.mask).any() and not np.any(np.isnan(np.asarray(out.points)))
 
 
-def test_padding_invariance_and_determinism():
+@pytest.mark.parametrize("path", PATHS)
+def test_padding_invariance_and_determinism(path):
     centres = [np.array([x, 0.0, 0.08]) for x in (-0.2, -0.1, 0.0, 0.1, 0.2)]
     pts, nrm, m = _blobs(centres, spread=0.008)
-    a = segment.segment(pts, nrm, m, CFG, seed=3)
+    a = PATHS[path](pts, nrm, m, CFG)
     pad = np.concatenate([pts, np.full((100, 3), 0.05, np.float32)])
-    b = segment.segment(pad, np.concatenate([nrm, nrm[:100]]), np.concatenate([m, np.zeros(100, bool)]), CFG, seed=3)
+    b = PATHS[path](pad, np.concatenate([nrm, nrm[:100]]), np.concatenate([m, np.zeros(100, bool)]), CFG)
     np.testing.assert_array_equal(np.asarray(a.labels), np.asarray(b.labels)[: len(pts)])
     assert np.all(np.asarray(b.labels)[len(pts):] == -1)
-    c = segment.segment(pts, nrm, m, CFG, seed=3)
+    np.testing.assert_array_equal(np.asarray(a.points), np.asarray(b.points))
+    c = PATHS[path](pts, nrm, m, CFG)
     np.testing.assert_array_equal(np.asarray(a.points), np.asarray(c.points))
     # DBSCAN marks a few outliers as noise (-1).
     assert adjusted_rand_score(np.repeat(np.arange(5), 200), np.asarray(a.labels)) > 0.95
@@ -155,3 +163,37 @@ def test_single_view_points_static_and_segmented():
     ari = _ari(segment.segment(pts, np.zeros_like(pts), m, CFG).labels, gt)
     print(f"single-view ARI {ari:.3f}")
     assert ari >= 0.5
+
+
+def test_jax_twin_gives_the_reference_partition(fused_scenes):
+    """The scale path's twin against scikit-learn's path on the same fused clouds (issue: ARI >= 0.95)."""
+    agree = []
+    for p, n, m, _ in [*fused_scenes[0], *fused_scenes[1]]:
+        ref = np.asarray(segment.segment(p, n, m, CFG).labels)
+        twin = np.asarray(segment.segment_jax(p, n, m, CFG).labels)
+        either = (ref >= 0) | (twin >= 0)
+        agree.append(adjusted_rand_score(ref[either], twin[either]))
+        assert np.mean((ref >= 0) == (twin >= 0)) >= 0.995, "the twin's noise removal differs from DBSCAN's"
+    print(f"twin vs reference ARI {np.round(agree, 3)}")
+    assert min(agree) >= 0.95, agree
+
+
+def test_jax_twin_vmaps_over_episodes(fused_scenes):
+    p, n, m = (np.stack(a) for a in zip(*[s[:3] for s in fused_scenes[0][:2]], strict=True))
+    batched = jax.vmap(lambda a, b, c: segment.segment_jax(a, b, c, CFG))(p, n, m)
+    for i in range(2):
+        one = segment.segment_jax(p[i], n[i], m[i], CFG)
+        np.testing.assert_array_equal(np.asarray(batched.labels[i]), np.asarray(one.labels))
+        np.testing.assert_array_equal(np.asarray(batched.mask[i]), np.asarray(one.mask))
+
+
+def test_pack_segments_keeps_all_points_or_an_even_spread():
+    rng = np.random.default_rng(1)
+    pts = rng.normal(size=(50, 3)).astype(np.float32)
+    labels = np.array([0] * 5 + [1] * 30 + [-1] * 10 + [2] * 5)
+    seg = segment.pack_segments(pts, -pts, labels, n=3, size=10)
+    np.testing.assert_array_equal(np.asarray(seg.mask).sum(1), [5, 10, 5])
+    np.testing.assert_array_equal(np.asarray(seg.points[0, :5]), pts[:5])  # all of a small segment, in order
+    np.testing.assert_array_equal(np.asarray(seg.points[1]), pts[5:35:3])  # every third of 30 points
+    np.testing.assert_array_equal(np.asarray(seg.normals[2, :5]), -pts[45:])
+    assert not np.asarray(seg.points[0, 5:]).any()
