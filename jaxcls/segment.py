@@ -2,17 +2,21 @@
 
 The paper isolates the foreground by truncating depth and removing the table plane, fuses it, cuts the
 reconstruction to a cube of interest, clusters it with DBSCAN and forces N clusters with K-means on the
-cluster centres. DBSCAN merges objects that touch, so regrouping centres alone cannot recover them; here
-the step after DBSCAN also splits: each large cluster owns K-means centres, the part with the largest
-sum of squared distances is split along its principal axis until there are N, and a K-means restricted
-to each cluster's own centres settles the partition. Small clusters (fragments) own no centre and join
-the nearest one, which is the paper's merge by K-means on centres.
+cluster centres. DBSCAN merges objects that touch, so regrouping clusters cannot recover them; the step
+after DBSCAN here splits them with a watershed on the table plane. Objects stand upright with disjoint
+footprints, so the points' footprint (their xy occupancy, closed, holes filled) is a union of convex-ish
+blobs joined by narrow necks where objects touch. The watershed runs on a field that peaks at object
+centres: the footprint's distance to empty space times Hough votes for the vertical axis each side-wall
+point faces (a point with outward normal n votes for p - r n_xy over a range of radii r). Its basins are
+merged by persistence (peak minus saddle, lowest first) until N remain; basins with no saddle to a higher
+one (separate DBSCAN clusters) merge last, into the nearest centre: the paper's merge of cluster centres.
+With fewer than N basins the part with the largest sum of squares is split by 2-means (K-means).
 
 Two implementations of the same algorithm:
-- ``segment``: the reference path, scikit-learn DBSCAN + K-means on the host (one episode, CPU).
-- ``segment_jax``: the scale path's twin, jittable with static shapes: DBSCAN's connectivity is replaced
-  by connected components of an occupancy grid (label propagation with pointer jumping in a
-  ``lax.while_loop``), the splits and K-means run for a fixed number of iterations.
+- ``segment``: the reference path, scikit-learn DBSCAN + SciPy grid operations on the host (one episode).
+- ``segment_jax``: the scale path's twin, jittable with static shapes and vmappable over episodes: DBSCAN's
+  noise rule on a grid, hole filling by connected components (label propagation with hooking), an exact
+  separable distance transform, at most ``max_basins`` basins, fixed-length merge and K-means loops.
 
 Conventions (DESIGN.md): metres, world z up, table at z = ``table_height``; OpenCV camera, ``T_wc``
 camera-to-world; depth z-depth with 0 = no return. Point sets are padded: ``points [P, 3]`` + ``mask [P]``;
@@ -48,20 +52,23 @@ class SegmentConfig:
     max_depth: float = 1.5  # depth beyond this is background, m (views are 1 m from the scene centre)
     roi_center: tuple[float, float, float] = (0.0, 0.0, 0.25)  # cube of interest (scenes are centred on 0)
     roi_size: float = 0.6
-    # Footprint grid: objects stand upright with disjoint footprints, so the table-plane occupancy of the
-    # points separates them; eroding it by up to ``max_erosion`` cells cuts the necks where objects touch.
+    # Footprint grid on the table plane (objects stand upright with disjoint footprints).
     footprint_cell: float = 0.005
-    closing_steps: int = 1  # fills holes between surface points ~ one voxel apart (more bridges gaps)
-    max_erosion: int = 6
-    min_core_cells: int = 6  # a smaller eroded component is a fragment, not an object
-    # K-means: on core centres (weighted by size) when there are more cores than N (the paper's merge);
-    # 2-means splits of the part with the largest sum of squares when there are fewer. Points enter the
-    # splits as (x, y, w z): a tall object must not be cut at mid-height.
+    closing_steps: int = 1  # fills gaps between surface points ~ one voxel apart (more bridges objects)
+    # Centre votes: side-wall points (|n_xy| > vote_min_horizontal) vote along -n_xy at vote_radii radii
+    # up to vote_max_radius (the largest object radius); votes are blurred by vote_sigma cells.
+    vote_min_horizontal: float = 0.5
+    vote_max_radius: float = 0.10
+    vote_radii: int = 20
+    vote_sigma: float = 1.0
+    vote_exponent: float = 0.5  # field = distance to empty space * (votes / max votes) ** vote_exponent
+    # K-means splits (fewer basins than N): points enter as (x, y, w z), so tall objects are not cut at
+    # mid-height; at most kmeans_iters Lloyd rounds.
     kmeans_iters: int = 20
     kmeans_z_weight: float = 0.25
     # JAX twin only: static bounds.
-    max_cores: int = 16  # the largest cores considered
-    max_cc_iters: int = 64  # label-propagation rounds (each pointer-jumps, so ~log of the grid's diameter)
+    max_basins: int = 64  # basins kept (highest peaks); cells of the others join the nearest kept basin
+    max_cc_iters: int = 64  # label-propagation rounds (hooking converges in about log of the diameter)
 
 
 @struct.dataclass
@@ -158,14 +165,6 @@ def _cell_of(x: np.ndarray | jax.Array, config: SegmentConfig, xp=np) -> np.ndar
     return xp.clip(ij, 0, _grid_size(config) - 1)
 
 
-def _cell_centres(config: SegmentConfig) -> np.ndarray:
-    """[G, G, 2] world xy of the footprint cell centres."""
-    G = _grid_size(config)
-    steps = (np.arange(G) + 0.5) * config.footprint_cell - 0.5 * config.roi_size
-    cx, cy = config.roi_center[0] + steps, config.roi_center[1] + steps
-    return np.stack(np.meshgrid(cx, cy, indexing="ij"), axis=-1)
-
-
 def _morph_np(m: np.ndarray, op) -> np.ndarray:
     """3x3 square erosion (op = np.minimum) or dilation (np.maximum) of ``m: [G, G]`` bool, outside = False."""
     G = m.shape[0]
@@ -177,40 +176,144 @@ def _morph_np(m: np.ndarray, op) -> np.ndarray:
     return out
 
 
-def footprint_cores_reference(x: np.ndarray, config: SegmentConfig) -> np.ndarray:
-    """Object cores of points ``x: [M, 3]`` from their footprint occupancy (host reference).
+def _gaussian_kernel(sigma: float) -> np.ndarray:
+    """SciPy's ``gaussian_filter`` kernel (truncated at 4 sigma)."""
+    radius = int(4.0 * sigma + 0.5)
+    k = np.exp(-0.5 * (np.arange(-radius, radius + 1) / sigma) ** 2)
+    return k / k.sum()
 
-    The occupancy, closed by ``closing_steps`` 3x3 steps, is eroded 0, 1, ... ``max_erosion`` times; the
-    first erosion with N components of >= ``min_core_cells`` cells is kept (else the first with the most):
-    touching objects separate under erosion. Returns [G, G] i64 core index per cell, -1 = none; cores by
-    size, largest first, ties by raster order; at most ``max_cores``.
+
+def _vote_targets(x: np.ndarray | jax.Array, normals: np.ndarray | jax.Array, config: SegmentConfig, xp=np):
+    """Where side-wall points vote for their object's axis: ([M, R, 3] points, [M] weights |n_xy|, 0 = no vote)."""
+    nxy = normals[:, :2]
+    h = xp.sqrt(xp.sum(nxy**2, axis=1))
+    weight = xp.where(h > config.vote_min_horizontal, h, 0.0)
+    u = nxy / xp.maximum(h, 1e-12)[:, None]
+    radii = xp.asarray(np.linspace(config.footprint_cell, config.vote_max_radius, config.vote_radii), x.dtype)
+    xy = x[:, None, :2] - radii[None, :, None] * u[:, None, :]
+    return xp.concatenate([xy, xp.zeros_like(xy[..., :1])], axis=-1), weight
+
+
+def footprint_field_reference(y: np.ndarray, normals: np.ndarray, config: SegmentConfig
+                              ) -> tuple[np.ndarray, np.ndarray]:
+    """(occupancy [G, G] bool, field [G, G] f64) of points ``y: [M, 3]`` with unit ``normals: [M, 3]``.
+
+    Occupancy: the points' cells, closed by ``closing_steps`` 3x3 steps, holes filled. Field: distance to
+    empty space (cells) times the normalised, blurred centre votes to the power ``vote_exponent``.
     """
     from scipy import ndimage
 
-    G, N = _grid_size(config), config.num_segments
-    occ = np.zeros((G, G), bool)
-    ij = _cell_of(x, config)
-    occ[ij[:, 0], ij[:, 1]] = True
+    G = _grid_size(config)
+    ij = _cell_of(y, config)
+    raw = np.zeros((G, G), bool)
+    raw[ij[:, 0], ij[:, 1]] = True
+    occ = raw
     for _ in range(config.closing_steps):
         occ = _morph_np(occ, np.maximum)
     for _ in range(config.closing_steps):
         occ = _morph_np(occ, np.minimum)
-    best = None
-    for _ in range(config.max_erosion + 1):
-        lab, n = ndimage.label(occ, structure=np.ones((3, 3)))
-        sizes = np.bincount(lab.ravel(), minlength=n + 1)[1:]
-        count = min(int((sizes >= config.min_core_cells).sum()), N)
-        if best is None or count > best[0]:
-            best = (count, lab, sizes)
-        if count >= N:
-            break
-        occ = _morph_np(occ, np.minimum)
-    _, lab, sizes = best
-    keep = np.flatnonzero(sizes >= config.min_core_cells)
-    keep = keep[np.argsort(-sizes[keep], kind="stable")][: config.max_cores]  # label order = raster order
-    index = np.full(len(sizes) + 1, -1, np.int64)
-    index[keep + 1] = np.arange(len(keep))
-    return index[lab]
+    occ = ndimage.binary_fill_holes(occ | raw)
+    distance = ndimage.distance_transform_edt(occ)
+    targets, weight = _vote_targets(y, normals, config)
+    tij = _cell_of(targets.reshape(-1, 3), config)
+    votes = np.zeros((G, G))
+    np.add.at(votes, (tij[:, 0], tij[:, 1]), np.repeat(weight, config.vote_radii))
+    kernel = _gaussian_kernel(config.vote_sigma)
+    votes = ndimage.convolve1d(ndimage.convolve1d(votes * occ, kernel, axis=0, mode="reflect"), kernel, axis=1,
+                               mode="reflect")
+    votes = votes / max(votes.max(), 1e-12)
+    return occ, distance * np.maximum(votes, 0.0) ** config.vote_exponent
+
+
+def _basins_np(field: np.ndarray, occ: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Steepest-ascent basins of ``field`` over the occupied cells (8-neighbours, ties to the larger index).
+
+    Returns ([G, G] i64 basin per cell, -1 off; [K] peak heights), basins numbered by their peak's index.
+    """
+    G = field.shape[0]
+    index = np.arange(G * G).reshape(G, G)
+    f = np.where(occ, field, -np.inf)
+    fp, ip = np.pad(f, 1, constant_values=-np.inf), np.pad(index, 1, constant_values=-1)
+    best, up = f.copy(), index.copy()
+    for di in (0, 1, 2):
+        for dj in (0, 1, 2):
+            v, vi = fp[di:di + G, dj:dj + G], ip[di:di + G, dj:dj + G]
+            better = (v > best) | ((v == best) & (vi > up))
+            best, up = np.where(better, v, best), np.where(better, vi, up)
+    up = up.ravel()
+    for _ in range(_POINTER_JUMPS):
+        up = up[up]
+    root = np.where(occ.ravel(), up, -1)
+    peaks, basin = np.unique(root[root >= 0], return_inverse=True)
+    out = np.full(G * G, -1)
+    out[root >= 0] = basin
+    return out.reshape(G, G), field.ravel()[peaks]
+
+
+# A merge without a saddle costs this plus the squared centre distance: above any peak - saddle (the
+# field is at most the grid size) and exact in f32.
+_DISCONNECTED = 1e5
+_POINTER_JUMPS = 14  # 2^14 > 120^2: every steepest-ascent chain of the footprint grid reaches its peak
+_PAIR_SHIFTS = ((0, 1), (1, 0), (1, 1), (1, -1))  # each 8-neighbour pair once
+
+
+def _saddles_np(basin: np.ndarray, field: np.ndarray, K: int) -> np.ndarray:
+    """[K, K] highest min(field) over adjacent cell pairs of two basins; -inf where they do not touch."""
+    G = basin.shape[0]
+    saddle = np.full((K, K), -np.inf)
+    bp, fp = np.pad(basin, 1, constant_values=-1), np.pad(field, 1)
+    for di, dj in _PAIR_SHIFTS:
+        lb, fb = bp[1 + di:1 + di + G, 1 + dj:1 + dj + G], fp[1 + di:1 + di + G, 1 + dj:1 + dj + G]
+        sel = (basin >= 0) & (lb >= 0) & (basin != lb)
+        value = np.minimum(field, fb)[sel]
+        np.maximum.at(saddle, (basin[sel], lb[sel]), value)
+        np.maximum.at(saddle, (lb[sel], basin[sel]), value)
+    return saddle
+
+
+def _merge_step(xp, alive, peak, saddle, centre, size, group):
+    """One persistence merge: the live basin with the lowest peak - saddle (to a higher live basin) joins
+    that basin; a basin with no saddle to a higher one joins the nearest higher one, after all others.
+    Shared by both paths (``xp`` = numpy or jax.numpy)."""
+    K = peak.shape[0]
+    ar = xp.arange(K)
+    higher = alive[None, :] & (ar[None, :] != ar[:, None]) & (
+        (peak[None, :] > peak[:, None]) | ((peak[None, :] == peak[:, None]) & (ar[None, :] < ar[:, None])))
+    s = xp.where(higher, saddle, -xp.inf)
+    up = xp.argmax(s, axis=1)
+    top = xp.take_along_axis(s, up[:, None], axis=1)[:, 0]
+    d2 = xp.where(higher, xp.sum((centre[:, None] - centre[None]) ** 2, axis=-1), xp.inf)
+    near = xp.argmin(d2, axis=1)
+    linked = top > -xp.inf
+    cost = xp.where(linked, peak - top, _DISCONNECTED + xp.take_along_axis(d2, near[:, None], axis=1)[:, 0])
+    cost = xp.where(alive & xp.any(higher, axis=1), cost, xp.inf)
+    i = xp.argmin(cost)
+    t = xp.where(linked[i], up[i], near[i])
+    row = xp.maximum(saddle[t], saddle[i])
+    row = xp.where(ar == t, -xp.inf, row)
+    if xp is np:
+        saddle = saddle.copy()
+        saddle[t], saddle[:, t] = row, row
+        centre, size, alive = centre.copy(), size.copy(), alive.copy()
+        centre[t] = (centre[t] * size[t] + centre[i] * size[i]) / (size[t] + size[i])
+        size[t] += size[i]
+        alive[i] = False
+    else:
+        saddle = saddle.at[t].set(row).at[:, t].set(row)
+        centre = centre.at[t].set((centre[t] * size[t] + centre[i] * size[i]) / (size[t] + size[i]))
+        size = size.at[t].add(size[i])
+        alive = alive.at[i].set(False)
+    return alive, saddle, centre, size, xp.where(group == i, t, group)
+
+
+def _basin_centres(basin: np.ndarray | jax.Array, K: int, xp=np):
+    """([K, 2] mean cell coordinates, [K] cell counts) of the basins of ``basin: [G, G]``."""
+    G = basin.shape[0]
+    ii, jj = xp.meshgrid(xp.arange(G), xp.arange(G), indexing="ij")
+    onehot = (basin.reshape(-1)[:, None] == xp.arange(K)[None]).astype(np.float64 if xp is np else jnp.float32)
+    size = onehot.sum(0)
+    coords = xp.stack([ii.reshape(-1), jj.reshape(-1)], axis=-1).astype(onehot.dtype)
+    return (onehot.T @ coords) / xp.maximum(size, 1)[:, None], size
 
 
 def _principal_split(x: np.ndarray) -> np.ndarray:
@@ -221,14 +324,13 @@ def _principal_split(x: np.ndarray) -> np.ndarray:
     return np.stack([centre - step, centre + step])
 
 
-def cluster_reference(x: np.ndarray, config: SegmentConfig) -> np.ndarray:
-    """[M] i64 partition of foreground points ``x: [M, 3]`` into N segments (-1 = DBSCAN noise).
+def cluster_reference(x: np.ndarray, normals: np.ndarray, config: SegmentConfig) -> np.ndarray:
+    """[M] i64 partition of foreground points ``x: [M, 3]`` (unit ``normals``) into N segments, -1 = noise.
 
-    DBSCAN drops noise; footprint cores seed the objects (K-means on core centres merges them when there
-    are more than N); every point joins the group of its cell's nearest core cell; while there are fewer
-    than N groups, the one with the largest sum of squares is split by 2-means.
+    DBSCAN drops noise; the footprint field's watershed basins are merged by persistence to N; every point
+    takes its cell's basin; while there are fewer than N parts, the one with the largest sum of squares is
+    split by 2-means.
     """
-    from scipy import ndimage
     from sklearn.cluster import DBSCAN, KMeans
 
     N, M = config.num_segments, len(x)
@@ -239,25 +341,15 @@ def cluster_reference(x: np.ndarray, config: SegmentConfig) -> np.ndarray:
     y = x[good]
     if len(y) < N:
         return labels
-    cores = footprint_cores_reference(y, config)
-    C = int(cores.max()) + 1
-    part = np.zeros(len(y), np.int64)
-    if C > 0:
-        centres = _cell_centres(config)
-        flat = cores.ravel()
-        sizes = np.bincount(flat[flat >= 0], minlength=C).astype(float)
-        core_xy = np.stack([np.bincount(flat[flat >= 0], centres.reshape(-1, 2)[flat >= 0, a], minlength=C)
-                            for a in range(2)], axis=-1) / sizes[:, None]
-        group = np.arange(C)
-        if C > N:  # the paper's K-means on cluster centres
-            km = KMeans(n_clusters=N, init=core_xy[:N], n_init=1, max_iter=config.kmeans_iters, tol=0.0)
-            group = km.fit(core_xy, sample_weight=sizes).labels_
-        _, nearest = ndimage.distance_transform_edt(cores < 0, return_indices=True)
-        cell_group = group[cores[nearest[0], nearest[1]]]
-        ij = _cell_of(y, config)
-        part = cell_group[ij[:, 0], ij[:, 1]]
-        _, part = np.unique(part, return_inverse=True)
-    # Fewer groups than N: split the part with the largest sum of squares, along its main axis.
+    occ, field = footprint_field_reference(y, normals[good], config)
+    basin, peak = _basins_np(field, occ)
+    K = len(peak)
+    state = (np.ones(K, bool), _saddles_np(basin, field, K), *_basin_centres(basin, K), np.arange(K))
+    for _ in range(K - N):
+        state = _merge_step(np, state[0], peak, *state[1:])
+    group = state[-1]
+    ij = _cell_of(y, config)
+    _, part = np.unique(group[basin[ij[:, 0], ij[:, 1]]], return_inverse=True)
     ys = y * np.array([1.0, 1.0, config.kmeans_z_weight])
     while part.max() + 1 < N:
         sse = [((ys[part == j] - ys[part == j].mean(0)) ** 2).sum() for j in range(part.max() + 1)]
@@ -317,7 +409,7 @@ def segment(points: np.ndarray | jax.Array, normals: np.ndarray | jax.Array, mas
     points = np.where(fg[:, None], points, 0.0).astype(np.float32)
     normals = np.where(fg[:, None], np.nan_to_num(np.asarray(normals, np.float32)), 0.0).astype(np.float32)
     labels = np.full(len(points), -1, np.int64)
-    labels[fg] = cluster_reference(points[fg].astype(np.float64), config)
+    labels[fg] = cluster_reference(points[fg].astype(np.float64), normals[fg].astype(np.float64), config)
     labels = _order_segments(labels, points, config.num_segments)
     return pack_segments(points, normals, labels, config.num_segments, config.points_per_segment)
 
@@ -356,6 +448,7 @@ def _shifted(a: jax.Array, di: int, dj: int, fill) -> jax.Array:
 
 
 _NEIGHBOURS = [(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1) if (di, dj) != (0, 0)]
+_CROSS = [(-1, 0), (1, 0), (0, -1), (0, 1)]
 
 
 def _morph(m: jax.Array, dilate: bool) -> jax.Array:
@@ -366,8 +459,9 @@ def _morph(m: jax.Array, dilate: bool) -> jax.Array:
     return out
 
 
-def _components(occ: jax.Array, max_iters: int) -> jax.Array:
-    """[G, G] i32 8-connected component of each occupied cell, named by its largest flat cell index; -1 off.
+def _components(occ: jax.Array, max_iters: int, neighbours=_NEIGHBOURS) -> jax.Array:
+    """[G, G] i32 connected component of each occupied cell (``neighbours``: 8 by default), named by its
+    largest flat cell index; -1 off.
 
     Label propagation with hooking: each round every cell's representative is hooked (scatter-max) onto
     the largest representative in the cell's 3x3 neighbourhood, then the representatives' pointers are
@@ -382,7 +476,7 @@ def _components(occ: jax.Array, max_iters: int) -> jax.Array:
         parent, _, i = state
         rep = jnp.where(occ, parent.reshape(G, G), -1)
         nb = rep
-        for di, dj in _NEIGHBOURS:
+        for di, dj in neighbours:
             nb = jnp.maximum(nb, _shifted(rep, di, dj, -1))
         target = jnp.where(occ_flat, rep.reshape(-1), G * G)
         new = jnp.concatenate([parent, jnp.zeros(1, jnp.int32)]).at[target].max(nb.reshape(-1))[:-1]
@@ -394,35 +488,103 @@ def _components(occ: jax.Array, max_iters: int) -> jax.Array:
     return jnp.where(occ, parent.reshape(G, G), -1)
 
 
-def _footprint_cores(occ: jax.Array, config: SegmentConfig) -> jax.Array:
-    """[G, G] i32 core index per cell (-1 = none) of a footprint occupancy, as ``footprint_cores_reference``."""
-    G, N = occ.shape[0], config.num_segments
+def _fill_holes(occ: jax.Array, max_iters: int) -> jax.Array:
+    """``occ: [G, G]`` with its holes filled (SciPy's ``binary_fill_holes``): empty cells whose 4-connected
+    empty component does not reach the grid's border."""
+    G = occ.shape[0]
+    empty = ~occ
+    label = _components(empty, max_iters, _CROSS).reshape(-1)
+    edge = (jnp.arange(G) == 0) | (jnp.arange(G) == G - 1)
+    border = (edge[:, None] | edge[None, :]).reshape(-1)
+    outside = jnp.zeros(G * G, bool).at[jnp.maximum(label, 0)].max(border & (label >= 0))
+    return occ | (empty & ~outside[jnp.maximum(label, 0)].reshape(G, G))
+
+
+def _distance_transform(occ: jax.Array) -> jax.Array:
+    """[G, G] f32 exact Euclidean distance (cells) of each occupied cell to the nearest empty one, 0 off.
+
+    Separable: along each row the distance to the nearest empty cell (two running maxima), then for each
+    cell the minimum over rows of that squared plus the squared row offset.
+    """
+    G = occ.shape[0]
+    k = np.arange(G, dtype=np.float32)
+    left = jax.lax.cummax(jnp.where(occ, -1e4, k[None, :]), axis=1)
+    right = -jax.lax.cummax(jnp.where(occ, -1e4, -k[None, :]), axis=1, reverse=True)
+    row = jnp.minimum(k[None, :] - left, right - k[None, :]) ** 2  # [i, j]
+    offset2 = (k[:, None] - k[None, :]) ** 2
+    return jnp.sqrt(jnp.min(row[None, :, :] + offset2[:, :, None], axis=1))
+
+
+def _blur(a: jax.Array, sigma: float) -> jax.Array:
+    """Separable Gaussian blur of ``a: [G, G]`` with SciPy's kernel and its 'reflect' border."""
+    kernel = _gaussian_kernel(sigma)
+    r = len(kernel) // 2
+    for axis in (0, 1):
+        pad = [(0, 0), (0, 0)]
+        pad[axis] = (r, r)
+        p = jnp.pad(a, pad, mode="symmetric")
+        a = sum(float(w) * jax.lax.slice_in_dim(p, t, t + a.shape[axis], axis=axis) for t, w in enumerate(kernel))
+    return a
+
+
+def _footprint_field(x: jax.Array, normals: jax.Array, kept: jax.Array, config: SegmentConfig
+                     ) -> tuple[jax.Array, jax.Array]:
+    """``footprint_field_reference`` in JAX: (occupancy [G, G] bool, field [G, G] f32)."""
+    G = _grid_size(config)
+    ij = _cell_of(x, config, xp=jnp)
+    raw = jnp.zeros(G * G, bool).at[ij[:, 0] * G + ij[:, 1]].max(kept).reshape(G, G)
+    occ = raw
     for _ in range(config.closing_steps):
         occ = _morph(occ, True)
     for _ in range(config.closing_steps):
         occ = _morph(occ, False)
+    occ = _fill_holes(occ | raw, config.max_cc_iters)
+    targets, weight = _vote_targets(x, normals, config, xp=jnp)
+    tij = _cell_of(targets.reshape(-1, 3), config, xp=jnp)
+    weight = jnp.repeat(jnp.where(kept, weight, 0.0), config.vote_radii)
+    votes = jnp.zeros(G * G, x.dtype).at[tij[:, 0] * G + tij[:, 1]].add(weight).reshape(G, G)
+    votes = _blur(votes * occ, config.vote_sigma)
+    votes = votes / jnp.maximum(votes.max(), 1e-12)
+    return occ, _distance_transform(occ) * jnp.maximum(votes, 0.0) ** config.vote_exponent
 
-    def components(occ):
-        labels = _components(occ, config.max_cc_iters).reshape(-1)
-        sizes = jnp.zeros(G * G, jnp.int32).at[jnp.maximum(labels, 0)].add(labels >= 0)
-        return labels, sizes, jnp.minimum(jnp.sum(sizes >= config.min_core_cells), N)
 
-    def erode(state):  # the next erosion; kept when it has more cores (so the first with the most wins)
-        occ, level, best = state
-        occ = _morph(occ, False)
-        new = components(occ)
-        best = jax.tree.map(lambda a, b: jnp.where(new[2] > best[2], a, b), new, best)
-        return occ, level + 1, best
+def _basins(field: jax.Array, occ: jax.Array, max_basins: int) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """``_basins_np`` with at most ``max_basins`` basins (the highest peaks; the other cells join the
+    nearest kept basin). Returns ([G, G] i32 basin, -1 off; [K] peak heights; [K] bool basin exists)."""
+    G = field.shape[0]
+    index = jnp.arange(G * G, dtype=jnp.int32).reshape(G, G)
+    f = jnp.where(occ, field, -jnp.inf)
+    best, up = f, index
+    for di, dj in _NEIGHBOURS:
+        v, vi = _shifted(f, di, dj, -jnp.inf), _shifted(index, di, dj, -1)
+        better = (v > best) | ((v == best) & (vi > up))
+        best, up = jnp.where(better, v, best), jnp.where(better, vi, up)
+    up = up.reshape(-1)
+    for _ in range(_POINTER_JUMPS):
+        up = up[up]
+    is_peak = occ.reshape(-1) & (up == index.reshape(-1))
+    height, peak = jax.lax.top_k(jnp.where(is_peak, field.reshape(-1), -jnp.inf), max_basins)
+    exists = height > -jnp.inf
+    peak = jnp.sort(jnp.where(exists, peak, G * G))  # number basins by their peak's index, as SciPy's path
+    exists = peak < G * G
+    name = jnp.full(G * G + 1, -1, jnp.int32).at[peak].set(jnp.where(exists, jnp.arange(max_basins), -1))[:-1]
+    basin = jnp.where(occ.reshape(-1), name[up], -1).reshape(G, G)
+    orphan = occ & (basin < 0)
+    basin = jnp.where(orphan, _nearest_core(basin), basin)
+    return basin, jnp.where(exists, field.reshape(-1)[jnp.minimum(peak, G * G - 1)], -jnp.inf), exists
 
-    _, _, (flat, sizes, _) = jax.lax.while_loop(lambda s: (s[2][2] < N) & (s[1] < config.max_erosion), erode,
-                                                (occ, 0, components(occ)))
-    # Order cores by size, ties by raster order of their first cell (scipy's label order).
-    first = jnp.full(G * G, G * G, jnp.int32).at[jnp.maximum(flat, 0)].min(
-        jnp.where(flat >= 0, jnp.arange(G * G, dtype=jnp.int32), G * G))
-    is_core = sizes >= config.min_core_cells
-    order = jnp.lexsort((first, -sizes, ~is_core))[: config.max_cores]
-    rank = jnp.full(G * G, -1, jnp.int32).at[order].set(jnp.where(is_core[order], jnp.arange(len(order)), -1))
-    return jnp.where(flat >= 0, rank[jnp.maximum(flat, 0)], -1).reshape(G, G)
+
+def _saddles(basin: jax.Array, field: jax.Array, K: int) -> jax.Array:
+    """``_saddles_np`` in JAX: [K, K] f32."""
+    saddle = jnp.full(K * K + 1, -jnp.inf, field.dtype)
+    for di, dj in _PAIR_SHIFTS:
+        lb, fb = _shifted(basin, di, dj, -1), _shifted(field, di, dj, 0.0)
+        sel = ((basin >= 0) & (lb >= 0) & (basin != lb)).reshape(-1)
+        value = jnp.minimum(field, fb).reshape(-1)
+        a, b = basin.reshape(-1), lb.reshape(-1)
+        saddle = saddle.at[jnp.where(sel, a * K + b, K * K)].max(value)
+        saddle = saddle.at[jnp.where(sel, b * K + a, K * K)].max(value)
+    return saddle[:-1].reshape(K, K)
 
 
 def _nearest_core(cores: jax.Array) -> jax.Array:
@@ -512,30 +674,24 @@ def _split_until_n(part: jax.Array, y: jax.Array, kept: jax.Array, config: Segme
     return jax.lax.fori_loop(0, N - 1, maybe, part)
 
 
-def cluster_jax(x: jax.Array, valid: jax.Array, config: SegmentConfig) -> jax.Array:
-    """[P] i32 partition of the valid points ``x: [P, 3]`` into N segments (-1 = invalid or noise).
-
-    The JAX twin of ``cluster_reference``: grid noise removal, footprint cores by erosion and label
-    propagation, weighted K-means on core centres, nearest-core assignment, 2-means splits.
-    """
-    N, G = config.num_segments, _grid_size(config)
+def cluster_jax(x: jax.Array, normals: jax.Array, valid: jax.Array, config: SegmentConfig) -> jax.Array:
+    """[P] i32 partition of the valid points ``x: [P, 3]`` (unit ``normals``) into N segments, -1 = invalid
+    or noise: the JAX twin of ``cluster_reference``."""
+    N, K = config.num_segments, config.max_basins
     kept = _dense_points(x, valid, config)
+    occ, field = _footprint_field(x, normals, kept, config)
+    basin, peak, exists = _basins(field, occ, K)
+    centre, size = _basin_centres(basin, K, xp=jnp)
+
+    def merge(_, state):
+        return jax.lax.cond(jnp.sum(state[0]) > N, lambda s: _merge_step(jnp, s[0], peak, *s[1:]), lambda s: s,
+                            state)
+
+    state = (exists, _saddles(basin, field, K), centre, size, jnp.arange(K))
+    group = jax.lax.fori_loop(0, K - N, merge, state)[-1]
     ij = _cell_of(x, config, xp=jnp)
-    cell = ij[:, 0] * G + ij[:, 1]
-    occ = jnp.zeros(G * G, bool).at[cell].max(kept).reshape(G, G)
-    cores = _footprint_cores(occ, config)
-    C = config.max_cores
-    flat = cores.reshape(-1)
-    centres_xy = jnp.asarray(_cell_centres(config).reshape(-1, 2), x.dtype)
-    onehot = jax.nn.one_hot(flat, C, dtype=x.dtype)  # -1 gives a zero row
-    sizes = onehot.sum(0)
-    core_xy = (onehot.T @ centres_xy) / jnp.maximum(sizes, 1)[:, None]
-    n_cores = jnp.sum(sizes > 0)
-    km, _ = _kmeans(core_xy, sizes, core_xy[:N], config.kmeans_iters)
-    group = jnp.where(n_cores > N, km, jnp.arange(C))  # the paper's K-means on cluster centres
-    nearest = _nearest_core(cores).reshape(-1)
-    part = jnp.where(nearest[cell] >= 0, group[jnp.maximum(nearest[cell], 0)], 0)
-    present = jnp.zeros(C, bool).at[part].max(kept)
+    part = group[jnp.maximum(basin[ij[:, 0], ij[:, 1]], 0)]
+    present = jnp.zeros(K, bool).at[part].max(kept)
     part = (jnp.cumsum(present) - 1)[part].astype(jnp.int32)
     part = _split_until_n(part, x, kept, config)
     enough = jnp.sum(kept) >= N
@@ -563,5 +719,5 @@ def segment_jax(points: jax.Array, normals: jax.Array, mask: jax.Array, config: 
     fg = foreground_mask(points, mask, config)
     x = jnp.where(fg[:, None], points, 0.0)
     normals = jnp.where(fg[:, None], jnp.nan_to_num(jnp.asarray(normals, jnp.float32)), 0.0)
-    labels = _order_segments_jax(cluster_jax(x, fg, config), x, config.num_segments)
+    labels = _order_segments_jax(cluster_jax(x, normals, fg, config), x, config.num_segments)
     return pack_segments(x, normals, labels, config.num_segments, config.points_per_segment)

@@ -20,10 +20,11 @@ VIEWS = (20, 35, 50, 65, 80)  # five hemisphere views from low to high elevation
 CFG = segment.SegmentConfig()
 # A point farther than this from every posed object surface is table or noise: left out of the ARI.
 _GT_RADIUS = 0.01
-# Measured on these seeds with the footprint-erosion splitter: regression floors, below the issue's 0.9
-# target, which this splitter does not reach yet (issue 11 stays open for it).
-_ARI_FLOOR_SYNTHETIC = 0.75
-_ARI_FLOOR_TOUCHING = 0.6
+SEEDS = range(12)
+# The issue's target: mean ARI >= 0.9 after 5 views, on ordinary and on touching scenes. Single scenes
+# fall lower where a small object touches a large one (touching seeds 0, 4, 5: 0.78-0.80).
+_ARI_TARGET = 0.9
+_ARI_FLOOR = 0.75
 
 
 def _scene_frames(config: scenes.SceneConfig, seed: int, views=VIEWS):
@@ -62,8 +63,8 @@ def _ari(labels: np.ndarray, gt: np.ndarray) -> float:
 
 @pytest.fixture(scope="module")
 def fused_scenes():
-    synthetic = [_fused(scenes.SceneConfig(), s) for s in (0, 1, 2)]
-    touching = [_fused(scenes.SceneConfig(min_gap=0.001, max_gap=0.005), s) for s in (0, 1, 2)]
+    synthetic = [_fused(scenes.SceneConfig(), s) for s in SEEDS]
+    touching = [_fused(scenes.SceneConfig(min_gap=0.001, max_gap=0.005), s) for s in SEEDS]
     return synthetic, touching
 
 
@@ -92,12 +93,23 @@ def test_foreground_depth_drops_table_and_far_pixels_keeps_objects():
 
 
 def _blobs(centres, n=200, spread=0.01, seed=0):
+    """Gaussian blobs with outward (radial) normals."""
     rng = np.random.default_rng(seed)
-    pts = np.concatenate([c + spread * rng.standard_normal((n, 3)) for c in centres])
-    return pts.astype(np.float32), np.zeros_like(pts, np.float32), np.ones(len(pts), bool)
+    offsets = [spread * rng.standard_normal((n, 3)) for _ in centres]
+    pts = np.concatenate([c + o for c, o in zip(centres, offsets, strict=True)])
+    nrm = np.concatenate([o / np.linalg.norm(o, axis=1, keepdims=True) for o in offsets])
+    return pts.astype(np.float32), nrm.astype(np.float32), np.ones(len(pts), bool)
 
 
-PATHS = {"reference": segment.segment, "jax": segment.segment_jax}
+def _segment_jax_padded(points, normals, mask, config, size=2048):
+    """``segment_jax`` on inputs padded to one static size (one compilation for all the small tests)."""
+    P = len(points)
+    pad = ((0, size - P), (0, 0))
+    seg = segment.segment_jax(np.pad(points, pad), np.pad(normals, pad), np.pad(mask, (0, size - P)), config)
+    return seg.replace(labels=seg.labels[:P])
+
+
+PATHS = {"reference": segment.segment, "jax": _segment_jax_padded}
 
 
 @pytest.mark.parametrize("path", PATHS)
@@ -144,12 +156,24 @@ def test_padding_invariance_and_determinism(path):
     assert adjusted_rand_score(np.repeat(np.arange(5), 200), np.asarray(a.labels)) > 0.95
 
 
-def test_fused_scenes_ari_floor(fused_scenes):
-    synthetic, touching = fused_scenes
-    s = [_ari(segment.segment(p, n, m, CFG).labels, gt) for p, n, m, gt in synthetic]
-    t = [_ari(segment.segment(p, n, m, CFG).labels, gt) for p, n, m, gt in touching]
-    print(f"ARI synthetic {np.round(s, 3)}, touching {np.round(t, 3)}")
-    assert min(s) >= _ARI_FLOOR_SYNTHETIC and min(t) >= _ARI_FLOOR_TOUCHING, (s, t)
+def test_fused_scenes_ari_and_twin_agreement(fused_scenes):
+    """Both paths against the posed surfaces (issue: mean ARI >= 0.9 after 5 views), and the scale path's
+    twin against scikit-learn's path on the same clouds (issue: ARI >= 0.95). One test: the reference
+    partitions are computed once."""
+    scores, agree = {}, []
+    for kind, clouds in zip(("synthetic", "touching"), fused_scenes, strict=True):
+        for p, n, m, gt in clouds:
+            ref = np.asarray(segment.segment(p, n, m, CFG).labels)
+            twin = np.asarray(segment.segment_jax(p, n, m, CFG).labels)
+            scores.setdefault(kind, []).append(_ari(ref, gt))
+            scores.setdefault(kind + " (jax)", []).append(_ari(twin, gt))
+            either = (ref >= 0) | (twin >= 0)
+            agree.append(adjusted_rand_score(ref[either], twin[either]))
+            assert np.mean((ref >= 0) == (twin >= 0)) >= 0.995, "the twin's noise rule differs from DBSCAN's"
+    print({k: np.round(v, 3) for k, v in scores.items()}, "agreement", np.round(agree, 3))
+    for kind, ari in scores.items():
+        assert np.mean(ari) >= _ARI_TARGET and min(ari) >= _ARI_FLOOR, (kind, ari)
+    assert min(agree) >= 0.95, agree
 
 
 def test_single_view_points_static_and_segmented():
@@ -165,26 +189,19 @@ def test_single_view_points_static_and_segmented():
     assert ari >= 0.5
 
 
-def test_jax_twin_gives_the_reference_partition(fused_scenes):
-    """The scale path's twin against scikit-learn's path on the same fused clouds (issue: ARI >= 0.95)."""
-    agree = []
-    for p, n, m, _ in [*fused_scenes[0], *fused_scenes[1]]:
-        ref = np.asarray(segment.segment(p, n, m, CFG).labels)
-        twin = np.asarray(segment.segment_jax(p, n, m, CFG).labels)
-        either = (ref >= 0) | (twin >= 0)
-        agree.append(adjusted_rand_score(ref[either], twin[either]))
-        assert np.mean((ref >= 0) == (twin >= 0)) >= 0.995, "the twin's noise removal differs from DBSCAN's"
-    print(f"twin vs reference ARI {np.round(agree, 3)}")
-    assert min(agree) >= 0.95, agree
-
-
-def test_jax_twin_vmaps_over_episodes(fused_scenes):
-    p, n, m = (np.stack(a) for a in zip(*[s[:3] for s in fused_scenes[0][:2]], strict=True))
+def test_jax_twin_vmaps_over_episodes():
+    rng = np.random.default_rng(0)
+    clouds = []
+    for seed in range(2):
+        centres = [np.array([0.2 * np.cos(a), 0.2 * np.sin(a), 0.08]) for a in rng.uniform(0, 6.28, 5)]
+        clouds.append(_blobs(centres, spread=0.008, seed=seed))
+    p, n, m = (np.stack([np.pad(x, [(0, 2048 - len(x))] + [(0, 0)] * (x.ndim - 1)) for x in a])
+               for a in zip(*clouds, strict=True))
     batched = jax.vmap(lambda a, b, c: segment.segment_jax(a, b, c, CFG))(p, n, m)
     for i in range(2):
         one = segment.segment_jax(p[i], n[i], m[i], CFG)
         np.testing.assert_array_equal(np.asarray(batched.labels[i]), np.asarray(one.labels))
-        np.testing.assert_array_equal(np.asarray(batched.mask[i]), np.asarray(one.mask))
+        np.testing.assert_array_equal(np.asarray(batched.points[i]), np.asarray(one.points))
 
 
 def test_pack_segments_keeps_all_points_or_an_even_spread():
