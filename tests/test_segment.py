@@ -214,3 +214,24 @@ def test_pack_segments_keeps_all_points_or_an_even_spread():
     np.testing.assert_array_equal(np.asarray(seg.points[1]), pts[5:35:3])  # every third of 30 points
     np.testing.assert_array_equal(np.asarray(seg.normals[2, :5]), -pts[45:])
     assert not np.asarray(seg.points[0, 5:]).any()
+
+
+def test_grid_building_blocks_match_scipy():
+    """The twin's grid operations against SciPy's on a random footprint with holes and touching blobs."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(0)
+    occ = ndimage.binary_opening(rng.random((120, 120)) < 0.55, iterations=1)
+    occ[40:80, 40:80] = True
+    occ[55:60, 55:60] = False  # a hole
+    occ_j = jnp.asarray(occ)
+    label = np.asarray(segment._components(occ_j, 64))
+    ref, _ = ndimage.label(occ, structure=np.ones((3, 3)))
+    assert adjusted_rand_score(ref[occ], label[occ]) == 1.0 and np.all(label[~occ] == -1)
+    filled = np.asarray(segment._fill_holes(occ_j, 64))
+    np.testing.assert_array_equal(filled, ndimage.binary_fill_holes(occ))
+    np.testing.assert_allclose(np.asarray(segment._distance_transform(occ_j)), ndimage.distance_transform_edt(occ),
+                               atol=1e-5)
+    votes = rng.random((120, 120))
+    np.testing.assert_allclose(np.asarray(segment._blur(jnp.asarray(votes, jnp.float32), 1.0)),
+                               ndimage.gaussian_filter(votes, 1.0, mode="reflect"), atol=1e-5)
