@@ -1,19 +1,22 @@
-"""Segmentation speed and agreement: the reference path (scikit-learn) on a fused 5-object scene, and the
-fusion + extraction + segmentation chain, with adjusted Rand indices against the posed object surfaces.
+"""Segmentation quality and speed: both paths on fused scenes, scored against the posed object surfaces, and
+one move's chain (foreground, integration, extraction, segmentation) timed on the CPU and, batched, on a GPU.
 
-    python benchmarks/segment.py                      # prints a Markdown table
-    python benchmarks/segment.py --out BENCHMARKS.md  # also appends it
+    python benchmarks/segment.py                                  # prints the Markdown sections
+    python benchmarks/segment.py --out-results RESULTS.md --out BENCHMARKS.md
 
-The JAX twin (``segment_jax``) is not written yet: its rows are missing.
+Scenes: the builtin set, ``synthetic`` (footprint gaps 3 mm - 3 cm) and ``touching`` (1-5 mm), depth from
+the ``mujoco`` backend at five hemisphere views from low to high elevation, fused into the default 0.6 m /
+128^3 volume. A surface point's ground truth is its nearest posed object surface; points more than 1 cm
+from every object are left out. "agreement" is the adjusted Rand index between the two paths' labels.
 """
 
 from __future__ import annotations
 
 import argparse
+import datetime
 import os
 import platform
-import statistics
-import time
+import sys
 
 import jax
 import jax.numpy as jnp
@@ -27,70 +30,150 @@ from jaxcls.geometry import Intrinsics, hemisphere_viewpoints
 from jaxcls.render import make_renderer
 
 VIEWS = (20, 35, 50, 65, 80)
+KINDS = {"synthetic": scenes.SceneConfig(), "touching": scenes.SceneConfig(min_gap=0.001, max_gap=0.005)}
+
+
+def render_scene(kind: str, seed: int, intr: Intrinsics):
+    """(depth [V, H, W], T_wc [V, 4, 4], ground-truth function of points) of one scene."""
+    object_set = builtin_object_set()
+    scene = scenes.sample_scene(object_set, KINDS[kind], seed)
+    models = scenes.scene_models(scene, object_set)
+    Ts = hemisphere_viewpoints(scenes.scene_centroid(scene, models), 100)[list(VIEWS)]
+    depth = make_renderer(scenes.build_model(scene, models, intr), intr, "mujoco").render(Ts).depth
+    samples = [(T[:3, :3] @ m.surface_points.T).T + T[:3, 3] for m, T in zip(models, scene.object_poses(), strict=True)]
+    owner = np.concatenate([np.full(len(s), i) for i, s in enumerate(samples)])
+    tree = cKDTree(np.concatenate(samples))
+
+    def truth(points: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        d, idx = tree.query(points)
+        return np.where(mask & (d < 0.01), owner[idx], -1)
+
+    return np.asarray(depth), np.asarray(Ts, np.float32), truth
+
+
+def make_fuse(intr: Intrinsics, cfg: segment.SegmentConfig, max_points: int):
+    """Jitted (volume, depth, T_wc) -> volume with the frame's foreground integrated, and the extractor."""
+
+    @jax.jit
+    def fuse(volume: tsdf.TSDFVolume, depth: jax.Array, T_wc: jax.Array) -> tsdf.TSDFVolume:
+        return tsdf.integrate(volume, segment.foreground_depth(depth, intr, T_wc, cfg), intr, T_wc)
+
+    return fuse, jax.jit(lambda volume: tsdf.extract_surface(volume, max_points))
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2])
+    parser.add_argument("--seeds", type=int, default=12, help="scenes per kind (seeds 0..n-1)")
     parser.add_argument("--scale", type=float, default=1.0, help="image scale of the Kinect v1 (1 = 640x480)")
-    parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--out", help="append the table to this Markdown file")
+    parser.add_argument("--max-points", type=int, default=16384, help="static size of the extracted surface")
+    parser.add_argument("--repeats", type=int, default=10)
+    parser.add_argument("--gpu-batch", type=int, nargs="*", default=[64, 256])
+    parser.add_argument("--out", help="append the speed section to this Markdown file")
+    parser.add_argument("--out-results", help="append the quality section to this Markdown file")
     args = parser.parse_args(argv)
     cfg = segment.SegmentConfig()
     intr = Intrinsics.kinect_v1(args.scale)
-    object_set = builtin_object_set()
-    rows, ari = [], {}
-    touching = scenes.SceneConfig(min_gap=0.001, max_gap=0.005)
-    for kind, sc in (("synthetic", scenes.SceneConfig()), ("touching", touching)):
-        for seed in args.seeds:
-            scene = scenes.sample_scene(object_set, sc, seed)
-            models = scenes.scene_models(scene, object_set)
-            Ts = hemisphere_viewpoints(scenes.scene_centroid(scene, models), 100)[list(VIEWS)]
-            fr = make_renderer(scenes.build_model(scene, models, intr), intr, "mujoco").render(Ts)
-            samples = [(T[:3, :3] @ m.surface_points.T).T + T[:3, 3]
-                       for m, T in zip(models, scene.object_poses(), strict=True)]
-            allp, owner = np.concatenate(samples), np.concatenate([np.full(len(s), i) for i, s in enumerate(samples)])
-            tree = cKDTree(allp)
-            T32 = jnp.asarray(Ts, jnp.float32)
-
-            def chain(n_views: int, T32=T32, fr=fr):
-                vol = tsdf.create_volume(np.asarray(cfg.roi_center), cfg.roi_size, 128)
-                for d, T in zip(fr.depth[:n_views], T32[:n_views], strict=True):
-                    vol = tsdf.integrate(vol, segment.foreground_depth(jnp.asarray(d), intr, T, cfg), intr, T)
-                s = tsdf.extract_surface(vol, 32768)
-                return s, segment.segment(s.points, s.normals, s.mask, cfg)
-
-            for n_views in (1, 5):
-                surf, seg = chain(n_views)
-                p, m = np.asarray(surf.points), np.asarray(surf.mask)
-                dist, idx = tree.query(p)
-                gt = np.where(m & (dist < 0.01), owner[idx], -1)
-                ari.setdefault((kind, n_views), []).append(
-                    adjusted_rand_score(gt[gt >= 0], np.asarray(seg.labels)[gt >= 0]))
-            if kind == "synthetic" and seed == args.seeds[0]:
-                times, seg_times = [], []
-                for _ in range(args.repeats):
-                    t0 = time.perf_counter()
-                    surf, _ = chain(5)
-                    times.append(time.perf_counter() - t0)
-                    t0 = time.perf_counter()
-                    segment.segment(surf.points, surf.normals, surf.mask, cfg)
-                    seg_times.append(time.perf_counter() - t0)
+    res = f"{intr.width}x{intr.height}"
+    cpu_device = jax.devices("cpu")[0]
     cpu = f"CPU ({platform.processor() or platform.machine()}, {os.cpu_count()} cores)"
-    rows.append(("reference `segment` (sklearn DBSCAN + footprint cores + K-means), fused 5 views", cpu,
-                 f"{statistics.median(seg_times) * 1e3:.0f}"))
-    rows.append(("5 x (foreground + integrate) + extract + reference segment", cpu,
-                 f"{statistics.median(times) * 1e3:.0f}"))
-    cmd = report.command_line(argv)
-    lines = [f"## Segmentation ({intr.width}x{intr.height}, jax {jax.__version__})", "", f"`{cmd}`", "",
-             "| what | device | median ms |", "|---|---|---|"]
-    lines += [f"| {a} | {b} | {c} |" for a, b, c in rows]
-    lines += ["", "| ARI vs posed surfaces (reference path) | seeds | min | mean |", "|---|---|---|---|"]
-    for (kind, n), v in sorted(ari.items()):
-        lines.append(f"| {kind}, {n} view(s) | {args.seeds} | {min(v):.3f} | {np.mean(v):.3f} |")
-    lines += ["", "JAX twin rows: not implemented yet."]
-    text = "\n".join(lines) + "\n"
-    report.publish(text, args.out)
+    fuse, extract = make_fuse(intr, cfg, args.max_points)
+    empty = tsdf.create_volume(np.asarray(cfg.roi_center), cfg.roi_size, 128)
+
+    scores: dict[tuple[str, int, str], list[float]] = {}
+    clouds = []  # fused 5-view surfaces, for the GPU batch
+    with jax.default_device(cpu_device):
+        for kind in KINDS:
+            for seed in range(args.seeds):
+                depth, Ts, truth = render_scene(kind, seed, intr)
+                volume = empty
+                for v in range(len(VIEWS)):
+                    volume = fuse(volume, jnp.asarray(depth[v]), jnp.asarray(Ts[v]))
+                    if v + 1 not in (1, 5):
+                        continue
+                    s = extract(volume)
+                    p, n, m = np.asarray(s.points), np.asarray(s.normals), np.asarray(s.mask)
+                    gt = truth(p, m)
+                    ref = np.asarray(segment.segment(p, n, m, cfg).labels)
+                    twin = np.asarray(segment.segment_jax(p, n, m, cfg).labels)
+                    sel, either = gt >= 0, (ref >= 0) | (twin >= 0)
+                    scores.setdefault((kind, v + 1, "reference"), []).append(adjusted_rand_score(gt[sel], ref[sel]))
+                    scores.setdefault((kind, v + 1, "jax"), []).append(adjusted_rand_score(gt[sel], twin[sel]))
+                    scores.setdefault((kind, v + 1, "agreement"), []).append(adjusted_rand_score(ref[either],
+                                                                                                 twin[either]))
+                    if v + 1 == 5:
+                        clouds.append((p, n, m))
+                print(kind, seed, {k: round(x[-1], 3) for k, x in scores.items() if k[0] == kind}, file=sys.stderr)
+    quality = [(kind, views, what, f"{np.mean(v):.3f}", f"{np.min(v):.3f}", " ".join(f"{x:.2f}" for x in v))
+               for (kind, views, what), v in sorted(scores.items(), key=lambda kv: (kv[0][0], kv[0][1]))]
+    report.publish(report.section(
+        f"Segmentation quality, {res} depth fused into 128^3, {args.seeds} scenes per kind, "
+        f"{datetime.date.today()}", argv, ("scenes", "views", "path", "mean ARI", "min ARI", "per scene"),
+        quality, intro="ARI against the posed object surfaces; `agreement` is the twin against the reference."),
+        args.out_results)
+
+    rows: list[tuple[str, ...]] = []
+    with jax.default_device(cpu_device):
+        depth, Ts, _ = render_scene("synthetic", 0, intr)
+        volume = empty
+        for v in range(len(VIEWS) - 1):
+            volume = fuse(volume, jnp.asarray(depth[v]), jnp.asarray(Ts[v]))
+        d, T = jnp.asarray(depth[-1]), jnp.asarray(Ts[-1])
+        fg_fn = jax.jit(lambda d, T: segment.foreground_depth(d, intr, T, cfg))
+        integrate = jax.jit(lambda vol, d, T: tsdf.integrate(vol, d, intr, T))
+        steps = {
+            "foreground (`foreground_depth`)": lambda: fg_fn(d, T),
+            "integration (`integrate`)": lambda: integrate(volume, fg_fn(d, T), T),
+            f"extraction (`extract_surface`, {args.max_points} points)": lambda: extract(volume),
+        }
+        fg = fg_fn(d, T)
+        surf = extract(integrate(volume, fg, T))
+        steps["segmentation, reference (`segment`: scikit-learn DBSCAN + SciPy)"] = lambda: segment.segment(
+            surf.points, surf.normals, surf.mask, cfg)
+        steps["segmentation, JAX twin (`segment_jax`)"] = lambda: segment.segment_jax(
+            surf.points, surf.normals, surf.mask, cfg)
+
+        def chain():
+            fg = fg_fn(d, T)
+            s = extract(integrate(volume, fg, T))
+            return segment.segment_jax(s.points, s.normals, s.mask, cfg)
+
+        steps["one move: foreground + integration + extraction + `segment_jax`"] = chain
+        for name, fn in steps.items():
+            first, med, _ = report.timed(fn, args.repeats)
+            rows.append((name, cpu, f"{med * 1e3:.1f}", f"{first * 1e3:.0f}", ""))
+            print(rows[-1], file=sys.stderr)
+
+    notes = []
+    if jax.default_backend() == "gpu":
+        gpu = f"GPU ({jax.devices()[0].device_kind})"
+        batched_seg = jax.jit(jax.vmap(lambda p, n, m: segment.segment_jax(p, n, m, cfg)))
+
+        def batched_move(vols, depth, T):
+            vols = jax.vmap(fuse)(vols, depth, T)
+            s = jax.vmap(extract)(vols)
+            return vols, jax.vmap(lambda p, n, m: segment.segment_jax(p, n, m, cfg))(s.points, s.normals, s.mask)
+
+        batched_move = jax.jit(batched_move)
+        for batch in args.gpu_batch:
+            pick = [clouds[i % len(clouds)] for i in range(batch)]
+            p, n, m = (jnp.asarray(np.stack(a)) for a in zip(*pick, strict=True))
+            first, med, _ = report.timed(lambda p=p, n=n, m=m: batched_seg(p, n, m), args.repeats)
+            rows.append((f"`segment_jax`, vmap over {batch} fused clouds", gpu, f"{med * 1e3:.2f}",
+                         f"{first * 1e3:.0f}", f"{batch / med:.0f} segmentations/s"))
+            print(rows[-1], file=sys.stderr)
+            vols = jax.tree.map(lambda x, b=batch: jnp.broadcast_to(x, (b, *x.shape)), jax.device_put(volume))
+            ds = jnp.broadcast_to(jnp.asarray(depth[-1]), (batch, *depth.shape[1:]))
+            Tb = jnp.broadcast_to(jnp.asarray(Ts[-1]), (batch, 4, 4))
+            first, med, _ = report.timed(lambda v=vols, d=ds, T=Tb: batched_move(v, d, T), args.repeats)
+            rows.append((f"one move (foreground + integration + extraction + `segment_jax`), vmap over {batch}",
+                         gpu, f"{med * 1e3:.2f}", f"{first * 1e3:.0f}", f"{batch / med:.0f} moves/s"))
+            print(rows[-1], file=sys.stderr)
+    else:
+        notes.append("GPU rows skipped: JAX sees no GPU")
+    report.publish(report.section(
+        f"Segmentation speed, {res} depth, 128^3 volume, {datetime.date.today()}", argv,
+        ("operation", "device", f"median ms ({args.repeats} calls)", "first call ms", "notes"), rows, notes=notes),
+        args.out)
 
 
 if __name__ == "__main__":

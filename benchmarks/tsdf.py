@@ -16,10 +16,7 @@ import argparse
 import datetime
 import os
 import platform
-import statistics
 import sys
-import time
-from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -29,19 +26,6 @@ from jaxcls import report, scenes, tsdf
 from jaxcls.assets import builtin_object_set
 from jaxcls.geometry import Intrinsics, hemisphere_viewpoints
 from jaxcls.render import make_renderer
-
-
-def timed(fn: Callable[[], object], repeats: int) -> tuple[float, float, object]:
-    """(first-call seconds, median seconds of ``repeats`` later calls, last result)."""
-    start = time.perf_counter()
-    out = jax.block_until_ready(fn())
-    first = time.perf_counter() - start
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        out = jax.block_until_ready(fn())
-        times.append(time.perf_counter() - start)
-    return first, statistics.median(times), out
 
 
 def chamfer(a: np.ndarray, b: np.ndarray) -> float:
@@ -81,10 +65,10 @@ def main(argv: list[str] | None = None) -> None:
 
     with jax.default_device(cpu_device):
         d, T = jnp.asarray(depth), jnp.asarray(T_wc, jnp.float32)
-        first, med, fused = timed(lambda: tsdf.integrate(volume, d, intr, T), args.repeats)
+        first, med, fused = report.timed(lambda: tsdf.integrate(volume, d, intr, T), args.repeats)
         rows.append(("jaxcls.tsdf `integrate` (jit)", cpu, f"{med * 1e3:.1f}", f"{first * 1e3:.0f}", ""))
         print(rows[-1], file=sys.stderr)
-        first, med, surface = timed(lambda: tsdf.extract_surface(fused, args.max_points), args.repeats)
+        first, med, surface = report.timed(lambda: tsdf.extract_surface(fused, args.max_points), args.repeats)
         ours = np.asarray(surface.points)[np.asarray(surface.mask)]
         rows.append((f"jaxcls.tsdf `extract_surface` (max_points={args.max_points})", cpu, f"{med * 1e3:.1f}",
                      f"{first * 1e3:.0f}", f"{len(ours)} points"))
@@ -106,12 +90,12 @@ def main(argv: list[str] | None = None) -> None:
             depth_scale=1.0, depth_trunc=100.0, convert_rgb_to_intensity=False)
         extrinsic = np.linalg.inv(T_wc)
 
-        first, med, _ = timed(lambda: peer.integrate(rgbd, K, extrinsic), args.repeats)
+        first, med, _ = report.timed(lambda: peer.integrate(rgbd, K, extrinsic), args.repeats)
         rows.append(("Open3D `UniformTSDFVolume.integrate`", cpu, f"{med * 1e3:.1f}", f"{first * 1e3:.0f}", ""))
         print(rows[-1], file=sys.stderr)
         peer.reset()
         peer.integrate(rgbd, K, extrinsic)  # the surface of one frame, as ours
-        first, med, cloud = timed(peer.extract_point_cloud, args.repeats)
+        first, med, cloud = report.timed(peer.extract_point_cloud, args.repeats)
         theirs = np.asarray(cloud.points)
         rows.append(("Open3D `extract_point_cloud`", cpu, f"{med * 1e3:.1f}", f"{first * 1e3:.0f}",
                      f"{len(theirs)} points; chamfer to ours {chamfer(ours, theirs) / volume.voxel_size:.3f} voxels"))
@@ -124,15 +108,15 @@ def main(argv: list[str] | None = None) -> None:
             vols = jax.tree.map(lambda x, b=batch: jnp.broadcast_to(x, (b, *x.shape)), volume)
             ds = jnp.broadcast_to(jnp.asarray(depth), (batch, *depth.shape))
             Ts = jnp.broadcast_to(jnp.asarray(T_wc, jnp.float32), (batch, 4, 4))
-            first, med, _ = timed(lambda v=vols, d=ds, T=Ts: batched(v, d, T), args.repeats)
+            first, med, _ = report.timed(lambda v=vols, d=ds, T=Ts: batched(v, d, T), args.repeats)
             rows.append((f"jaxcls.tsdf `integrate`, vmap over {batch} volumes", gpu, f"{med * 1e3:.2f}",
                          f"{first * 1e3:.0f}", f"{batch / med:.0f} integrations/s"))
             print(rows[-1], file=sys.stderr)
         vol_gpu = jax.device_put(volume)
-        first, med, fused = timed(lambda: tsdf.integrate(vol_gpu, jnp.asarray(depth), intr,
+        first, med, fused = report.timed(lambda: tsdf.integrate(vol_gpu, jnp.asarray(depth), intr,
                                                           jnp.asarray(T_wc, jnp.float32)), args.repeats)
         rows.append(("jaxcls.tsdf `integrate`", gpu, f"{med * 1e3:.2f}", f"{first * 1e3:.0f}", ""))
-        first, med, _ = timed(lambda: tsdf.extract_surface(fused, args.max_points), args.repeats)
+        first, med, _ = report.timed(lambda: tsdf.extract_surface(fused, args.max_points), args.repeats)
         rows.append((f"jaxcls.tsdf `extract_surface` (max_points={args.max_points})", gpu, f"{med * 1e3:.2f}",
                      f"{first * 1e3:.0f}", ""))
     else:

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import shlex
+import statistics
 import sys
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 
@@ -33,3 +35,19 @@ def section(title: str, argv: Sequence[str] | None, header: Sequence[str], rows:
     if notes:
         lines += ["", *[f"- {note}" for note in notes]]
     return "\n".join(lines) + "\n"
+
+
+def timed(fn: Callable[[], object], repeats: int) -> tuple[float, float, object]:
+    """(first-call seconds, median seconds of ``repeats`` later calls, last result), waiting for JAX's
+    asynchronous results (``block_until_ready``); the first call includes compilation."""
+    import jax
+
+    start = time.perf_counter()
+    out = jax.block_until_ready(fn())
+    first = time.perf_counter() - start
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        out = jax.block_until_ready(fn())
+        times.append(time.perf_counter() - start)
+    return first, statistics.median(times), out
