@@ -8,8 +8,9 @@ footprints, so the points' footprint (their xy occupancy, closed, holes filled) 
 blobs joined by narrow necks where objects touch. The watershed runs on a field that peaks at object
 centres: the footprint's distance to empty space times Hough votes for the vertical axis each side-wall
 point faces (a point with outward normal n votes for p - r n_xy over a range of radii r). Its basins are
-merged by persistence (peak minus saddle, lowest first) until N remain; basins with no saddle to a higher
-one (separate DBSCAN clusters) merge last, into the nearest centre: the paper's merge of cluster centres.
+merged by persistence (peak minus saddle, lowest first) until N remain; a basin with no saddle to a higher
+one (a separate DBSCAN cluster) has the empty space around it as its saddle (field 0) and joins the nearest
+centre: the paper's merge of cluster centres, which takes small fragments early and separate objects last.
 With fewer than N basins the part with the largest sum of squares is split by 2-means (K-means).
 
 Two implementations of the same algorithm:
@@ -253,9 +254,6 @@ def _basins_np(field: np.ndarray, occ: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return out.reshape(G, G), field.ravel()[peaks]
 
 
-# A merge without a saddle costs this plus the squared centre distance: above any peak - saddle (the
-# field is at most the grid size) and exact in f32.
-_DISCONNECTED = 1e5
 _POINTER_JUMPS = 14  # 2^14 > 120^2: every steepest-ascent chain of the footprint grid reaches its peak
 _PAIR_SHIFTS = ((0, 1), (1, 0), (1, 1), (1, -1))  # each 8-neighbour pair once
 
@@ -276,7 +274,9 @@ def _saddles_np(basin: np.ndarray, field: np.ndarray, K: int) -> np.ndarray:
 
 def _merge_step(xp, alive, peak, saddle, centre, size, group):
     """One persistence merge: the live basin with the lowest peak - saddle (to a higher live basin) joins
-    that basin; a basin with no saddle to a higher one joins the nearest higher one, after all others.
+    that basin. A basin with no saddle to a higher one (a separate DBSCAN cluster) is separated from it by
+    empty space, where the field is 0: its cost is its peak, and it joins the nearest higher basin (the
+    paper's merge of cluster centres), so fragments go early and separate objects last.
     Shared by both paths (``xp`` = numpy or jax.numpy)."""
     K = peak.shape[0]
     ar = xp.arange(K)
@@ -288,7 +288,7 @@ def _merge_step(xp, alive, peak, saddle, centre, size, group):
     d2 = xp.where(higher, xp.sum((centre[:, None] - centre[None]) ** 2, axis=-1), xp.inf)
     near = xp.argmin(d2, axis=1)
     linked = top > -xp.inf
-    cost = xp.where(linked, peak - top, _DISCONNECTED + xp.take_along_axis(d2, near[:, None], axis=1)[:, 0])
+    cost = xp.where(linked, peak - top, peak)  # no saddle: the empty space between, where the field is 0
     cost = xp.where(alive & xp.any(higher, axis=1), cost, xp.inf)
     i = xp.argmin(cost)
     t = xp.where(linked[i], up[i], near[i])
