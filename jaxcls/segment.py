@@ -678,11 +678,11 @@ def _split_until_n(part: jax.Array, y: jax.Array, kept: jax.Array, config: Segme
         half = jnp.sum((ys - c[1]) ** 2, axis=1) < jnp.sum((ys - c[0]) ** 2, axis=1)
         return jnp.where((count[g] >= 2) & sel & half, n, part)
 
-    def maybe(i, part):
-        n = jnp.max(jnp.where(kept, part, -1)) + 1
-        return jax.lax.cond(n < N, lambda p: body(i, p), lambda p: p, part)
+    def needed(state):  # a while loop, not a cond: under vmap it stops when no episode needs a split
+        part, i = state
+        return (jnp.max(jnp.where(kept, part, -1)) + 1 < N) & (i < N - 1)
 
-    return jax.lax.fori_loop(0, N - 1, maybe, part)
+    return jax.lax.while_loop(needed, lambda s: (body(s[1], s[0]), s[1] + 1), (part, 0))[0]
 
 
 def cluster_jax(x: jax.Array, normals: jax.Array, valid: jax.Array, config: SegmentConfig) -> jax.Array:
@@ -694,12 +694,9 @@ def cluster_jax(x: jax.Array, normals: jax.Array, valid: jax.Array, config: Segm
     basin, peak, exists = _basins(field, occ, K)
     centre, size = _basin_centres(basin, K, xp=jnp)
 
-    def merge(_, state):
-        return jax.lax.cond(jnp.sum(state[0]) > N, lambda s: _merge_step(jnp, s[0], peak, *s[1:]), lambda s: s,
-                            state)
-
     state = (exists, _saddles(basin, field, K), centre, size, jnp.arange(K))
-    group = jax.lax.fori_loop(0, K - N, merge, state)[-1]
+    group = jax.lax.while_loop(lambda s: jnp.sum(s[0]) > N, lambda s: _merge_step(jnp, s[0], peak, *s[1:]),
+                               state)[-1]
     ij = _cell_of(x, config, xp=jnp)
     part = group[jnp.maximum(basin[ij[:, 0], ij[:, 1]], 0)]
     present = jnp.zeros(K, bool).at[part].max(kept)
