@@ -372,18 +372,6 @@ def cluster_reference(x: np.ndarray, normals: np.ndarray, config: SegmentConfig)
     return labels
 
 
-def _order_segments(labels: np.ndarray, x: np.ndarray, n: int) -> np.ndarray:
-    """Relabel segments by centroid x then y (empty segments last), so that the order is deterministic."""
-    keys = []
-    for j in range(n):
-        sel = labels == j
-        keys.append((0, *x[sel, :2].mean(0)) if sel.any() else (1, 0.0, 0.0))
-    order = sorted(range(n), key=lambda j: keys[j])
-    remap = np.full(n + 1, -1, np.int64)
-    remap[np.asarray(order)] = np.arange(n)
-    return remap[labels]
-
-
 @functools.partial(jax.jit, static_argnames=("n", "size"))
 def pack_segments(points: jax.Array, normals: jax.Array, labels: jax.Array, n: int, size: int) -> Segments:
     """Gather each segment's points into a static ``[n, size]`` block (both paths share it).
@@ -420,7 +408,7 @@ def segment(points: np.ndarray | jax.Array, normals: np.ndarray | jax.Array, mas
     normals = np.where(fg[:, None], np.nan_to_num(np.asarray(normals, np.float32)), 0.0).astype(np.float32)
     labels = np.full(len(points), -1, np.int64)
     labels[fg] = cluster_reference(points[fg].astype(np.float64), normals[fg].astype(np.float64), config)
-    labels = _order_segments(labels, points, config.num_segments)
+    labels = _order_segments(jnp.asarray(labels, jnp.int32), jnp.asarray(points), config.num_segments)
     return pack_segments(points, normals, labels, config.num_segments, config.points_per_segment)
 
 
@@ -706,8 +694,9 @@ def cluster_jax(x: jax.Array, normals: jax.Array, valid: jax.Array, config: Segm
     return jnp.where(kept & enough, part, -1).astype(jnp.int32)
 
 
-def _order_segments_jax(labels: jax.Array, x: jax.Array, n: int) -> jax.Array:
-    """``_order_segments`` in JAX: segments by centroid x then y, empty ones last."""
+def _order_segments(labels: jax.Array, x: jax.Array, n: int) -> jax.Array:
+    """Relabel segments by centroid x then y, empty ones last, so that the order is deterministic (both
+    paths)."""
     onehot = jax.nn.one_hot(labels, n, dtype=x.dtype)
     count = onehot.sum(0)
     mean = (onehot.T @ x[:, :2]) / jnp.maximum(count, 1)[:, None]
@@ -727,5 +716,5 @@ def segment_jax(points: jax.Array, normals: jax.Array, mask: jax.Array, config: 
     fg = foreground_mask(points, mask, config)
     x = jnp.where(fg[:, None], points, 0.0)
     normals = jnp.where(fg[:, None], jnp.nan_to_num(jnp.asarray(normals, jnp.float32)), 0.0)
-    labels = _order_segments_jax(cluster_jax(x, normals, fg, config), x, config.num_segments)
+    labels = _order_segments(cluster_jax(x, normals, fg, config), x, config.num_segments)
     return pack_segments(x, normals, labels, config.num_segments, config.points_per_segment)
