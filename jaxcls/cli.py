@@ -9,6 +9,8 @@ from typing import Any
 
 from jaxcls.config import ConfigError, load_config, to_yaml
 from jaxcls.dataset import DatasetConfig, build_dataset, export_recording
+from jaxcls.train import TrainConfig
+from jaxcls.train import train as train_classifier
 from jaxcls.viz import ShowConfig, show
 
 _OVERRIDES_HELP = "dotted overrides applied after the config file, e.g. scene.num_objects=4 seed=3"
@@ -50,6 +52,13 @@ def build_parser() -> argparse.ArgumentParser:
     dataset.add_argument("--overwrite", action="store_true", help="discard what out_dir holds")
     dataset.set_defaults(run=_configured(
         DatasetConfig, lambda config, args: f"dataset in {build_dataset(config, overwrite=args.overwrite)}"))
+
+    train = sub.add_parser("train", help="train the PointNet classifier (resumes an interrupted run)",
+                           description="Train PointNet on an object set's clouds (complete and partial views); "
+                                       "writes checkpoints, metrics.json, curve.png, confusion.png and "
+                                       "pointnet.msgpack into out_dir. Run again to resume.")
+    _add_config_args(train, "configs/pointnet.yaml")
+    train.set_defaults(run=_configured(TrainConfig, lambda config, _: f"run in {train_classifier(config)}"))
 
     export = sub.add_parser("export", help="write one rendered scene as a recorded sequence",
                             description="Convert a dataset's scene_XXX.npz into the recorded-sequence folder "

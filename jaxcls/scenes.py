@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Literal
 
@@ -183,6 +184,20 @@ def sample_scene(object_set: ObjectSet, config: SceneConfig, seed: int,
         raise ValueError(f"scene: object set '{object_set.name}' has no '{config.split}' instances; set "
                          "scene.split=all, or hold some out with objects.test_fraction")
     models = _draw_instances(rng, pool, config.num_objects, config.distinct_classes)
+    return _arrange(models, config, rng, object_set_config, seed)
+
+
+def arrange_scene(models: Sequence[ObjectModel], config: SceneConfig, seed: int,
+                  object_set_config: ObjectSetConfig | None = None) -> Scene:
+    """A scene of exactly ``models`` (in random order), placed as ``sample_scene`` places its draw."""
+    if not models:
+        raise ValueError("arrange_scene: need at least one model")
+    config = dataclasses.replace(config, num_objects=len(models), num_clutter=min(config.num_clutter, len(models)))
+    return _arrange(list(models), config, np.random.default_rng(seed), object_set_config, seed)
+
+
+def _arrange(models: list[ObjectModel], config: SceneConfig, rng: np.random.Generator,
+             object_set_config: ObjectSetConfig | None, seed: int) -> Scene:
     hulls: list[np.ndarray] = []
     placed: list[PlacedObject] = []
     for i, model in enumerate(models):

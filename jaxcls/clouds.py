@@ -1,0 +1,274 @@
+"""Labelled point clouds of single objects, for training and evaluating the classifier (paper Sec. 4).
+
+Four sources, each a cloud of one instance in a z-up frame:
+
+- ``full``: the paper's recipe, points sampled uniformly on the instance's complete surface (model frame);
+- ``view``: one rendered depth frame of the instance alone on the table, from a random viewpoint, its
+  pixels back-projected (what a single-view segment looks like; the paper's PointNetSingle input);
+- ``occluded``: the same, with 1-3 other instances placed around it (only its visible pixels);
+- ``fused``: 2-3 such frames fused into a TSDF and its surface extracted (a partial reconstruction).
+
+Clouds are stored centred on their mean (the classifier normalises position and scale away), in float16.
+Points at or below the table band (``SegmentConfig.table_eps``) are dropped, as segmentation drops them.
+Rendering uses the configured backend (``mujoco`` on the CPU; ``warp`` on a GPU). Clouds of each instance
+are cached in one file under ``cache_dir``, so an interrupted generation resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+from pathlib import Path
+from typing import Literal
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from tqdm.auto import tqdm
+
+from jaxcls import geometry, segment, tsdf
+from jaxcls.assets import ObjectModel, ObjectSet, ObjectSetConfig
+
+SOURCES = ("full", "view", "occluded", "fused")
+
+
+@dataclasses.dataclass(frozen=True)
+class CloudConfig:
+    """How many clouds of each source an instance gets, and how they are made (``data:`` in the config)."""
+
+    full_points: int = 2500  # the paper's 2500 surface samples per instance
+    full_per_instance: int = 1
+    views_per_instance: int = 16
+    occluded_per_instance: int = 8
+    fused_per_instance: int = 4
+    max_points: int = 1024  # points kept per partial cloud (a random subset of larger clouds)
+    min_points: int = 64  # a view showing fewer points of the instance is drawn again
+    image_scale: float = 0.5  # of the Kinect v1 (0.5 = 320x240)
+    radius: tuple[float, float] = (0.7, 1.2)  # camera distance, m
+    elevation_deg: tuple[float, float] = (10.0, 80.0)
+    backend: Literal["auto", "mujoco", "mjx", "warp"] = "auto"
+    cache_dir: str = "data/clouds"
+
+    def count(self, source: str) -> int:
+        return getattr(self, f"{source}_per_instance" if source != "view" else "views_per_instance")
+
+
+@dataclasses.dataclass(frozen=True)
+class CloudSet:
+    """Clouds padded to one size (NumPy, host side).
+
+    points: [C, S, 3] f32 m (0 where padded); mask: [C, S] bool; label: [C] i32 class index;
+    source: [C] i32 index into ``SOURCES``; instance: [C] i32 index of the instance in its split.
+    """
+
+    points: np.ndarray
+    mask: np.ndarray
+    label: np.ndarray
+    source: np.ndarray
+    instance: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.label)
+
+    def select(self, keep: np.ndarray) -> CloudSet:
+        return CloudSet(*(getattr(self, f.name)[keep] for f in dataclasses.fields(self)))
+
+    @staticmethod
+    def concatenate(parts: list[CloudSet]) -> CloudSet:
+        return CloudSet(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in dataclasses.fields(CloudSet)))
+
+
+def _pad(clouds: list[np.ndarray], size: int) -> tuple[np.ndarray, np.ndarray]:
+    points = np.zeros((len(clouds), size, 3), np.float32)
+    mask = np.zeros((len(clouds), size), bool)
+    for i, c in enumerate(clouds):
+        points[i, :len(c)], mask[i, :len(c)] = c, True
+    return points, mask
+
+
+def _subset(points: np.ndarray, size: int, rng: np.random.Generator) -> np.ndarray:
+    """At most ``size`` of ``points: [n, 3]``, in random order."""
+    return points[rng.permutation(len(points))[:size]].astype(np.float32)
+
+
+def _random_views(rng: np.random.Generator, target: np.ndarray, count: int, config: CloudConfig) -> np.ndarray:
+    """[count, 4, 4] ``T_wc`` on the upper hemisphere around ``target`` at random distance and elevation."""
+    elevation = np.radians(rng.uniform(*config.elevation_deg, count))
+    azimuth = rng.uniform(0, 2 * math.pi, count)
+    radius = rng.uniform(*config.radius, count)
+    direction = np.stack([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
+                          np.sin(elevation)], axis=-1)
+    aim = target + rng.normal(0.0, 0.01, (count, 3))  # the object is not always at the image centre
+    return geometry.look_at(aim + radius[:, None] * direction, aim)
+
+
+def _visible_points(depth: np.ndarray, object_id: np.ndarray, index: int, intrinsics: geometry.Intrinsics,
+                    T_wc: np.ndarray, table_top: float) -> np.ndarray:
+    """[n, 3] world points of the pixels that see object ``index``, above the table band."""
+    points = np.asarray(geometry.backproject(jnp.asarray(depth), intrinsics, jnp.asarray(T_wc, jnp.float32)))
+    points = points[(object_id == index) & (depth > 0)]
+    return points[points[:, 2] > table_top]
+
+
+class _InstanceRenderer:
+    """Renders clouds of one instance: alone, among occluders, fused."""
+
+    def __init__(self, model: ObjectModel, pool: tuple[ObjectModel, ...], object_set_config: ObjectSetConfig,
+                 config: CloudConfig, rng: np.random.Generator):
+        from jaxcls import scenes
+        from jaxcls.render import make_renderer, resolve_backend
+
+        self.model, self.pool, self.config, self.rng = model, pool, config, rng
+        self.object_set_config = object_set_config
+        self.intrinsics = geometry.Intrinsics.kinect_v1(config.image_scale)
+        self.segment_config = segment.SegmentConfig()
+        self.table_top = self.segment_config.table_height + self.segment_config.table_eps
+        self.backend = resolve_backend(config.backend)
+        self._scenes, self._make_renderer = scenes, make_renderer
+
+    def _scene(self, others: tuple[ObjectModel, ...]):
+        """(renderer, index of the instance, its centre) of the instance with ``others`` placed around it."""
+        scenes = self._scenes
+        models = (self.model, *others)
+        scene = scenes.arrange_scene(models, scenes.SceneConfig(), int(self.rng.integers(2**31)),
+                                     self.object_set_config)
+        by_name = {m.name: m for m in models}
+        placed = tuple(by_name[o.name] for o in scene.objects)
+        renderer = self._make_renderer(scenes.build_model(scene, placed, self.intrinsics), self.intrinsics,
+                                       self.backend)
+        index = [o.name for o in scene.objects].index(self.model.name)
+        centre = scene.object_poses()[index] @ np.append(self.model.bounds.mean(axis=0), 1.0)
+        return renderer, index, centre[:3]
+
+    def _views(self, renderer, index: int, centre: np.ndarray, count: int) -> tuple[list, list]:
+        """Up to ``count`` (points, T_wc) whose view shows >= min_points of the instance (a few tries)."""
+        clouds, poses = [], []
+        for _ in range(4):
+            need = count - len(clouds)
+            if need <= 0:
+                break
+            Ts = _random_views(self.rng, centre, 2 * need, self.config)
+            frames = renderer.render(Ts)
+            depth, ids = np.asarray(frames.depth), np.asarray(frames.object_id)
+            for d, o, T in zip(depth, ids, Ts, strict=True):
+                pts = _visible_points(d, o, index, self.intrinsics, T, self.table_top)
+                if len(pts) >= self.config.min_points and len(clouds) < count:
+                    clouds.append(pts)
+                    poses.append((d, T))
+        return clouds, poses
+
+    def single(self) -> list[np.ndarray]:
+        renderer, index, centre = self._scene(())
+        clouds, _ = self._views(renderer, index, centre, self.config.views_per_instance)
+        return clouds
+
+    def occluded(self) -> list[np.ndarray]:
+        clouds = []
+        others = [m for m in self.pool if m is not self.model]
+        for _ in range(self.config.occluded_per_instance):
+            picks = self.rng.choice(len(others), size=min(len(others), int(self.rng.integers(1, 4))), replace=False)
+            renderer, index, centre = self._scene(tuple(others[k] for k in picks))
+            clouds += self._views(renderer, index, centre, 1)[0]
+        return clouds
+
+    def fused(self) -> list[np.ndarray]:
+        if self.config.fused_per_instance == 0:
+            return []
+        renderer, index, centre = self._scene(())
+        cfg = self.segment_config
+        empty = tsdf.create_volume(np.asarray(cfg.roi_center), cfg.roi_size, 128)
+        clouds = []
+        for _ in range(self.config.fused_per_instance):
+            _, frames = self._views(renderer, index, centre, int(self.rng.integers(2, 4)))
+            volume = empty
+            for depth, T in frames:
+                T = jnp.asarray(T, jnp.float32)
+                volume = tsdf.integrate(volume, segment.foreground_depth(jnp.asarray(depth), self.intrinsics, T, cfg),
+                                        self.intrinsics, T)
+            surface = tsdf.extract_surface(volume, 8192)
+            keep = np.asarray(segment.foreground_mask(surface.points, surface.mask, cfg))
+            pts = np.asarray(surface.points)[keep]
+            if len(pts) >= self.config.min_points:
+                clouds.append(pts)
+        return clouds
+
+
+def instance_clouds(model: ObjectModel, pool: tuple[ObjectModel, ...], label: int, object_set_config: ObjectSetConfig,
+                    config: CloudConfig, seed: int) -> CloudSet:
+    """Every source's clouds of one instance (``pool``: the instances occluders are drawn from)."""
+    rng = np.random.default_rng(seed)
+    full = [_subset(model.surface_points, config.full_points, rng) for _ in range(config.full_per_instance)]
+    partial = _InstanceRenderer(model, pool, object_set_config, config, rng) if config.views_per_instance + \
+        config.occluded_per_instance + config.fused_per_instance else None
+    by_source = {"full": full, "view": partial.single() if partial else [],
+                 "occluded": partial.occluded() if partial and config.occluded_per_instance else [],
+                 "fused": partial.fused() if partial else []}
+    clouds = [_subset(c, config.max_points if s != "full" else config.full_points, rng)
+              for s in SOURCES for c in by_source[s]]
+    clouds = [c - c.mean(axis=0) for c in clouds]
+    source = np.concatenate([np.full(len(by_source[s]), i, np.int32) for i, s in enumerate(SOURCES)])
+    points, mask = _pad(clouds, max(config.max_points, config.full_points))
+    return CloudSet(points, mask, np.full(len(clouds), label, np.int32), source, np.zeros(len(clouds), np.int32))
+
+
+def _cache_key(object_set: ObjectSet, split: str, config: CloudConfig, object_set_config: ObjectSetConfig,
+               seed: int) -> str:
+    defining = {**dataclasses.asdict(config), "backend": None, "cache_dir": None, "objects": dataclasses.asdict(
+        object_set_config), "object_set": object_set.name, "split": split, "seed": seed}
+    return hashlib.sha1(json.dumps(defining, sort_keys=True).encode()).hexdigest()[:12]
+
+
+def load_clouds(object_set: ObjectSet, split: Literal["train", "test"], config: CloudConfig,
+                object_set_config: ObjectSetConfig, seed: int = 0, show_progress: bool = True) -> CloudSet:
+    """All clouds of a split's instances, generated once and cached per instance under ``cache_dir``.
+
+    The cache folder is named by a hash of everything that defines the clouds (not the backend, whose
+    renders agree), so a changed config never reads stale clouds; an interrupted run resumes.
+    """
+    models = object_set.split(split)
+    if not models:
+        raise ValueError(f"clouds: object set '{object_set.name}' has no '{split}' instances")
+    key = _cache_key(object_set, split, config, object_set_config, seed)
+    folder = Path(config.cache_dir) / f"{object_set.name}_{split}_{key}"
+    folder.mkdir(parents=True, exist_ok=True)
+    parts = []
+    for i, model in enumerate(tqdm(models, desc=f"{split} clouds", disable=not show_progress, leave=False)):
+        path = folder / f"{i:04d}_{model.name}.npz"
+        if not path.is_file():
+            seq = np.random.SeedSequence([seed, 0 if split == "train" else 1, i])
+            part = instance_clouds(model, models, object_set.class_index(model.class_name), object_set_config,
+                                   config, int(seq.generate_state(1)[0]))
+            tmp = path.with_suffix(".tmp.npz")
+            np.savez_compressed(tmp, points16=part.points.astype(np.float16),
+                                **{f.name: getattr(part, f.name) for f in dataclasses.fields(CloudSet)
+                                   if f.name != "points"})
+            tmp.rename(path)
+        with np.load(path) as data:
+            part = CloudSet(points=data["points16"].astype(np.float32),
+                            **{f.name: data[f.name] for f in dataclasses.fields(CloudSet) if f.name != "points"})
+        parts.append(dataclasses.replace(part, instance=np.full(len(part), i, np.int32)))
+    return CloudSet.concatenate(parts)
+
+
+def sample_batch(key: jax.Array, points: jax.Array, mask: jax.Array, index: jax.Array, num_points: int,
+                 rotate: bool = True) -> tuple[jax.Array, jax.Array]:
+    """Clouds ``index: [B]`` of a bank (``points: [C, S, 3]``, ``mask: [C, S]``), each a random subset of
+    ``num_points`` real points (fewer where the cloud has fewer, padded) turned by a random yaw.
+
+    Returns (points [B, num_points, 3], mask [B, num_points]). Pure JAX (runs inside the training jit).
+    """
+    k_sub, k_yaw = jax.random.split(key)
+    pts, m = points[index], mask[index]
+    priority = jnp.where(m, jax.random.uniform(k_sub, m.shape), 2.0)
+    order = jnp.argsort(priority, axis=-1)[:, :num_points]
+    pts = jnp.take_along_axis(pts, order[..., None], axis=1)
+    m = jnp.take_along_axis(m, order, axis=1)
+    if rotate:
+        yaw = jax.random.uniform(k_yaw, index.shape, minval=-jnp.pi, maxval=jnp.pi)
+        c, s = jnp.cos(yaw), jnp.sin(yaw)
+        zero, one = jnp.zeros_like(c), jnp.ones_like(c)
+        R = jnp.stack([jnp.stack([c, -s, zero], -1), jnp.stack([s, c, zero], -1), jnp.stack([zero, zero, one], -1)], -2)
+        pts = jnp.einsum("bij,bpj->bpi", R, pts)
+    return jnp.where(m[..., None], pts, 0.0), m

@@ -1,0 +1,243 @@
+"""PointNet classification of segments (paper Sec. 3.2, Eq. 1; Qi et al. 2017, the paper's [26]).
+
+A segment is a padded cloud ``points: [P, 3]`` with ``mask: [P]``. The network sees it normalised (masked
+mean subtracted, scaled into the unit sphere, as the paper's training clouds are) and aligns it with an
+input T-Net (3x3); a shared MLP 64-64 follows, a feature T-Net (64x64, kept near orthogonal by
+``orthogonality_loss``), a shared MLP 64-128-1024, a max-pool over the real points only, and a head
+512-256-M with batch norm and dropout. Padded points never reach the pool nor the batch statistics, so
+adding masked points changes nothing.
+
+Inference goes through a ``Classifier`` (weights + class list): ``classify`` gives probabilities for
+``[N, P, 3]`` segments, ``top_k`` the candidates ICP chooses among. ``load_classifier()`` without a path
+loads the weights shipped for the builtin object set.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import linen as nn
+from flax import serialization, struct
+
+WEIGHTS_DIR = Path(__file__).parent / "weights"
+BUILTIN_WEIGHTS = WEIGHTS_DIR / "pointnet_builtin.msgpack"
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelConfig:
+    """The network's hyper-parameters (the ``model:`` section of ``configs/pointnet.yaml``)."""
+
+    num_points: int = 1024  # points per cloud the network is trained on (segments are padded to this)
+    dropout: float = 0.3  # before the last layer (PointNet's keep probability 0.7)
+    bn_momentum: float = 0.9
+    feature_transform_weight: float = 0.001  # weight of ``orthogonality_loss``
+
+
+def normalise(points: jax.Array, mask: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Centre the real points on their mean and scale them into the unit sphere (the paper's recipe).
+
+    points: [..., P, 3] m; mask: [..., P] bool. Non-finite points count as padding. Returns (points
+    [..., P, 3] unitless, 0 where padded; mask [..., P] bool of the points kept).
+    """
+    mask = mask & jnp.all(jnp.isfinite(points), axis=-1)
+    points = jnp.where(mask[..., None], points, 0.0)
+    count = jnp.maximum(jnp.sum(mask, axis=-1, keepdims=True), 1)[..., None]
+    centred = points - jnp.sum(points, axis=-2, keepdims=True) / count
+    radius = jnp.max(jnp.where(mask, jnp.linalg.norm(centred, axis=-1), 0.0), axis=-1)[..., None, None]
+    return jnp.where(mask[..., None], centred / jnp.maximum(radius, 1e-9), 0.0), mask
+
+
+def masked_max(features: jax.Array, mask: jax.Array) -> jax.Array:
+    """[B, C] max over the real points of ``features: [B, P, C]`` (``mask: [B, P]``); 0 for an empty cloud."""
+    pooled = jnp.max(jnp.where(mask[..., None], features, -jnp.inf), axis=-2)
+    return jnp.where(jnp.any(mask, axis=-1)[..., None], pooled, 0.0)
+
+
+class _SharedMLP(nn.Module):
+    """Per-point Dense + batch norm (over real points) + ReLU, for each width."""
+
+    widths: Sequence[int]
+    momentum: float
+
+    @nn.compact
+    def __call__(self, x: jax.Array, mask: jax.Array, train: bool) -> jax.Array:
+        for width in self.widths:
+            x = nn.Dense(width)(x)
+            x = nn.BatchNorm(use_running_average=not train, momentum=self.momentum)(x, mask=mask[..., None])
+            x = nn.relu(x)
+        return x
+
+
+class _Head(nn.Module):
+    """Cloud-level Dense + batch norm + ReLU layers, optional dropout, and a final Dense."""
+
+    widths: Sequence[int]
+    out: int
+    momentum: float
+    dropout: float = 0.0
+    out_bias_init: Any = nn.initializers.zeros
+
+    @nn.compact
+    def __call__(self, x: jax.Array, train: bool) -> jax.Array:
+        for width in self.widths:
+            x = nn.Dense(width)(x)
+            x = nn.relu(nn.BatchNorm(use_running_average=not train, momentum=self.momentum)(x))
+        if self.dropout:
+            x = nn.Dropout(self.dropout, deterministic=not train)(x)
+        return nn.Dense(self.out, bias_init=self.out_bias_init)(x)
+
+
+def _identity_init(k: int):
+    def init(key: jax.Array, shape: Sequence[int], dtype: Any = jnp.float32) -> jax.Array:
+        return jnp.eye(k, dtype=dtype).reshape(shape)
+    return init
+
+
+class TNet(nn.Module):
+    """A k x k transform predicted from the cloud (starts at the identity: zero kernel, identity bias)."""
+
+    k: int
+    momentum: float
+
+    @nn.compact
+    def __call__(self, x: jax.Array, mask: jax.Array, train: bool) -> jax.Array:
+        h = masked_max(_SharedMLP((64, 128, 1024), self.momentum)(x, mask, train), mask)
+        out = _Head((512, 256), self.k * self.k, self.momentum, out_bias_init=_identity_init(self.k))
+        return out(h, train).reshape(*x.shape[:-2], self.k, self.k)
+
+
+class PointNet(nn.Module):
+    """PointNet classification network. ``points: [B, P, 3]`` normalised (``normalise``), ``mask: [B, P]``.
+
+    Returns (logits [B, M], feature transform [B, 64, 64]).
+    """
+
+    num_classes: int
+    dropout: float = 0.3
+    momentum: float = 0.9
+
+    @nn.compact
+    def __call__(self, points: jax.Array, mask: jax.Array, train: bool = False) -> tuple[jax.Array, jax.Array]:
+        x = points @ TNet(3, self.momentum)(points, mask, train)
+        x = _SharedMLP((64, 64), self.momentum)(x, mask, train)
+        feature_transform = TNet(64, self.momentum)(x, mask, train)
+        x = _SharedMLP((64, 128, 1024), self.momentum)(x @ feature_transform, mask, train)
+        logits = _Head((512, 256), self.num_classes, self.momentum, self.dropout)(masked_max(x, mask), train)
+        return logits, feature_transform
+
+
+def orthogonality_loss(transform: jax.Array) -> jax.Array:
+    """Mean over the batch of ||I - A A^T||_F^2 for ``transform: [B, k, k]`` (PointNet's regulariser)."""
+    k = transform.shape[-1]
+    gram = transform @ jnp.swapaxes(transform, -1, -2)
+    return jnp.mean(jnp.sum((gram - jnp.eye(k)) ** 2, axis=(-2, -1)))
+
+
+def make_model(num_classes: int, config: ModelConfig) -> PointNet:
+    return PointNet(num_classes=num_classes, dropout=config.dropout, momentum=config.bn_momentum)
+
+
+def init_variables(key: jax.Array, num_classes: int, config: ModelConfig) -> dict:
+    """Fresh ``{"params", "batch_stats"}`` for ``num_classes`` outputs."""
+    points = jnp.zeros((2, config.num_points, 3), jnp.float32)
+    return dict(make_model(num_classes, config).init(key, points, jnp.ones((2, config.num_points), bool)))
+
+
+@struct.dataclass
+class Classifier:
+    """Trained weights and what they mean.
+
+    variables: flax ``{"params", "batch_stats"}``; classes: the class names, logits in this order;
+    config: the network's hyper-parameters.
+    """
+
+    variables: dict
+    classes: tuple[str, ...] = struct.field(pytree_node=False)
+    config: ModelConfig = struct.field(pytree_node=False)
+
+    def check_classes(self, classes: Sequence[str], source: str = "object set") -> None:
+        """Raise ValueError unless ``classes`` is exactly the class list these weights were trained on."""
+        if tuple(classes) != self.classes:
+            raise ValueError(f"classifier: weights were trained on classes {list(self.classes)}, but the "
+                             f"{source} has {list(classes)}; train on this set (jaxcls train) or load "
+                             "matching weights")
+
+
+@jax.jit
+def classify(classifier: Classifier, points: jax.Array, mask: jax.Array) -> jax.Array:
+    """Class probabilities of segments (paper Eq. 1's softmax).
+
+    points: [N, P, 3] m (any frame with z up); mask: [N, P] bool; NaN or inf points count as padding.
+    Returns probs [N, M]; a segment with no real point gets the uniform distribution 1/M.
+    """
+    points, mask = normalise(jnp.asarray(points, jnp.float32), jnp.asarray(mask, bool))
+    model = make_model(len(classifier.classes), classifier.config)
+    logits, _ = model.apply(classifier.variables, points, mask, train=False)
+    probs = jax.nn.softmax(logits, axis=-1)
+    return jnp.where(jnp.any(mask, axis=-1, keepdims=True), probs, 1.0 / len(classifier.classes))
+
+
+@functools.partial(jax.jit, static_argnames=("k",))
+def top_k(probs: jax.Array, k: int = 3) -> tuple[jax.Array, jax.Array]:
+    """The k most probable classes of each segment (the candidates of Eq. 1).
+
+    probs: [N, M]. Returns (scores [N, k] descending, class indices [N, k] i32); ties go to the lower index.
+    """
+    if not 1 <= k <= probs.shape[-1]:
+        raise ValueError(f"top_k: need 1 <= k <= {probs.shape[-1]} classes, got k = {k}")
+    return jax.lax.top_k(probs, k)
+
+
+def save_classifier(path: str | Path, classifier: Classifier, metadata: dict | None = None,
+                    dtype: Any = np.float16) -> Path:
+    """Write weights as one msgpack file (stored in ``dtype``) and a JSON beside it (classes, config,
+    ``metadata`` such as the accuracies measured)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    stored = jax.tree.map(lambda a: np.asarray(a, dtype), classifier.variables)
+    path.write_bytes(serialization.msgpack_serialize(serialization.to_state_dict(stored)))
+    info = {"classes": list(classifier.classes), "model": dataclasses.asdict(classifier.config),
+            **(metadata or {})}
+    path.with_suffix(".json").write_text(json.dumps(info, indent=2) + "\n")
+    return path
+
+
+def load_classifier(path: str | Path | None = None, classes: Sequence[str] | None = None) -> Classifier:
+    """Weights written by ``save_classifier`` (default: the ones shipped for the builtin object set).
+
+    With ``classes``, raise ValueError unless the weights were trained on exactly that class list.
+    """
+    path = Path(path) if path is not None else BUILTIN_WEIGHTS
+    info_path = path.with_suffix(".json")
+    for p in (path, info_path):
+        if not p.is_file():
+            raise FileNotFoundError(f"classifier: {p} not found (weights come as a .msgpack and a .json)")
+    info = json.loads(info_path.read_text())
+    try:
+        config = ModelConfig(**info["model"])
+        names = tuple(info["classes"])
+    except (KeyError, TypeError) as e:
+        raise ValueError(f"classifier: {info_path} lacks a valid 'classes' or 'model' entry: {e}") from None
+    template = jax.tree.map(np.asarray, init_variables(jax.random.key(0), len(names), config))
+    try:
+        state = serialization.msgpack_restore(path.read_bytes())
+        variables = serialization.from_state_dict(template, state)
+    except (ValueError, KeyError) as e:
+        raise ValueError(f"classifier: {path} does not hold PointNet weights for {len(names)} classes: {e}") from None
+    for (keypath, want), got in zip(jax.tree_util.tree_leaves_with_path(template), jax.tree.leaves(variables),
+                                    strict=True):
+        if np.shape(got) != np.shape(want):
+            raise ValueError(f"classifier: {path}: {jax.tree_util.keystr(keypath)} has shape {np.shape(got)}, "
+                             f"expected {np.shape(want)}")
+    classifier = Classifier(jax.tree.map(lambda a: jnp.asarray(a, jnp.float32), variables), names, config)
+    if classes is not None:
+        classifier.check_classes(classes)
+    return classifier
