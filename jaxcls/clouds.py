@@ -129,7 +129,7 @@ class _InstanceRenderer:
         self._scenes, self._make_renderer = scenes, make_renderer
 
     def _scene(self, others: tuple[ObjectModel, ...]):
-        """(renderer, index of the instance, its centre) of the instance with ``others`` placed around it."""
+        """(renderer, index of the instance, its centre [3], its pose [4, 4]) with ``others`` placed around it."""
         scenes = self._scenes
         models = (self.model, *others)
         scene = scenes.arrange_scene(models, scenes.SceneConfig(), int(self.rng.integers(2**31)),
@@ -139,8 +139,8 @@ class _InstanceRenderer:
         renderer = self._make_renderer(scenes.build_model(scene, placed, self.intrinsics), self.intrinsics,
                                        self.backend)
         index = [o.name for o in scene.objects].index(self.model.name)
-        centre = scene.object_poses()[index] @ np.append(self.model.bounds.mean(axis=0), 1.0)
-        return renderer, index, centre[:3]
+        pose = scene.object_poses()[index]
+        return renderer, index, (pose @ np.append(self.model.bounds.mean(axis=0), 1.0))[:3], pose
 
     def _views(self, renderer, index: int, centre: np.ndarray, count: int) -> tuple[list, list]:
         """Up to ``count`` (points, T_wc) whose view shows >= min_points of the instance (a few tries)."""
@@ -160,7 +160,7 @@ class _InstanceRenderer:
         return clouds, poses
 
     def single(self) -> list[np.ndarray]:
-        renderer, index, centre = self._scene(())
+        renderer, index, centre, _ = self._scene(())
         clouds, _ = self._views(renderer, index, centre, self.config.views_per_instance)
         return clouds
 
@@ -169,14 +169,14 @@ class _InstanceRenderer:
         others = [m for m in self.pool if m is not self.model]
         for _ in range(self.config.occluded_per_instance):
             picks = self.rng.choice(len(others), size=min(len(others), int(self.rng.integers(1, 4))), replace=False)
-            renderer, index, centre = self._scene(tuple(others[k] for k in picks))
+            renderer, index, centre, _ = self._scene(tuple(others[k] for k in picks))
             clouds += self._views(renderer, index, centre, 1)[0]
         return clouds
 
     def fused(self) -> list[np.ndarray]:
         if self.config.fused_per_instance == 0:
             return []
-        renderer, index, centre = self._scene(())
+        renderer, index, centre, _ = self._scene(())
         cfg = self.segment_config
         empty = tsdf.create_volume(np.asarray(cfg.roi_center), cfg.roi_size, 128)
         clouds = []

@@ -83,6 +83,7 @@ class _Head(nn.Module):
     out: int
     momentum: float
     dropout: float = 0.0
+    out_kernel_init: Any = nn.initializers.lecun_normal()
     out_bias_init: Any = nn.initializers.zeros
 
     @nn.compact
@@ -92,7 +93,7 @@ class _Head(nn.Module):
             x = nn.relu(nn.BatchNorm(use_running_average=not train, momentum=self.momentum)(x))
         if self.dropout:
             x = nn.Dropout(self.dropout, deterministic=not train)(x)
-        return nn.Dense(self.out, bias_init=self.out_bias_init)(x)
+        return nn.Dense(self.out, kernel_init=self.out_kernel_init, bias_init=self.out_bias_init)(x)
 
 
 def _identity_init(k: int):
@@ -110,7 +111,8 @@ class TNet(nn.Module):
     @nn.compact
     def __call__(self, x: jax.Array, mask: jax.Array, train: bool) -> jax.Array:
         h = masked_max(_SharedMLP((64, 128, 1024), self.momentum)(x, mask, train), mask)
-        out = _Head((512, 256), self.k * self.k, self.momentum, out_bias_init=_identity_init(self.k))
+        out = _Head((512, 256), self.k * self.k, self.momentum, out_kernel_init=nn.initializers.zeros,
+                    out_bias_init=_identity_init(self.k))
         return out(h, train).reshape(*x.shape[:-2], self.k, self.k)
 
 
@@ -236,7 +238,7 @@ def load_classifier(path: str | Path | None = None, classes: Sequence[str] | Non
                                     strict=True):
         if np.shape(got) != np.shape(want):
             raise ValueError(f"classifier: {path}: {jax.tree_util.keystr(keypath)} has shape {np.shape(got)}, "
-                             f"expected {np.shape(want)}")
+                             f"expected {np.shape(want)} for the {len(names)} classes of {info_path.name}")
     classifier = Classifier(jax.tree.map(lambda a: jnp.asarray(a, jnp.float32), variables), names, config)
     if classes is not None:
         classifier.check_classes(classes)

@@ -1,0 +1,169 @@
+"""Training clouds and ``jaxcls train``: clouds lie on the rendered instance, batches are subsets turned
+about z, the cache resumes, a short CPU run learns, is deterministic, resumes to the same result, and
+splits its batch over several (forced host) devices with the same losses."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from jaxcls import clouds
+from jaxcls.assets import ObjectSetConfig, builtin_object_set
+from jaxcls.cli import main as cli_main
+from jaxcls.train import Mix, TrainConfig, train
+
+TINY_OBJECTS = ObjectSetConfig(train_per_class=1, test_per_class=1, surface_samples=2500)
+
+
+def _tiny_config(tmp: Path, **changes) -> TrainConfig:
+    data = clouds.CloudConfig(views_per_instance=2, occluded_per_instance=0, fused_per_instance=0,
+                              image_scale=0.25, max_points=256, backend="mujoco", cache_dir=str(tmp / "cache"))
+    config = TrainConfig(name="tiny", out_dir=str(tmp / "run"), objects=TINY_OBJECTS, data=data,
+                         mix=Mix(full=0.5, view=0.5), model=dataclasses.replace(TrainConfig().model, num_points=64),
+                         epochs=4, steps_per_epoch=5, batch_size=8, eval_rotations=2, eval_batch=32)
+    return dataclasses.replace(config, **changes)
+
+
+@pytest.fixture(scope="module")
+def workspace(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("train")
+
+
+@pytest.fixture(scope="module")
+def straight_run(workspace) -> Path:
+    """Four epochs in one go (the cache it fills is shared by the other runs)."""
+    return train(_tiny_config(workspace, out_dir=str(workspace / "straight")), show_progress=False)
+
+
+def _history(run: Path) -> list[dict]:
+    return json.loads((run / "metrics.json").read_text())["history"]
+
+
+def test_view_clouds_lie_on_the_posed_instance():
+    object_set = builtin_object_set(train_per_class=1, test_per_class=0)
+    model = object_set.train[0]
+    config = clouds.CloudConfig(image_scale=0.5, backend="mujoco")
+    maker = clouds._InstanceRenderer(model, object_set.train, TINY_OBJECTS, config, np.random.default_rng(0))
+    renderer, index, centre, pose = maker._scene(object_set.train[1:3])
+    found, _ = maker._views(renderer, index, centre, 3)
+    assert len(found) == 3
+    dense = model.mesh.sample(200_000, seed=0) @ pose[:3, :3].T + pose[:3, 3]
+    for points in found:
+        assert len(points) >= config.min_points
+        assert np.all(points[:, 2] > maker.table_top)
+        distance, _ = cKDTree(dense).query(points)
+        assert np.percentile(distance, 95) < 2e-3, np.percentile(distance, 95)
+
+
+def test_sample_batch_draws_real_points_turned_about_z():
+    rng = np.random.default_rng(0)
+    points = rng.normal(size=(3, 50, 3)).astype(np.float32)
+    mask = np.zeros((3, 50), bool)
+    mask[0, :50], mask[1, :10], mask[2, :30] = True, True, True
+    out, m = clouds.sample_batch(jax.random.key(0), jnp.asarray(points), jnp.asarray(mask), jnp.asarray([0, 1, 2, 1]), 20)
+    np.testing.assert_array_equal(np.sum(m, 1), [20, 10, 20, 10])
+    for row, source in enumerate([0, 1, 2, 1]):
+        real = np.asarray(out[row])[np.asarray(m[row])]
+        original = points[source][mask[source]]
+        # a yaw keeps z and the distance to the z axis: match each drawn point to its original by those
+        key = np.stack([original[:, 2], np.linalg.norm(original[:, :2], axis=1)], 1)
+        drawn = np.stack([real[:, 2], np.linalg.norm(real[:, :2], axis=1)], 1)
+        distance, which = cKDTree(key).query(drawn)
+        assert np.all(distance < 1e-5) and len(set(which)) == len(which)  # distinct real points
+
+
+def test_cache_resumes_without_rendering(workspace, straight_run, monkeypatch):
+    config = _tiny_config(workspace)
+    object_set = builtin_object_set(train_per_class=1, test_per_class=1, surface_samples=2500)
+    first = clouds.load_clouds(object_set, "test", config.data, config.objects, config.seed, show_progress=False)
+    monkeypatch.setattr(clouds, "instance_clouds", lambda *a, **k: pytest.fail("rendered again"))
+    again = clouds.load_clouds(object_set, "test", config.data, config.objects, config.seed, show_progress=False)
+    np.testing.assert_array_equal(first.points, again.points)
+    assert set(first.source) == {0, 1} and set(first.label) == set(range(8))
+
+
+def test_short_run_learns_and_writes_its_outputs(straight_run):
+    history = _history(straight_run)
+    assert [h["epoch"] for h in history] == [1, 2, 3, 4]
+    assert history[-1]["loss"] < history[0]["loss"]
+    metrics = json.loads((straight_run / "metrics.json").read_text())
+    assert set(metrics["final"]) == {"full", "view"}
+    assert set(metrics["final"]["full"]["per_class"]) == set(metrics["classes"])
+    assert np.sum(metrics["final"]["full"]["confusion"]) == 8 * 2  # 8 held-out instances x 2 yaws
+    for name in ("curve.png", "confusion.png", "pointnet.msgpack", "pointnet.json", "config.yaml"):
+        assert (straight_run / name).stat().st_size > 0
+
+
+def test_same_seed_same_weights_and_resume_matches(workspace, straight_run):
+    again = train(_tiny_config(workspace, out_dir=str(workspace / "again")), show_progress=False)
+    assert (again / "pointnet.msgpack").read_bytes() == (straight_run / "pointnet.msgpack").read_bytes()
+    # Interrupted after two epochs, then the same command resumes from the checkpoint.
+    resumed = workspace / "resumed"
+    train(_tiny_config(workspace, out_dir=str(resumed), epochs=2), show_progress=False)
+    train(_tiny_config(workspace, out_dir=str(resumed)), show_progress=False)
+    assert [h["loss"] for h in _history(resumed)] == [h["loss"] for h in _history(straight_run)]
+    assert (resumed / "pointnet.msgpack").read_bytes() == (straight_run / "pointnet.msgpack").read_bytes()
+
+
+def test_config_errors_name_the_problem(workspace):
+    with pytest.raises(ValueError, match="mix.occluded"):
+        train(_tiny_config(workspace, out_dir=str(workspace / "bad"), mix=Mix(full=1.0, occluded=1.0)),
+              show_progress=False)
+    with pytest.raises(ValueError, match="mix weights"):
+        _tiny_config(workspace, mix=Mix(full=0.0))
+    assert cli_main(["train", "--config", "configs/pointnet.yaml", "batch_size=0"]) == 2
+
+
+def test_data_parallel_over_four_host_devices(workspace, straight_run):
+    """The batch split over 4 forced host devices: the compiled epoch all-reduces, two steps give the same
+    losses as on one device, and ``train`` runs there (its first epoch matches; later ones
+    drift apart as float rounding differs and training amplifies it)."""
+    script = textwrap.dedent(f"""
+        import dataclasses, json, sys
+        from pathlib import Path
+        import jax
+        import numpy as np
+        from jax.sharding import Mesh, NamedSharding, PartitionSpec
+        sys.path.insert(0, {str(Path(__file__).parent)!r})
+        from test_train import _tiny_config
+        from jaxcls.clouds import CloudSet
+        from jaxcls.train import create_state, make_bank, make_train_epoch, train
+        assert jax.device_count() == 4, jax.devices()
+        config = _tiny_config(Path({str(workspace)!r}), out_dir={str(workspace / "parallel")!r})
+        rng = np.random.default_rng(0)
+        fake = CloudSet(rng.normal(size=(8, 64, 3)).astype(np.float32), np.ones((8, 64), bool),
+                        np.arange(8, dtype=np.int32), np.zeros(8, np.int32), np.zeros(8, np.int32))
+        out = {{}}
+        for n in (1, 4):
+            mesh = Mesh(np.asarray(jax.devices()[:n]), ("data",))
+            replicated = NamedSharding(mesh, PartitionSpec())
+            epoch = make_train_epoch(config, 8, 2, mesh)
+            args = (jax.device_put(create_state(config, 8, 2), replicated),
+                    jax.device_put(make_bank(fake, dataclasses.replace(config.mix, view=0.0)), replicated),
+                    jax.random.key(0))
+            if n == 4:
+                assert "all-reduce" in epoch.lower(*args).compile().as_text()
+            state, metrics = epoch(*args)
+            out[n] = np.asarray(metrics["loss"])  # the second step's loss follows the first update
+        np.testing.assert_allclose(out[4], out[1], rtol=1e-5)
+        run = train(config, show_progress=False)
+        print(json.dumps([h["loss"] for h in json.loads((run / "metrics.json").read_text())["history"]]))
+    """)
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=4", "JAX_PLATFORMS": "cpu"}
+    result = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600,
+                            cwd=Path(__file__).parent.parent)
+    assert result.returncode == 0, result.stderr[-3000:]
+    losses = json.loads(result.stdout.strip().splitlines()[-1])
+    assert len(losses) == 4 and np.all(np.isfinite(losses))
+    assert losses[0] == pytest.approx(_history(straight_run)[0]["loss"], rel=2e-2)
