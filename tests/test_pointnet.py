@@ -105,9 +105,9 @@ def test_weights_round_trip_and_class_check(classifier, clouds, tmp_path):
         pointnet.load_classifier(path, classes=("a", "b", "c", "e"))
     (tmp_path / "bad.msgpack").write_bytes(b"not msgpack at all")
     (tmp_path / "bad.json").write_text(path.with_suffix(".json").read_text())
-    with pytest.raises(ValueError, match="bad.msgpack"):
+    with pytest.raises(ValueError, match=r"bad\.msgpack"):
         pointnet.load_classifier(tmp_path / "bad.msgpack")
-    with pytest.raises(FileNotFoundError, match="missing.msgpack"):
+    with pytest.raises(FileNotFoundError, match=r"missing\.msgpack"):
         pointnet.load_classifier(tmp_path / "missing.msgpack")
 
 

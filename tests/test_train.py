@@ -71,7 +71,8 @@ def test_sample_batch_draws_real_points_turned_about_z():
     points = rng.normal(size=(3, 50, 3)).astype(np.float32)
     mask = np.zeros((3, 50), bool)
     mask[0, :50], mask[1, :10], mask[2, :30] = True, True, True
-    out, m = clouds.sample_batch(jax.random.key(0), jnp.asarray(points), jnp.asarray(mask), jnp.asarray([0, 1, 2, 1]), 20)
+    index = jnp.asarray([0, 1, 2, 1])
+    out, m = clouds.sample_batch(jax.random.key(0), jnp.asarray(points), jnp.asarray(mask), index, 20)
     np.testing.assert_array_equal(np.sum(m, 1), [20, 10, 20, 10])
     for row, source in enumerate([0, 1, 2, 1]):
         real = np.asarray(out[row])[np.asarray(m[row])]
@@ -117,7 +118,7 @@ def test_same_seed_same_weights_and_resume_matches(workspace, straight_run):
 
 
 def test_config_errors_name_the_problem(workspace):
-    with pytest.raises(ValueError, match="mix.occluded"):
+    with pytest.raises(ValueError, match=r"mix\.occluded"):
         train(_tiny_config(workspace, out_dir=str(workspace / "bad"), mix=Mix(full=1.0, occluded=1.0)),
               show_progress=False)
     with pytest.raises(ValueError, match="mix weights"):

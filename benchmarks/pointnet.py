@@ -1,0 +1,98 @@
+"""PointNet speed (training throughput, inference for 5 segments) and the recipes' held-out accuracies.
+
+    python benchmarks/pointnet.py                                   # speed on the default JAX device
+    python benchmarks/pointnet.py --runs paper=runs/paper partial=runs/pointnet_builtin --out BENCHMARKS.md
+
+Training throughput is one jitted epoch (``train.make_train_epoch``: sampling, augmentation, forward,
+backward, Adam) over the clouds of ``configs/pointnet.yaml`` (generated and cached on first use).
+Inference is ``pointnet.classify`` on 5 segments of 1024 points, on the CPU. ``--runs`` reads the
+``metrics.json`` of finished ``jaxcls train`` runs and tabulates their held-out accuracies.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from jaxcls import pointnet, report
+from jaxcls.assets import object_set_from_config
+from jaxcls.clouds import SOURCES, load_clouds
+from jaxcls.config import load_config
+from jaxcls.train import TrainConfig, create_state, make_bank, make_train_epoch
+
+
+def device_name() -> str:
+    d = jax.devices()[0]
+    if d.platform == "cpu":
+        return f"CPU ({platform.processor() or platform.machine()}, {os.cpu_count()} cores)"
+    return f"GPU ({d.device_kind})" if jax.device_count() == 1 else f"{jax.device_count()} x GPU ({d.device_kind})"
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--config", default="configs/pointnet.yaml")
+    parser.add_argument("--batch", type=int, nargs="*", default=[32, 128])
+    parser.add_argument("--steps", type=int, default=20, help="training steps timed per batch size")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--runs", nargs="*", default=[], metavar="NAME=RUN_DIR")
+    parser.add_argument("--out", help="append the sections to this Markdown file")
+    args = parser.parse_args(argv)
+    config = load_config(TrainConfig, args.config)
+    object_set = object_set_from_config(config.objects)
+    M = len(object_set.classes)
+
+    rows = []
+    if args.batch:
+        clouds = load_clouds(object_set, "train", config.data, config.objects, config.seed)
+        mesh = Mesh(np.asarray(jax.devices()), ("data",))
+        replicated = NamedSharding(mesh, PartitionSpec())
+        bank = jax.device_put(make_bank(clouds, config.mix), replicated)
+        for batch in args.batch:
+            cfg = TrainConfig(**{**config.__dict__, "batch_size": batch})
+            epoch = make_train_epoch(cfg, M, args.steps, mesh)
+            state = jax.device_put(create_state(cfg, M, args.steps), replicated)
+            _, med, _ = report.timed(lambda e=epoch, s=state: e(s, bank, jax.random.key(0)), args.repeats)
+            rows.append((f"training, batch {batch} x {config.model.num_points} points", device_name(),
+                         f"{med / args.steps * 1e3:.2f} ms/step", f"{batch * args.steps / med:.0f} clouds/s"))
+            print(rows[-1])
+    with jax.default_device(jax.devices("cpu")[0]):
+        variables = pointnet.init_variables(jax.random.key(0), M, config.model)
+        classifier = pointnet.Classifier(variables, object_set.classes, config.model)
+        points = jax.random.normal(jax.random.key(1), (5, 1024, 3)) * 0.05
+        mask = jnp.ones((5, 1024), bool)
+        _, med, _ = report.timed(lambda: pointnet.classify(classifier, points, mask), args.repeats * 4)
+        rows.append(("inference (`classify`), 5 segments x 1024 points",
+                     f"CPU ({platform.processor() or platform.machine()}, {os.cpu_count()} cores)",
+                     f"{med * 1e3:.1f} ms", f"{5 / med:.0f} segments/s"))
+        print(rows[-1])
+    report.publish(report.section(f"PointNet speed, {datetime.date.today()}", argv,
+                                  ("operation", "device", "median", "throughput"), rows), args.out)
+
+    if args.runs:
+        table = []
+        for item in args.runs:
+            name, _, run = item.partition("=")
+            metrics = json.loads((Path(run) / "metrics.json").read_text())
+            final = metrics["final"]
+            last = metrics["history"][-1]
+            table.append((name, *(f"{final[s]['accuracy']:.3f}" if s in final else "" for s in SOURCES),
+                          len(metrics["history"]), f"{last['clouds_per_second']:.0f}"))
+        report.publish(report.section(
+            f"PointNet recipes, held-out instances, {datetime.date.today()}", argv,
+            ("recipe", *(f"accuracy, {s}" for s in SOURCES), "epochs", "training clouds/s"), table,
+            intro="Accuracy on the held-out instances of the builtin set: complete clouds at 8 yaws, single "
+                  "views without occluders (`view`), views with occluders, 2-3 views fused. Per-class "
+                  "figures and confusion matrices are in each run's metrics.json."), args.out)
+
+
+if __name__ == "__main__":
+    main()
