@@ -89,38 +89,3 @@ def plot_scene(scene: scenes.Scene, T_wc: np.ndarray, views, depth: np.ndarray,
     figure.tight_layout()
     return figure
 
-
-def save_training_curve(history: list[dict], path: str | Path) -> Path:
-    """Loss and accuracies (train, and held-out per source) against the epoch, from ``metrics.json``'s history."""
-    figure = Figure(figsize=(10, 4))
-    epochs = [h["epoch"] for h in history]
-    ax = figure.add_subplot(1, 2, 1)
-    ax.plot(epochs, [h["loss"] for h in history])
-    ax.set(xlabel="epoch", ylabel="training loss", yscale="log")
-    ax = figure.add_subplot(1, 2, 2)
-    ax.plot(epochs, [h["train_accuracy"] for h in history], label="train", color="k", lw=1)
-    for source in (history[0]["test_accuracy"] if history else {}):
-        ax.plot(epochs, [h["test_accuracy"][source] for h in history], label=f"held-out, {source}")
-    ax.set(xlabel="epoch", ylabel="accuracy", ylim=(0, 1))
-    ax.legend(fontsize=8)
-    figure.tight_layout()
-    figure.savefig(path, dpi=80)
-    return Path(path)
-
-
-def save_confusion(confusions: dict[str, np.ndarray], classes: tuple[str, ...], path: str | Path) -> Path:
-    """One row-normalised confusion matrix per cloud source (rows: true class, columns: predicted)."""
-    figure = Figure(figsize=(4.2 * len(confusions), 4))
-    for col, (source, counts) in enumerate(confusions.items()):
-        ax = figure.add_subplot(1, len(confusions), col + 1)
-        rates = counts / np.maximum(counts.sum(axis=1, keepdims=True), 1)
-        ax.imshow(rates, cmap="Blues", vmin=0, vmax=1)
-        for i, j in np.ndindex(rates.shape):
-            ax.text(j, i, f"{rates[i, j]:.2f}".lstrip("0") if rates[i, j] else "", ha="center", va="center",
-                    fontsize=6, color="w" if rates[i, j] > 0.5 else "k")
-        ax.set_xticks(range(len(classes)), classes, rotation=90, fontsize=7)
-        ax.set_yticks(range(len(classes)), classes, fontsize=7)
-        ax.set_title(f"{source}: accuracy {np.trace(counts) / max(counts.sum(), 1):.3f}", fontsize=9)
-    figure.tight_layout()
-    figure.savefig(path, dpi=80)
-    return Path(path)
