@@ -78,11 +78,11 @@ def main(argv: list[str] | None = None) -> None:
                                   ("operation", "device", "median", "throughput"), rows), args.out)
 
     if args.runs:
-        table = []
+        table, finals = [], {}
         for item in args.runs:
             name, _, run = item.partition("=")
             metrics = json.loads((Path(run) / "metrics.json").read_text())
-            final = metrics["final"]
+            final = finals[name] = metrics["final"]
             last = metrics["history"][-1]
             table.append((name, *(f"{final[s]['accuracy']:.3f}" if s in final else "" for s in SOURCES),
                           len(metrics["history"]), f"{last['clouds_per_second']:.0f}"))
@@ -92,6 +92,11 @@ def main(argv: list[str] | None = None) -> None:
             intro="Accuracy on the held-out instances of the builtin set: complete clouds at 8 yaws, single "
                   "views without occluders (`view`), views with occluders, 2-3 views fused. Per-class "
                   "figures and confusion matrices are in each run's metrics.json."), args.out)
+        columns = [(name, s) for name in finals for s in ("full", "view") if s in finals[name]]
+        per_class = [(c, *(f"{finals[n][s]['per_class'][c]:.2f}" for n, s in columns)) for c in object_set.classes]
+        report.publish(report.section(
+            f"PointNet per-class accuracy, held-out instances, {datetime.date.today()}", argv,
+            ("class", *(f"{n}, {s}" for n, s in columns)), per_class), args.out)
 
 
 if __name__ == "__main__":

@@ -229,7 +229,8 @@ def load_clouds(object_set: ObjectSet, split: Literal["train", "test"], config: 
     """
     models = object_set.split(split)
     if not models:
-        raise ValueError(f"clouds: object set '{object_set.name}' has no '{split}' instances")
+        hint = "; hold some out with objects.test_fraction" if split == "test" else ""
+        raise ValueError(f"clouds: object set '{object_set.name}' has no '{split}' instances{hint}")
     key = _cache_key(object_set, split, config, object_set_config, seed)
     folder = Path(config.cache_dir) / f"{object_set.name}_{split}_{key}"
     folder.mkdir(parents=True, exist_ok=True)
