@@ -216,16 +216,22 @@ def instance_clouds(model: ObjectModel, pool: tuple[ObjectModel, ...], label: in
 def _cache_key(object_set: ObjectSet, split: str, config: CloudConfig, object_set_config: ObjectSetConfig,
                seed: int) -> str:
     defining = {**dataclasses.asdict(config), "backend": None, "cache_dir": None, "objects": dataclasses.asdict(
-        object_set_config), "object_set": object_set.name, "split": split, "seed": seed}
-    return hashlib.sha1(json.dumps(defining, sort_keys=True).encode()).hexdigest()[:12]
+        object_set_config), "object_set": object_set.name, "classes": object_set.classes, "split": split,
+        "seed": seed}
+    digest = hashlib.sha1(json.dumps(defining, sort_keys=True).encode())
+    for model in object_set.split(split):  # the instances themselves: a changed mesh file is a new cache
+        digest.update(model.name.encode())
+        digest.update(np.ascontiguousarray(model.surface_points).tobytes())
+    return digest.hexdigest()[:12]
 
 
 def load_clouds(object_set: ObjectSet, split: Literal["train", "test"], config: CloudConfig,
                 object_set_config: ObjectSetConfig, seed: int = 0, show_progress: bool = True) -> CloudSet:
     """All clouds of a split's instances, generated once and cached per instance under ``cache_dir``.
 
-    The cache folder is named by a hash of everything that defines the clouds (not the backend, whose
-    renders agree), so a changed config never reads stale clouds; an interrupted run resumes.
+    The cache folder is named by a hash of everything that defines the clouds (config, class list, the
+    instances' names and surface samples; not the backend, whose renders agree), so a changed config or
+    object set never reads stale clouds; an interrupted run resumes.
     """
     models = object_set.split(split)
     if not models:

@@ -240,6 +240,10 @@ def train(config: TrainConfig, show_progress: bool = True) -> Path:
     start = 0
     if manager.latest_step() is not None:
         start = manager.latest_step()
+        saved = json.loads(metrics_path.read_text())["classes"] if metrics_path.is_file() else None
+        if saved is not None and tuple(saved) != classes:
+            raise ValueError(f"train: {run_dir} holds a run on classes {saved}, but this config's object set has "
+                             f"{list(classes)}; choose another out_dir")
         target = jax.tree.map(ocp.utils.to_shape_dtype_struct, _saved(state))
         restored = manager.restore(start, args=ocp.args.StandardRestore(target))
         state = state.replace(**restored)

@@ -191,11 +191,15 @@ def test_training_on_a_model_folder(tmp_path):
                                                   fused_per_instance=0, cache_dir=str(tmp_path / "cache")))
     with pytest.raises(ValueError, match="test_fraction"):
         train(config, show_progress=False)
-    run = train(dataclasses.replace(config, objects=dataclasses.replace(objects, test_fraction=0.34)),
-                show_progress=False)
+    config = dataclasses.replace(config, objects=dataclasses.replace(objects, test_fraction=0.34))
+    run = train(config, show_progress=False)
     info = json.loads((run / "pointnet.json").read_text())
     assert info["classes"] == ["ball", "crate", "tube"]
     assert json.loads((run / "metrics.json").read_text())["final"]["full"]["count"] == 3 * 2  # 3 held out x 2 yaws
+    # The same run folder with another object set: refused, not resumed into a mismatched network.
+    (tmp_path / "models" / "tube").rename(tmp_path / "models" / "pipe")
+    with pytest.raises(ValueError, match="holds a run on classes"):
+        train(dataclasses.replace(config, epochs=2), show_progress=False)
 
 
 def test_training_does_not_need_mujoco():
