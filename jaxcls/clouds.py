@@ -32,6 +32,7 @@ from jaxcls import geometry, segment, tsdf
 from jaxcls.assets import ObjectModel, ObjectSet, ObjectSetConfig
 
 SOURCES = ("full", "view", "occluded", "fused")
+_CACHE_VERSION = 1  # bump when the way clouds are made changes (scene layout, volume, intrinsics)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,9 +51,6 @@ class CloudConfig:
     elevation_deg: tuple[float, float] = (10.0, 80.0)
     backend: Literal["auto", "mujoco", "mjx", "warp"] = "auto"
     cache_dir: str = "data/clouds"
-
-    def count(self, source: str) -> int:
-        return getattr(self, f"{source}_per_instance" if source != "view" else "views_per_instance")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -143,29 +141,32 @@ class _InstanceRenderer:
         return renderer, index, (pose @ np.append(self.model.bounds.mean(axis=0), 1.0))[:3], pose
 
     def _views(self, renderer, index: int, centre: np.ndarray, count: int) -> tuple[list, list]:
-        """Up to ``count`` (points, T_wc) whose view shows >= min_points of the instance (a few tries)."""
-        clouds, poses = [], []
+        """Up to ``count`` views showing >= min_points of the instance (a few tries): (clouds [n, 3] m,
+        frames (depth [H, W] m, T_wc [4, 4]))."""
+        clouds, frames = [], []
         for _ in range(4):
             need = count - len(clouds)
             if need <= 0:
                 break
             Ts = _random_views(self.rng, centre, 2 * need, self.config)
-            frames = renderer.render(Ts)
-            depth, ids = np.asarray(frames.depth), np.asarray(frames.object_id)
+            rendered = renderer.render(Ts)
+            depth, ids = np.asarray(rendered.depth), np.asarray(rendered.object_id)
             for d, o, T in zip(depth, ids, Ts, strict=True):
                 pts = _visible_points(d, o, index, self.intrinsics, T, self.table_top)
                 if len(pts) >= self.config.min_points and len(clouds) < count:
                     clouds.append(pts)
-                    poses.append((d, T))
-        return clouds, poses
+                    frames.append((d, T))
+        return clouds, frames
 
     def single(self) -> list[np.ndarray]:
+        if self.config.views_per_instance == 0:
+            return []
         renderer, index, centre, _ = self._scene(())
         clouds, _ = self._views(renderer, index, centre, self.config.views_per_instance)
         return clouds
 
     def occluded(self) -> list[np.ndarray]:
-        clouds = []
+        clouds: list[np.ndarray] = []
         others = [m for m in self.pool if m is not self.model]
         for _ in range(self.config.occluded_per_instance):
             picks = self.rng.choice(len(others), size=min(len(others), int(self.rng.integers(1, 4))), replace=False)
@@ -200,11 +201,8 @@ def instance_clouds(model: ObjectModel, pool: tuple[ObjectModel, ...], label: in
     """Every source's clouds of one instance (``pool``: the instances occluders are drawn from)."""
     rng = np.random.default_rng(seed)
     full = [_subset(model.surface_points, config.full_points, rng) for _ in range(config.full_per_instance)]
-    partial = _InstanceRenderer(model, pool, object_set_config, config, rng) if config.views_per_instance + \
-        config.occluded_per_instance + config.fused_per_instance else None
-    by_source = {"full": full, "view": partial.single() if partial else [],
-                 "occluded": partial.occluded() if partial and config.occluded_per_instance else [],
-                 "fused": partial.fused() if partial else []}
+    maker = _InstanceRenderer(model, pool, object_set_config, config, rng)
+    by_source = {"full": full, "view": maker.single(), "occluded": maker.occluded(), "fused": maker.fused()}
     clouds = [_subset(c, config.max_points if s != "full" else config.full_points, rng)
               for s in SOURCES for c in by_source[s]]
     clouds = [c - c.mean(axis=0) for c in clouds]
@@ -217,7 +215,7 @@ def _cache_key(object_set: ObjectSet, split: str, config: CloudConfig, object_se
                seed: int) -> str:
     defining = {**dataclasses.asdict(config), "backend": None, "cache_dir": None, "objects": dataclasses.asdict(
         object_set_config), "object_set": object_set.name, "classes": object_set.classes, "split": split,
-        "seed": seed}
+        "seed": seed, "segment": dataclasses.asdict(segment.SegmentConfig()), "version": _CACHE_VERSION}
     digest = hashlib.sha1(json.dumps(defining, sort_keys=True).encode())
     for model in object_set.split(split):  # the instances themselves: a changed mesh file is a new cache
         digest.update(model.name.encode())

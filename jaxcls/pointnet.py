@@ -97,6 +97,7 @@ class _Head(nn.Module):
 
 
 def _identity_init(k: int):
+    """Initialiser of a flattened k x k identity (a T-Net's starting transform)."""
     def init(key: jax.Array, shape: Sequence[int], dtype: Any = jnp.float32) -> jax.Array:
         return jnp.eye(k, dtype=dtype).reshape(shape)
     return init
@@ -144,6 +145,7 @@ def orthogonality_loss(transform: jax.Array) -> jax.Array:
 
 
 def make_model(num_classes: int, config: ModelConfig) -> PointNet:
+    """The network for ``num_classes`` outputs with ``config``'s dropout and batch-norm momentum."""
     return PointNet(num_classes=num_classes, dropout=config.dropout, momentum=config.bn_momentum)
 
 
@@ -205,6 +207,8 @@ def save_classifier(path: str | Path, classifier: Classifier, metadata: dict | N
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     stored = jax.tree.map(lambda a: np.asarray(a, dtype), classifier.variables)
+    if not all(np.all(np.isfinite(a)) for a in jax.tree.leaves(stored)):
+        raise ValueError(f"save_classifier: weights are not finite in {np.dtype(dtype).name}; save as float32")
     path.write_bytes(serialization.msgpack_serialize(serialization.to_state_dict(stored)))
     info = {"classes": list(classifier.classes), "model": dataclasses.asdict(classifier.config),
             **(metadata or {})}

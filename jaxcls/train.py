@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import time
 from pathlib import Path
 from typing import Any
@@ -28,12 +29,13 @@ from flax import struct
 from flax.training import train_state
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from matplotlib.figure import Figure
+from omegaconf import OmegaConf
 from tqdm.auto import tqdm
 
 from jaxcls import pointnet
 from jaxcls.assets import ObjectSetConfig, object_set_from_config
 from jaxcls.clouds import SOURCES, CloudConfig, CloudSet, load_clouds, sample_batch
-from jaxcls.config import save_config
+from jaxcls.config import load_config, save_config
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,11 +73,21 @@ class TrainConfig:
         weights = [getattr(self.mix, s) for s in SOURCES]
         if min(weights) < 0 or sum(weights) <= 0:
             raise ValueError(f"train: mix weights must be >= 0 and not all 0, got {self.mix}")
-        if self.epochs < 1 or self.batch_size < 1 or self.learning_rate <= 0 or self.lr_halving_epochs < 1:
-            raise ValueError("train: epochs, batch_size, lr_halving_epochs must be >= 1 and learning_rate > 0")
+        if not all(math.isfinite(w) for w in weights):
+            raise ValueError(f"train: mix weights must be finite, got {self.mix}")
+        if min(self.epochs, self.batch_size, self.lr_halving_epochs, self.eval_rotations, self.eval_batch,
+               self.keep_checkpoints) < 1 or self.steps_per_epoch < 0:
+            raise ValueError("train: epochs, batch_size, lr_halving_epochs, eval_rotations, eval_batch and "
+                             "keep_checkpoints must be >= 1, steps_per_epoch >= 0")
+        if not (math.isfinite(self.learning_rate) and self.learning_rate > 0 and math.isfinite(self.jitter)
+                and self.jitter >= 0):
+            raise ValueError(f"train: need a finite learning_rate > 0 and jitter >= 0, got {self.learning_rate}, "
+                             f"{self.jitter}")
 
 
 class TrainState(train_state.TrainState):
+    """Flax's train state plus the batch-norm statistics."""
+
     batch_stats: Any
 
 
@@ -91,6 +103,7 @@ class Bank:
 
 
 def make_bank(clouds: CloudSet, mix: Mix) -> Bank:
+    """The training clouds as a device ``Bank``; each source's share of ``mix`` is spread over its clouds."""
     weight = np.zeros(len(clouds))
     for i, source in enumerate(SOURCES):
         members = clouds.source == i
@@ -102,15 +115,12 @@ def make_bank(clouds: CloudSet, mix: Mix) -> Bank:
                 jnp.asarray(weight / weight.sum(), jnp.float32))
 
 
-def _model(config: TrainConfig, num_classes: int) -> pointnet.PointNet:
-    return pointnet.make_model(num_classes, config.model)
-
-
 def create_state(config: TrainConfig, num_classes: int, steps_per_epoch: int) -> TrainState:
+    """Fresh weights and Adam, its rate halved every ``lr_halving_epochs`` epochs (the paper's schedule)."""
     variables = pointnet.init_variables(jax.random.key(config.seed), num_classes, config.model)
     schedule = optax.exponential_decay(config.learning_rate, config.lr_halving_epochs * steps_per_epoch, 0.5,
                                        staircase=True)
-    return TrainState.create(apply_fn=_model(config, num_classes).apply, params=variables["params"],
+    return TrainState.create(apply_fn=pointnet.make_model(num_classes, config.model).apply, params=variables["params"],
                              batch_stats=variables["batch_stats"], tx=optax.adam(schedule))
 
 
@@ -122,7 +132,7 @@ def _prepare(key: jax.Array, points: jax.Array, mask: jax.Array, jitter: float) 
 
 def make_train_epoch(config: TrainConfig, num_classes: int, steps: int, mesh: Mesh):
     """Jitted ``(state, bank, key) -> (state, {"loss", "accuracy"} per step)``: one epoch as a scan."""
-    model = _model(config, num_classes)
+    model = pointnet.make_model(num_classes, config.model)
     batch_sharding = NamedSharding(mesh, PartitionSpec("data"))
 
     def step(state: TrainState, key: jax.Array, bank: Bank):
@@ -152,16 +162,8 @@ def make_train_epoch(config: TrainConfig, num_classes: int, steps: int, mesh: Me
     return train_epoch
 
 
-def make_predict(config: TrainConfig, num_classes: int):
-    """Jitted ``(variables, points [B, P, 3], mask [B, P]) -> predicted class [B]`` (inference mode)."""
-    model = _model(config, num_classes)
-
-    @jax.jit
-    def predict(variables, points, mask):
-        logits, _ = model.apply(variables, *pointnet.normalise(points, mask), train=False)
-        return jnp.argmax(logits, -1)
-
-    return predict
+def _classifier(state: TrainState, classes: tuple[str, ...], config: TrainConfig) -> pointnet.Classifier:
+    return pointnet.Classifier({"params": state.params, "batch_stats": state.batch_stats}, classes, config.model)
 
 
 def evaluation_sets(clouds: CloudSet, config: TrainConfig) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -185,14 +187,15 @@ def evaluation_sets(clouds: CloudSet, config: TrainConfig) -> dict[str, tuple[np
     return sets
 
 
-def predict_all(predict, variables, points: np.ndarray, mask: np.ndarray, batch: int) -> np.ndarray:
-    """Predictions for any number of clouds, in fixed-size batches (the last one padded) to compile once."""
+def predict_all(classifier: pointnet.Classifier, points: np.ndarray, mask: np.ndarray, batch: int) -> np.ndarray:
+    """Predicted classes [E] of any number of clouds, in fixed-size batches (the last one padded with empty
+    clouds) so that ``classify`` compiles once."""
     out = []
     for start in range(0, len(points), batch):
         p, m = points[start:start + batch], mask[start:start + batch]
         pad = batch - len(p)
         p, m = np.pad(p, ((0, pad), (0, 0), (0, 0))), np.pad(m, ((0, pad), (0, 0)))
-        out.append(np.asarray(predict(variables, p, m))[:batch - pad])
+        out.append(np.asarray(jnp.argmax(pointnet.classify(classifier, p, m), -1))[:batch - pad])
     return np.concatenate(out)
 
 
@@ -211,42 +214,63 @@ def _saved(state: TrainState) -> dict:
             "step": state.step}
 
 
+def _resume_point(run_dir: Path, config: TrainConfig, classes: tuple[str, ...],
+                  manager: ocp.CheckpointManager) -> int:
+    """The epoch a run folder's checkpoints reached (0 for a new run), after checking that this config
+    continues that run: the same settings (``epochs`` may grow) and the same class list."""
+    start = manager.latest_step()
+    if start is None:
+        return 0
+    saved_config = run_dir / "config.yaml"
+    if saved_config.is_file():
+        before = OmegaConf.to_container(OmegaConf.structured(load_config(TrainConfig, saved_config)))
+        now = OmegaConf.to_container(OmegaConf.structured(config))
+        changed = sorted(k for k in set(before) | set(now) if k != "epochs" and before.get(k) != now.get(k))
+        if changed:
+            raise ValueError(f"train: {run_dir} holds a run with other settings ({', '.join(changed)} differ "
+                             f"from {saved_config}); resume with the same config or choose another out_dir")
+    metrics_path = run_dir / "metrics.json"
+    saved = json.loads(metrics_path.read_text())["classes"] if metrics_path.is_file() else None
+    if saved is not None and tuple(saved) != classes:
+        raise ValueError(f"train: {run_dir} holds a run on classes {saved}, but this config's object set has "
+                         f"{list(classes)}; choose another out_dir")
+    if start > config.epochs:
+        raise ValueError(f"train: {run_dir} has trained {start} epochs already, more than epochs = {config.epochs}")
+    return start
+
+
 def train(config: TrainConfig, show_progress: bool = True) -> Path:
     """Run (or resume) a training; returns the run folder."""
     run_dir = Path(config.out_dir)
-    save_config(config, run_dir / "config.yaml")
+    devices = jax.devices()
+    if config.batch_size % len(devices):
+        raise ValueError(f"train: batch_size {config.batch_size} must be a multiple of the {len(devices)} devices")
     object_set = object_set_from_config(config.objects)
+    if not object_set.test:
+        raise ValueError(f"train: object set '{object_set.name}' has no held-out instances to evaluate on; hold "
+                         "some out with objects.test_fraction")
     classes = object_set.classes
     M = len(classes)
+    manager = _checkpoint_manager(run_dir, config)
+    start = _resume_point(run_dir, config, classes, manager)
+    save_config(config, run_dir / "config.yaml")
+
     train_clouds = load_clouds(object_set, "train", config.data, config.objects, config.seed, show_progress)
     test_clouds = load_clouds(object_set, "test", config.data, config.objects, config.seed, show_progress)
     used = np.asarray([getattr(config.mix, s) > 0 for s in SOURCES])[train_clouds.source]
     steps = config.steps_per_epoch or max(1, int(used.sum()) // config.batch_size)
-
-    devices = jax.devices()
-    if config.batch_size % len(devices):
-        raise ValueError(f"train: batch_size {config.batch_size} must be a multiple of the {len(devices)} devices")
     mesh = Mesh(np.asarray(devices), ("data",))
     replicated = NamedSharding(mesh, PartitionSpec())
     bank = jax.device_put(make_bank(train_clouds, config.mix), replicated)
     state = jax.device_put(create_state(config, M, steps), replicated)
     train_epoch = make_train_epoch(config, M, steps, mesh)
-    predict = make_predict(config, M)
     evals = evaluation_sets(test_clouds, config)
 
-    manager = _checkpoint_manager(run_dir, config)
     metrics_path = run_dir / "metrics.json"
     history: list[dict] = []
-    start = 0
-    if manager.latest_step() is not None:
-        start = manager.latest_step()
-        saved = json.loads(metrics_path.read_text())["classes"] if metrics_path.is_file() else None
-        if saved is not None and tuple(saved) != classes:
-            raise ValueError(f"train: {run_dir} holds a run on classes {saved}, but this config's object set has "
-                             f"{list(classes)}; choose another out_dir")
+    if start:
         target = jax.tree.map(ocp.utils.to_shape_dtype_struct, _saved(state))
-        restored = manager.restore(start, args=ocp.args.StandardRestore(target))
-        state = state.replace(**restored)
+        state = state.replace(**manager.restore(start, args=ocp.args.StandardRestore(target)))
         if metrics_path.is_file():
             history = [h for h in json.loads(metrics_path.read_text())["history"] if h["epoch"] <= start]
     key = jax.random.key(config.seed + 1)
@@ -258,39 +282,40 @@ def train(config: TrainConfig, show_progress: bool = True) -> Path:
         state, per_step = train_epoch(state, bank, jax.random.fold_in(key, epoch))
         loss, accuracy = float(per_step["loss"].mean()), float(per_step["accuracy"].mean())
         seconds = time.perf_counter() - began
-        variables = {"params": state.params, "batch_stats": state.batch_stats}
-        scores = {s: float(np.mean(predict_all(predict, variables, p, m, config.eval_batch) == y))
+        classifier = _classifier(state, classes, config)
+        scores = {s: float(np.mean(predict_all(classifier, p, m, config.eval_batch) == y))
                   for s, (p, m, y) in evals.items()}
         history.append({"epoch": epoch + 1, "loss": loss, "train_accuracy": accuracy, "test_accuracy": scores,
                         "train_seconds": seconds, "clouds_per_second": steps * config.batch_size / seconds})
-        manager.save(epoch + 1, args=ocp.args.StandardSave(_saved(state)))
         metrics_path.write_text(json.dumps({"classes": list(classes), "history": history}, indent=1) + "\n")
+        manager.save(epoch + 1, args=ocp.args.StandardSave(_saved(state)))
         bar.set_postfix(loss=f"{loss:.3f}", acc=f"{accuracy:.3f}",
                         **{f"test_{s}": f"{v:.3f}" for s, v in scores.items()})
     manager.wait_until_finished()
-    return finish(run_dir, config, classes, state, evals, predict, history)
+    return finish(run_dir, config, classes, state, evals, history)
 
 
 def finish(run_dir: Path, config: TrainConfig, classes: tuple[str, ...], state: TrainState,
-           evals: dict, predict, history: list[dict]) -> Path:
-    """Final per-class figures, confusion matrices, plots and the exported weights."""
+           evals: dict, history: list[dict]) -> Path:
+    """Final per-class figures (None for a class without held-out clouds), confusion matrices, plots and
+    the exported weights."""
     M = len(classes)
-    variables = {"params": state.params, "batch_stats": state.batch_stats}
+    classifier = _classifier(state, classes, config)
     final: dict[str, Any] = {}
     for source, (p, m, y) in evals.items():
-        predicted = predict_all(predict, variables, p, m, config.eval_batch)
+        predicted = predict_all(classifier, p, m, config.eval_batch)
         confusion = confusion_matrix(y, predicted, M)
         final[source] = {"accuracy": float(np.mean(predicted == y)), "count": len(y),
-                         "per_class": {c: float(confusion[i, i] / max(confusion[i].sum(), 1))
+                         "per_class": {c: float(confusion[i, i] / confusion[i].sum()) if confusion[i].sum() else None
                                        for i, c in enumerate(classes)},
                          "confusion": confusion.tolist()}
     (run_dir / "metrics.json").write_text(json.dumps({"classes": list(classes), "final": final,
                                                       "history": history}, indent=1) + "\n")
     save_training_curve(history, run_dir / "curve.png")
     save_confusion({s: np.asarray(f["confusion"]) for s, f in final.items()}, classes, run_dir / "confusion.png")
-    classifier = pointnet.Classifier(jax.device_get(variables), tuple(classes), config.model)
-    pointnet.save_classifier(run_dir / "pointnet.msgpack", classifier, {
-        "object_set": config.objects.source, "trained_by": f"jaxcls train ({config.name})", "epochs": config.epochs,
+    pointnet.save_classifier(run_dir / "pointnet.msgpack", jax.device_get(classifier), {
+        "object_set": config.objects.source, "trained_by": f"jaxcls train ({config.name})",
+        "epochs": history[-1]["epoch"] if history else 0,
         "test_accuracy": {s: f["accuracy"] for s, f in final.items()}})
     return run_dir
 

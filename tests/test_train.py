@@ -21,6 +21,7 @@ from scipy.spatial import cKDTree
 from jaxcls import clouds
 from jaxcls.assets import ObjectSetConfig, builtin_object_set
 from jaxcls.cli import main as cli_main
+from jaxcls.config import load_config
 from jaxcls.train import Mix, TrainConfig, train
 
 TINY_OBJECTS = ObjectSetConfig(train_per_class=1, test_per_class=1, surface_samples=2500)
@@ -185,21 +186,26 @@ def test_training_on_a_model_folder(tmp_path):
         (tmp_path / "models" / name).mkdir(parents=True)
         for i, s in enumerate((0.9, 1.0, 1.1)):
             make(s).export(tmp_path / "models" / name / f"{i}.stl")
-    objects = ObjectSetConfig(source=str(tmp_path / "models"), surface_samples=600)
-    config = _tiny_config(tmp_path, objects=objects, mix=Mix(), epochs=1, steps_per_epoch=2,
-                          data=clouds.CloudConfig(full_points=600, views_per_instance=0, occluded_per_instance=0,
-                                                  fused_per_instance=0, cache_dir=str(tmp_path / "cache")))
-    with pytest.raises(ValueError, match="test_fraction"):
-        train(config, show_progress=False)
-    config = dataclasses.replace(config, objects=dataclasses.replace(objects, test_fraction=0.34))
-    run = train(config, show_progress=False)
+    small = [f"out_dir={tmp_path / 'run'}", f"data.cache_dir={tmp_path / 'cache'}", "epochs=1", "steps_per_epoch=2",
+             "batch_size=8", "model.num_points=64", "eval_batch=16", "eval_rotations=2", "objects.surface_samples=600",
+             "data.full_points=600", "data.views_per_instance=1", "data.occluded_per_instance=0",
+             "data.fused_per_instance=0", "data.image_scale=0.25", "mix.occluded=0", "mix.fused=0"]
+    command = ["train", "--config", "configs/pointnet_folder.yaml", f"objects.source={tmp_path / 'models'}", *small]
+    assert cli_main([*command, "objects.test_fraction=0"]) == 2  # no held-out instances: a clear error
+    assert cli_main(command) == 0  # the README's command
+    run = tmp_path / "run"
     info = json.loads((run / "pointnet.json").read_text())
     assert info["classes"] == ["ball", "crate", "tube"]
-    assert json.loads((run / "metrics.json").read_text())["final"]["full"]["count"] == 3 * 2  # 3 held out x 2 yaws
-    # The same run folder with another object set: refused, not resumed into a mismatched network.
+    final = json.loads((run / "metrics.json").read_text())["final"]
+    assert final["full"]["count"] == 3 * 2  # 1 held-out instance per class x 2 yaws
+    # Resuming with other settings, or with another class list, is refused (not mixed into the run).
+    with pytest.raises(ValueError, match="learning_rate"):
+        train(load_config(TrainConfig, "configs/pointnet_folder.yaml",
+                          [f"objects.source={tmp_path / 'models'}", *small, "learning_rate=0.01"]), show_progress=False)
     (tmp_path / "models" / "tube").rename(tmp_path / "models" / "pipe")
     with pytest.raises(ValueError, match="holds a run on classes"):
-        train(dataclasses.replace(config, epochs=2), show_progress=False)
+        train(load_config(TrainConfig, "configs/pointnet_folder.yaml",
+                          [f"objects.source={tmp_path / 'models'}", *small, "epochs=2"]), show_progress=False)
 
 
 def test_training_does_not_need_mujoco():
