@@ -12,6 +12,7 @@ Inference is ``pointnet.classify`` on 5 segments of 1024 points, on the CPU. ``-
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import json
 import os
@@ -57,7 +58,7 @@ def main(argv: list[str] | None = None) -> None:
         replicated = NamedSharding(mesh, PartitionSpec())
         bank = jax.device_put(make_bank(clouds, config.mix), replicated)
         for batch in args.batch:
-            cfg = TrainConfig(**{**config.__dict__, "batch_size": batch})
+            cfg = dataclasses.replace(config, batch_size=batch)
             epoch = make_train_epoch(cfg, M, args.steps, mesh)
             state = jax.device_put(create_state(cfg, M, args.steps), replicated)
             _, med, _ = report.timed(lambda e=epoch, s=state: e(s, bank, jax.random.key(0)), args.repeats)

@@ -125,6 +125,7 @@ def create_state(config: TrainConfig, num_classes: int, steps_per_epoch: int) ->
 
 
 def _prepare(key: jax.Array, points: jax.Array, mask: jax.Array, jitter: float) -> tuple[jax.Array, jax.Array]:
+    """A training batch as the network sees it: normalised (as ``classify`` does), then jittered."""
     points, mask = pointnet.normalise(points, mask)
     noise = jnp.clip(jitter * jax.random.normal(key, points.shape), -5 * jitter, 5 * jitter)
     return jnp.where(mask[..., None], points + noise, 0.0), mask
