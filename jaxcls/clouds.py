@@ -115,8 +115,7 @@ class _InstanceRenderer:
 
     def __init__(self, model: ObjectModel, pool: tuple[ObjectModel, ...], object_set_config: ObjectSetConfig,
                  config: CloudConfig, rng: np.random.Generator):
-        from jaxcls import scenes
-        from jaxcls.render import make_renderer, resolve_backend
+        from jaxcls.render import resolve_backend  # here, not at the top: cached clouds need no MuJoCo
 
         self.model, self.pool, self.config, self.rng = model, pool, config, rng
         self.object_set_config = object_set_config
@@ -124,18 +123,18 @@ class _InstanceRenderer:
         self.segment_config = segment.SegmentConfig()
         self.table_top = self.segment_config.table_height + self.segment_config.table_eps
         self.backend = resolve_backend(config.backend)
-        self._scenes, self._make_renderer = scenes, make_renderer
 
     def _scene(self, others: tuple[ObjectModel, ...]):
         """(renderer, index of the instance, its centre [3], its pose [4, 4]) with ``others`` placed around it."""
-        scenes = self._scenes
+        from jaxcls import scenes
+        from jaxcls.render import make_renderer
+
         models = (self.model, *others)
         scene = scenes.arrange_scene(models, scenes.SceneConfig(), int(self.rng.integers(2**31)),
                                      self.object_set_config)
         by_name = {m.name: m for m in models}
         placed = tuple(by_name[o.name] for o in scene.objects)
-        renderer = self._make_renderer(scenes.build_model(scene, placed, self.intrinsics), self.intrinsics,
-                                       self.backend)
+        renderer = make_renderer(scenes.build_model(scene, placed, self.intrinsics), self.intrinsics, self.backend)
         index = [o.name for o in scene.objects].index(self.model.name)
         pose = scene.object_poses()[index]
         return renderer, index, (pose @ np.append(self.model.bounds.mean(axis=0), 1.0))[:3], pose
@@ -271,9 +270,6 @@ def sample_batch(key: jax.Array, points: jax.Array, mask: jax.Array, index: jax.
     pts = jnp.take_along_axis(pts, order[..., None], axis=1)
     m = jnp.take_along_axis(m, order, axis=1)
     if rotate:
-        yaw = jax.random.uniform(k_yaw, index.shape, minval=-jnp.pi, maxval=jnp.pi)
-        c, s = jnp.cos(yaw), jnp.sin(yaw)
-        zero, one = jnp.zeros_like(c), jnp.ones_like(c)
-        R = jnp.stack([jnp.stack([c, -s, zero], -1), jnp.stack([s, c, zero], -1), jnp.stack([zero, zero, one], -1)], -2)
+        R = geometry.yaw_rotation(jax.random.uniform(k_yaw, index.shape, minval=-jnp.pi, maxval=jnp.pi))
         pts = jnp.einsum("bij,bpj->bpi", R, pts)
     return jnp.where(m[..., None], pts, 0.0), m

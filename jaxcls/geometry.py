@@ -118,6 +118,14 @@ def backproject(depth: jnp.ndarray, intrinsics: Intrinsics, T_wc: jnp.ndarray) -
     return jnp.einsum("...ij,...hwj->...hwi", R, points_c) + t[..., None, None, :]
 
 
+def yaw_rotation(yaw: jnp.ndarray) -> jnp.ndarray:
+    """[..., 3, 3] rotations about the world z axis by ``yaw: [...]`` rad (counter-clockwise seen from above)."""
+    yaw = jnp.asarray(yaw)
+    c, s = jnp.cos(yaw), jnp.sin(yaw)
+    zero, one = jnp.zeros_like(c), jnp.ones_like(c)
+    return jnp.stack([jnp.stack([c, -s, zero], -1), jnp.stack([s, c, zero], -1), jnp.stack([zero, zero, one], -1)], -2)
+
+
 def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:
     """[..., 4, 4] ``T_wc`` of OpenCV cameras at ``eye: [..., 3]`` looking at ``target: [..., 3]``.
 

@@ -32,7 +32,7 @@ from matplotlib.figure import Figure
 from omegaconf import OmegaConf
 from tqdm.auto import tqdm
 
-from jaxcls import pointnet
+from jaxcls import geometry, pointnet
 from jaxcls.assets import ObjectSetConfig, object_set_from_config
 from jaxcls.clouds import SOURCES, CloudConfig, CloudSet, load_clouds, sample_batch
 from jaxcls.config import load_config, save_config
@@ -179,9 +179,7 @@ def evaluation_sets(clouds: CloudSet, config: TrainConfig) -> dict[str, tuple[np
         points, mask, label = part.points[:, :P], part.mask[:, :P], part.label
         if source == "full":
             yaws = 2 * np.pi * np.arange(config.eval_rotations) / config.eval_rotations
-            c, s = np.cos(yaws), np.sin(yaws)
-            R = np.zeros((len(yaws), 3, 3), np.float32)
-            R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1], R[:, 2, 2] = c, -s, s, c, 1
+            R = np.asarray(geometry.yaw_rotation(yaws.astype(np.float32)))
             points = np.einsum("rij,cpj->rcpi", R, points).reshape(-1, P, 3)
             mask, label = np.tile(mask, (len(yaws), 1)), np.tile(label, len(yaws))
         sets[source] = (points.astype(np.float32), mask, label)

@@ -103,3 +103,13 @@ def test_bad_viewpoint_arguments():
         geometry.hemisphere_viewpoints(CENTER, 0)
     with pytest.raises(ValueError, match="min_elevation"):
         geometry.hemisphere_viewpoints(CENTER, 10, 1.0, 95)
+
+
+def test_yaw_rotation_turns_x_towards_y_about_z():
+    from jaxcls.geometry import yaw_rotation
+
+    R = np.asarray(yaw_rotation(np.asarray([0.0, np.pi / 2, 0.3], np.float32)))
+    np.testing.assert_allclose(R[1] @ [1.0, 0, 0], [0, 1, 0], atol=1e-6)
+    np.testing.assert_allclose(R[0], np.eye(3), atol=1e-7)
+    np.testing.assert_allclose(R[2] @ R[2].T, np.eye(3), atol=1e-6)
+    np.testing.assert_allclose(R[:, 2], [[0, 0, 1]] * 3, atol=1e-7)
