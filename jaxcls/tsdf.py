@@ -186,11 +186,32 @@ def _gradient_at(tsdf: jax.Array, idx: jax.Array) -> jax.Array:
     return jnp.stack(grads, axis=-1)
 
 
-def _pack_bits(bits: jax.Array) -> jax.Array:
-    """[ceil(N / 32)] u32 words of ``bits: [N]`` bool, little-endian (bit b of word w is element 32 w + b)."""
-    pad = -bits.shape[0] % 32
-    bits = jnp.pad(bits, (0, pad)).reshape(-1, 32).astype(jnp.uint32)
-    return jnp.sum(bits << jnp.arange(32, dtype=jnp.uint32), axis=1, dtype=jnp.uint32)
+def _pack_rows(bits: jax.Array) -> jax.Array:
+    """[X, Y, ceil(Z / 32)] u32 words of ``bits: [X, Y, Z]`` bool along z (bit b of word w is z = 32 w + b)."""
+    X, Y, Z = bits.shape
+    bits = jnp.pad(bits, ((0, 0), (0, 0), (0, -Z % 32))).reshape(X, Y, -1, 32).astype(jnp.uint32)
+    return jnp.sum(bits << jnp.arange(32, dtype=jnp.uint32), axis=-1, dtype=jnp.uint32)
+
+
+def _next_voxel(words: jax.Array, axis: int) -> jax.Array:
+    """Row words (``_pack_rows``) of each voxel's neighbour one step further along ``axis`` (0 past the end)."""
+    if axis == 2:  # within a row: the bit above, the lowest bit of the next word carried into bit 31
+        carry = jnp.pad(words[:, :, 1:], ((0, 0), (0, 0), (0, 1))) << 31
+        return (words >> 1) | carry
+    pad = [(0, 0)] * 3
+    pad[axis] = (0, 1)
+    return jnp.pad(jax.lax.slice_in_dim(words, 1, words.shape[axis], axis=axis), pad)
+
+
+def _crossing_words(f: jax.Array, w: jax.Array, weight_threshold: float | jax.Array) -> jax.Array:
+    """[3, X, Y, ceil(Z / 32)] u32: bit of voxel p along axis a is set where the edge p -> p + e_a crosses zero.
+
+    Both ends must be trusted (weight >= threshold, |f| off the truncation edge) and of opposite signs. The
+    two sign masks are packed once; the three axes' edges are then word operations on 32 voxels at a time.
+    """
+    ok = (w >= weight_threshold) & (jnp.abs(f) < _TRUNCATION_EDGE)
+    pos, neg = _pack_rows(ok & (f >= 0)), _pack_rows(ok & (f < 0))
+    return jnp.stack([(pos & _next_voxel(neg, a)) | (neg & _next_voxel(pos, a)) for a in range(3)])
 
 
 def _select_bits(words: jax.Array, size: int) -> tuple[jax.Array, jax.Array]:
@@ -233,23 +254,11 @@ def extract_surface(volume: TSDFVolume, max_points: int, weight_threshold: float
     Returns ``Surface`` with points [P, 3] m, normals [P, 3], mask [P]; P = ``max_points``.
     """
     f, w = volume.tsdf, volume.weight
-    ok = (w >= weight_threshold) & (jnp.abs(f) < _TRUNCATION_EDGE)
-    positive = f >= 0
-    words = []
-    for a in range(3):
-        n = f.shape[a]
-        lo = [slice(None)] * 3
-        hi = [slice(None)] * 3
-        lo[a], hi[a] = slice(0, n - 1), slice(1, n)
-        edge = ok[tuple(lo)] & ok[tuple(hi)] & (positive[tuple(lo)] != positive[tuple(hi)])
-        pad = [(0, 0)] * 3
-        pad[a] = (0, 1)
-        words.append(_pack_bits(jnp.pad(edge, pad).reshape(-1)))  # bit of voxel p: edge from p to p + e_a
-    words = jnp.concatenate(words)  # [3 * ceil(X * Y * Z / 32)] u32, axis-major
-    flat, mask = _select_bits(words, max_points)
+    words = _crossing_words(f, w, weight_threshold)
+    flat, mask = _select_bits(words.reshape(-1), max_points)
     X, Y, Z = volume.shape
-    axis, rest = jnp.divmod(flat, 32 * (words.shape[0] // 3))
-    idx0 = jnp.stack(jnp.unravel_index(rest, (X, Y, Z)), axis=-1).astype(jnp.int32)  # [P, 3]
+    axis, rest = jnp.divmod(flat, X * Y * 32 * words.shape[-1])
+    idx0 = jnp.stack(jnp.unravel_index(rest, (X, Y, 32 * words.shape[-1])), axis=-1).astype(jnp.int32)  # [P, 3]
     e = jax.nn.one_hot(axis, 3, dtype=jnp.int32)
     idx1 = jnp.minimum(idx0 + e, jnp.asarray([X - 1, Y - 1, Z - 1]))
     f0 = f[idx0[:, 0], idx0[:, 1], idx0[:, 2]]

@@ -195,6 +195,29 @@ def test_empty_and_subsampled_extraction():
     assert np.ptp(points[:, 0]) > 0.8 * np.ptp(full[:, 0])  # spread over it, not its first rows
 
 
+@pytest.mark.parametrize("shape", [(20, 23, 37), (16, 16, 64)])
+def test_extraction_finds_every_crossing_edge(shape):
+    """Every edge between trusted voxels of opposite sign, enumerated in NumPy, and nothing else (any grid
+    size: z rows that are not a multiple of the 32-bit words included), in axis-major voxel order."""
+    rng = np.random.default_rng(3)
+    f = np.clip(rng.normal(0.0, 0.8, shape), -1.0, 1.0).astype(np.float32)
+    w = (rng.random(shape) > 0.2).astype(np.float32)
+    vol = tsdf.create_volume(np.zeros(3), 0.2, 8).replace(tsdf=jnp.asarray(f), weight=jnp.asarray(w))
+    ok = (w >= 1) & (np.abs(f) < 0.99)
+    expected = []
+    for a in range(3):
+        lo, hi = [slice(None)] * 3, [slice(None)] * 3
+        lo[a], hi[a] = slice(0, -1), slice(1, None)
+        lo, hi = tuple(lo), tuple(hi)
+        edge = ok[lo] & ok[hi] & ((f[lo] >= 0) != (f[hi] >= 0))
+        idx = np.argwhere(edge)
+        f0, f1 = f[lo][edge], f[hi][edge]
+        expected.append(idx + np.eye(3)[a] * (f0 / (f0 - f1))[:, None])
+    expected = np.asarray(vol.origin) + vol.voxel_size * np.concatenate(expected)
+    points, _ = _surface_points(tsdf.extract_surface(vol, max_points=len(expected) + 50))
+    np.testing.assert_allclose(points, expected, atol=1e-6)
+
+
 def test_bad_depth_is_ignored():
     vol = tsdf.create_volume(np.zeros(3), size=0.2, resolution=32)
     T = jnp.asarray(_down_camera(0.5), jnp.float32)
