@@ -147,10 +147,10 @@ def _compact(points: jax.Array, valid: jax.Array, size: int) -> tuple[jax.Array,
     slot = jnp.floor(rank.astype(jnp.float32) / stride).astype(jnp.int32)
     # Keep the first row of each slot: rank == ceil(slot * stride).
     keep = valid & (rank == jnp.ceil(slot.astype(jnp.float32) * stride).astype(jnp.int32)) & (slot < size)
-    target = jnp.where(keep, slot, size)
-    out = jnp.zeros((size + 1, 3), points.dtype).at[target].set(points)[:size]
-    mask = jnp.zeros(size + 1, bool).at[target].set(keep)[:size]
-    return jnp.where(mask[:, None], out, 0.0), mask
+    target = jnp.where(keep, slot, size)  # out of bounds: dropped
+    out = jnp.zeros((size, 3), points.dtype).at[target].set(points, mode="drop")
+    mask = jnp.zeros(size, bool).at[target].set(True, mode="drop")
+    return out, mask
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -388,9 +388,9 @@ def pack_segments(points: jax.Array, normals: jax.Array, labels: jax.Array, n: i
     slot = jnp.floor(rank.astype(jnp.float32) / stride).astype(jnp.int32)
     keep = (labels >= 0) & (rank == jnp.ceil(slot.astype(jnp.float32) * stride).astype(jnp.int32)) & (slot < size)
     row, col = jnp.where(keep, labels, n), jnp.where(keep, slot, 0)
-    pts = jnp.zeros((n + 1, size, 3), jnp.float32).at[row, col].set(jnp.asarray(points, jnp.float32))[:n]
-    nrm = jnp.zeros((n + 1, size, 3), jnp.float32).at[row, col].set(jnp.asarray(normals, jnp.float32))[:n]
-    msk = jnp.zeros((n + 1, size), bool).at[row, col].set(keep)[:n]
+    pts = jnp.zeros((n, size, 3), jnp.float32).at[row, col].set(jnp.asarray(points, jnp.float32), mode="drop")
+    nrm = jnp.zeros((n, size, 3), jnp.float32).at[row, col].set(jnp.asarray(normals, jnp.float32), mode="drop")
+    msk = jnp.zeros((n, size), bool).at[row, col].set(True, mode="drop")
     return Segments(points=pts, normals=nrm, mask=msk, labels=labels)
 
 
@@ -431,7 +431,7 @@ def _dense_points(x: jax.Array, valid: jax.Array, config: SegmentConfig) -> jax.
     around = flat[:, None] + offsets  # [P, 27]
 
     def neighbourhood_sum(flags):
-        grid = jnp.zeros(G**3, jnp.int16).at[flat].add(flags.astype(jnp.int16))
+        grid = jnp.zeros(G**3, jnp.int16).at[jnp.where(flags, flat, G**3)].add(1, mode="drop")
         return jnp.sum(grid[around], axis=1, dtype=jnp.int32)
 
     core = valid & (neighbourhood_sum(valid) >= config.dbscan_min_samples)
@@ -476,8 +476,8 @@ def _components(occ: jax.Array, max_iters: int, neighbours=_NEIGHBOURS) -> jax.A
         nb = rep
         for di, dj in neighbours:
             nb = jnp.maximum(nb, _shifted(rep, di, dj, -1))
-        target = jnp.where(occ_flat, rep.reshape(-1), G * G)
-        new = jnp.concatenate([parent, jnp.zeros(1, jnp.int32)]).at[target].max(nb.reshape(-1))[:-1]
+        target = jnp.where(occ_flat, rep.reshape(-1), G * G)  # out of bounds: dropped
+        new = parent.at[target].max(nb.reshape(-1), mode="drop")
         for _ in range(4):
             new = new[new]
         return new, jnp.any(new != parent), i + 1
@@ -494,7 +494,7 @@ def _fill_holes(occ: jax.Array, max_iters: int) -> jax.Array:
     label = _components(empty, max_iters, _CROSS).reshape(-1)
     edge = (jnp.arange(G) == 0) | (jnp.arange(G) == G - 1)
     border = (edge[:, None] | edge[None, :]).reshape(-1)
-    outside = jnp.zeros(G * G, bool).at[jnp.maximum(label, 0)].max(border & (label >= 0))
+    outside = jnp.zeros(G * G, bool).at[jnp.where(border & (label >= 0), label, G * G)].set(True, mode="drop")
     return occ | (empty & ~outside[jnp.maximum(label, 0)].reshape(G, G))
 
 
@@ -530,7 +530,8 @@ def _footprint_field(x: jax.Array, normals: jax.Array, kept: jax.Array, config: 
     """``footprint_field_reference`` in JAX: (occupancy [G, G] bool, field [G, G] f32)."""
     G = _grid_size(config)
     ij = _cell_of(x, config, xp=jnp)
-    raw = jnp.zeros(G * G, bool).at[ij[:, 0] * G + ij[:, 1]].max(kept).reshape(G, G)
+    raw = jnp.zeros(G * G, bool).at[jnp.where(kept, ij[:, 0] * G + ij[:, 1], G * G)].set(True, mode="drop")
+    raw = raw.reshape(G, G)
     occ = raw
     for _ in range(config.closing_steps):
         occ = _morph(occ, True)
@@ -540,7 +541,10 @@ def _footprint_field(x: jax.Array, normals: jax.Array, kept: jax.Array, config: 
     targets, weight = _vote_targets(x, normals, config, xp=jnp)
     tij = _cell_of(targets.reshape(-1, 3), config, xp=jnp)
     weight = jnp.repeat(jnp.where(kept, weight, 0.0), config.vote_radii)
-    votes = jnp.zeros(G * G, x.dtype).at[tij[:, 0] * G + tij[:, 1]].add(weight).reshape(G, G)
+    # Points that do not vote (tops, noise, padding) are sent out of bounds and dropped, rather than
+    # adding 0 to one cell: on a GPU those additions all contend for that cell.
+    target = jnp.where(weight > 0, tij[:, 0] * G + tij[:, 1], G * G)
+    votes = jnp.zeros(G * G, x.dtype).at[target].add(weight, mode="drop").reshape(G, G)
     votes = _blur(votes * occ, config.vote_sigma)
     votes = votes / jnp.maximum(votes.max(), 1e-12)
     return occ, _distance_transform(occ) * jnp.maximum(votes, 0.0) ** config.vote_exponent
@@ -574,15 +578,15 @@ def _basins(field: jax.Array, occ: jax.Array, max_basins: int) -> tuple[jax.Arra
 
 def _saddles(basin: jax.Array, field: jax.Array, K: int) -> jax.Array:
     """``_saddles_np`` in JAX: [K, K] f32."""
-    saddle = jnp.full(K * K + 1, -jnp.inf, field.dtype)
+    saddle = jnp.full(K * K, -jnp.inf, field.dtype)
     for di, dj in _PAIR_SHIFTS:
         lb, fb = _shifted(basin, di, dj, -1), _shifted(field, di, dj, 0.0)
         sel = ((basin >= 0) & (lb >= 0) & (basin != lb)).reshape(-1)
         value = jnp.minimum(field, fb).reshape(-1)
         a, b = basin.reshape(-1), lb.reshape(-1)
-        saddle = saddle.at[jnp.where(sel, a * K + b, K * K)].max(value)
-        saddle = saddle.at[jnp.where(sel, b * K + a, K * K)].max(value)
-    return saddle[:-1].reshape(K, K)
+        saddle = saddle.at[jnp.where(sel, a * K + b, K * K)].max(value, mode="drop")
+        saddle = saddle.at[jnp.where(sel, b * K + a, K * K)].max(value, mode="drop")
+    return saddle.reshape(K, K)
 
 
 def _nearest_seed(seeds: jax.Array) -> jax.Array:

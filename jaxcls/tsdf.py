@@ -220,8 +220,9 @@ def _select_bits(words: jax.Array, size: int) -> tuple[jax.Array, jax.Array]:
     A compaction that is cheap on CPUs, where a cumulative sum or a binary search per voxel is not:
     popcounts and their cumulative sum run over words; slot p takes the set bit of rank r(p) = floor(p s)
     (s = max(1, total / size): all set bits in order when they fit, else ``size`` of them evenly spread).
-    Its word is found by a histogram of where each word's bits end in slot units (a merge of two sorted
-    sequences), its bit by counting bits inside the word.
+    Its word is found by a binary search of where each word's bits end in slot units (per slot, not per
+    voxel; a histogram would make the many empty words contend for one counter on a GPU), its bit by
+    counting bits inside the word.
     """
     counts = jax.lax.population_count(words).astype(jnp.int32)
     cum = jnp.cumsum(counts)  # inclusive
@@ -231,7 +232,7 @@ def _select_bits(words: jax.Array, size: int) -> tuple[jax.Array, jax.Array]:
     rank = jnp.floor(slot.astype(jnp.float32) * stride).astype(jnp.int32)
     # Word of slot p = #{w : cum[w] <= r(p)} = #{w : first slot past word w <= p}.
     first_past = jnp.minimum(jnp.ceil(cum.astype(jnp.float32) / stride), size).astype(jnp.int32)
-    word = jnp.cumsum(jnp.zeros(size + 1, jnp.int32).at[first_past].add(1))[:size]
+    word = jnp.searchsorted(first_past, slot, side="right")  # first_past is non-decreasing
     word = jnp.minimum(word, words.shape[0] - 1)
     count = counts[word]
     within = jnp.clip(rank - (cum[word] - count), 0, jnp.maximum(count - 1, 0))  # rank inside the word
