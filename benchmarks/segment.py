@@ -164,7 +164,11 @@ def main(argv: list[str] | None = None) -> None:
             vols = jax.tree.map(lambda x, b=batch: jnp.broadcast_to(x, (b, *x.shape)), jax.device_put(volume))
             ds = jnp.broadcast_to(jnp.asarray(depth[-1]), (batch, *depth.shape[1:]))
             Tb = jnp.broadcast_to(jnp.asarray(Ts[-1]), (batch, 4, 4))
-            first, med, _ = report.timed(lambda v=vols, d=ds, T=Tb: batched_move(v, d, T), args.repeats)
+            try:
+                first, med, _ = report.timed(lambda v=vols, d=ds, T=Tb: batched_move(v, d, T), args.repeats)
+            except jax.errors.JaxRuntimeError as error:  # out of GPU memory: keep the rows measured so far
+                notes.append(f"one move, vmap over {batch}: {str(error).splitlines()[0][:120]}")
+                continue
             rows.append((f"one move (foreground + integration + extraction + `segment_jax`), vmap over {batch}",
                          gpu, f"{med * 1e3:.2f}", f"{first * 1e3:.0f}", f"{batch / med:.0f} moves/s"))
             print(rows[-1], file=sys.stderr)
