@@ -139,14 +139,20 @@ def single_view_points(depth: jax.Array, intrinsics: Intrinsics, T_wc: jax.Array
     return _compact(pts, valid, max_points)
 
 
-def _compact(points: jax.Array, valid: jax.Array, size: int) -> tuple[jax.Array, jax.Array]:
-    """([size, 3], [size]) the valid rows of ``points: [M, 3]``, evenly strided if more than ``size``."""
-    count = jnp.sum(valid)
-    rank = jnp.cumsum(valid) - 1  # rank of each valid row
+def _strided_slots(rank: jax.Array, count: jax.Array, size: int) -> tuple[jax.Array, jax.Array]:
+    """Slot of each row among ``size`` slots, and whether it is kept: all rows when ``count <= size``, else
+    ``size`` of them evenly strided in order. rank: [M] i32 rank of the row in its set; count: size of its
+    set ([M] or scalar). Returns ([M] i32 slot, [M] bool keep: the first row of each slot)."""
     stride = jnp.maximum(count.astype(jnp.float32) / size, 1.0)
     slot = jnp.floor(rank.astype(jnp.float32) / stride).astype(jnp.int32)
-    # Keep the first row of each slot: rank == ceil(slot * stride).
-    keep = valid & (rank == jnp.ceil(slot.astype(jnp.float32) * stride).astype(jnp.int32)) & (slot < size)
+    keep = (rank == jnp.ceil(slot.astype(jnp.float32) * stride).astype(jnp.int32)) & (slot < size)
+    return slot, keep
+
+
+def _compact(points: jax.Array, valid: jax.Array, size: int) -> tuple[jax.Array, jax.Array]:
+    """([size, 3], [size]) the valid rows of ``points: [M, 3]``, evenly strided if more than ``size``."""
+    slot, keep = _strided_slots(jnp.cumsum(valid) - 1, jnp.sum(valid), size)
+    keep &= valid
     target = jnp.where(keep, slot, size)  # out of bounds: dropped
     out = jnp.zeros((size, 3), points.dtype).at[target].set(points, mode="drop")
     mask = jnp.zeros(size, bool).at[target].set(True, mode="drop")
@@ -384,9 +390,8 @@ def pack_segments(points: jax.Array, normals: jax.Array, labels: jax.Array, n: i
     member = labels[:, None] == jnp.arange(n)  # [P, n]
     count = member.sum(0)
     rank = jnp.take_along_axis(jnp.cumsum(member, axis=0) - 1, jnp.clip(labels, 0, n - 1)[:, None], axis=1)[:, 0]
-    stride = jnp.maximum(count.astype(jnp.float32) / size, 1.0)[jnp.clip(labels, 0, n - 1)]
-    slot = jnp.floor(rank.astype(jnp.float32) / stride).astype(jnp.int32)
-    keep = (labels >= 0) & (rank == jnp.ceil(slot.astype(jnp.float32) * stride).astype(jnp.int32)) & (slot < size)
+    slot, keep = _strided_slots(rank, count[jnp.clip(labels, 0, n - 1)], size)
+    keep &= labels >= 0
     row, col = jnp.where(keep, labels, n), jnp.where(keep, slot, 0)
     pts = jnp.zeros((n, size, 3), jnp.float32).at[row, col].set(jnp.asarray(points, jnp.float32), mode="drop")
     nrm = jnp.zeros((n, size, 3), jnp.float32).at[row, col].set(jnp.asarray(normals, jnp.float32), mode="drop")
