@@ -24,11 +24,12 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from jaxcls import pointnet, report
-from jaxcls.assets import object_set_from_config
-from jaxcls.clouds import SOURCES, load_clouds
+from jaxcls.perception import pointnet
+from jaxcls import report
+from jaxcls.world.objects import object_set_from_config
+from jaxcls.learn.clouds import SOURCES, load_clouds
 from jaxcls.config import load_config
-from jaxcls.train import TrainConfig, create_state, make_bank, make_train_epoch
+from jaxcls.learn.train import TrainConfig, create_state, make_bank, make_train_epoch
 
 
 def device_name() -> str:

@@ -23,19 +23,19 @@ import numpy as np
 
 from jaxcls import report
 from jaxcls.geometry import Intrinsics, hemisphere_viewpoints
-from jaxcls.render import DepthFrames, make_renderer
-from jaxcls.render import testing as scenes
-from jaxcls.render.native import available_cores
-from jaxcls.render.warp import warp_unavailable_reason
+from jaxcls.world.render import DepthFrames, make_renderer
+from jaxcls.world.render import testing as scenes
+from jaxcls.world.render.native import available_cores
+from jaxcls.world.render.warp import warp_unavailable_reason
 
 
 def build_scene(kind: str, intrinsics: Intrinsics, num_objects: int, seed: int):
     """(model, scene centre [3]) of a ``kind`` scene: ``trimesh`` (stand-in meshes, ``render.testing``)
-    or ``builtin`` (``jaxcls.scenes`` with the builtin object set)."""
+    or ``builtin`` (``jaxcls.world.scenes`` with the builtin object set)."""
     if kind == "trimesh":
         return scenes.mesh_scene(intrinsics, num_objects=num_objects, seed=seed), np.array([0.0, 0.0, 0.05])
-    from jaxcls import scenes as builtin
-    from jaxcls.assets import ObjectSetConfig, object_set_from_config
+    from jaxcls.world import scenes as builtin
+    from jaxcls.world.objects import ObjectSetConfig, object_set_from_config
 
     object_set = object_set_from_config(ObjectSetConfig())
     scene = builtin.sample_scene(object_set, builtin.SceneConfig(num_objects=num_objects), seed)

@@ -8,6 +8,9 @@ Scenes: the builtin set, ``synthetic`` (footprint gaps 3 mm - 3 cm) and ``touchi
 the ``mujoco`` backend at five hemisphere views from low to high elevation, fused into the default 0.6 m /
 128^3 volume. A surface point's ground truth is its nearest posed object surface; points more than 1 cm
 from every object are left out. "agreement" is the adjusted Rand index between the two paths' labels.
+Worlds come from ``make_world``; each frame goes through ``perception.observe`` (jitted: the JAX twin's
+move), whose surface the reference path segments too. The speed rows time the stages ``observe``
+composes one by one, then ``observe`` itself.
 """
 
 from __future__ import annotations
@@ -24,23 +27,27 @@ import numpy as np
 from scipy.spatial import cKDTree
 from sklearn.metrics import adjusted_rand_score
 
-from jaxcls import report, scenes, segment, tsdf
-from jaxcls.assets import builtin_object_set
-from jaxcls.geometry import Intrinsics, hemisphere_viewpoints
-from jaxcls.render import make_renderer
+from jaxcls import perception, report
+from jaxcls.geometry import CameraConfig, Intrinsics
+from jaxcls.perception import foreground, segment, tsdf
+from jaxcls.world import WorldConfig, make_world, scenes
 
 VIEWS = (20, 35, 50, 65, 80)
 KINDS = {"synthetic": scenes.SceneConfig(), "touching": scenes.SceneConfig(min_gap=0.001, max_gap=0.005)}
 
 
-def render_scene(kind: str, seed: int, intr: Intrinsics):
-    """(depth [V, H, W], T_wc [V, 4, 4], ground-truth function of points) of one scene."""
-    object_set = builtin_object_set()
-    scene = scenes.sample_scene(object_set, KINDS[kind], seed)
-    models = scenes.scene_models(scene, object_set)
-    Ts = hemisphere_viewpoints(scenes.scene_centroid(scene, models), 100)[list(VIEWS)]
-    depth = make_renderer(scenes.build_model(scene, models, intr), intr, "mujoco").render(Ts).depth
-    samples = [(T[:3, :3] @ m.surface_points.T).T + T[:3, 3] for m, T in zip(models, scene.object_poses(), strict=True)]
+def camera(scale: float) -> CameraConfig:
+    """The Kinect v1 at ``scale`` (same field of view; 1 = 640x480) as a world's camera block."""
+    intr = Intrinsics.kinect_v1(scale)
+    return CameraConfig(width=intr.width, height=intr.height, fx=intr.fx, fy=intr.fy, cx=intr.cx, cy=intr.cy)
+
+
+def render_scene(kind: str, seed: int, scale: float):
+    """(world, depth [V, H, W], T_wc [V, 4, 4], ground-truth function of points) of one scene at ``VIEWS``."""
+    world = make_world(WorldConfig(scene=KINDS[kind], camera=camera(scale), backend="mujoco"), seed)
+    depth = world.render(list(VIEWS)).depth
+    samples = [(T[:3, :3] @ m.surface_points.T).T + T[:3, 3]
+               for m, T in zip(world.models, world.scene.object_poses(), strict=True)]
     owner = np.concatenate([np.full(len(s), i) for i, s in enumerate(samples)])
     tree = cKDTree(np.concatenate(samples))
 
@@ -48,17 +55,7 @@ def render_scene(kind: str, seed: int, intr: Intrinsics):
         d, idx = tree.query(points)
         return np.where(mask & (d < 0.01), owner[idx], -1)
 
-    return np.asarray(depth), np.asarray(Ts, np.float32), truth
-
-
-def make_fuse(intr: Intrinsics, cfg: segment.SegmentConfig, max_points: int):
-    """Jitted (volume, depth, T_wc) -> volume with the frame's foreground integrated, and the extractor."""
-
-    @jax.jit
-    def fuse(volume: tsdf.TSDFVolume, depth: jax.Array, T_wc: jax.Array) -> tsdf.TSDFVolume:
-        return tsdf.integrate(volume, segment.foreground_depth(depth, intr, T_wc, cfg), intr, T_wc)
-
-    return fuse, jax.jit(lambda volume: tsdf.extract_surface(volume, max_points))
+    return world, np.asarray(depth), np.asarray(world.poses(list(VIEWS)), np.float32), truth
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -71,30 +68,33 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", help="append the speed section to this Markdown file")
     parser.add_argument("--out-results", help="append the quality section to this Markdown file")
     args = parser.parse_args(argv)
-    cfg = segment.SegmentConfig()
+    settings = perception.PerceptionConfig(shapes=perception.ShapeConfig(surface_points=args.max_points))
     intr = Intrinsics.kinect_v1(args.scale)
     res = f"{intr.width}x{intr.height}"
     cpu_device = jax.devices("cpu")[0]
     cpu = f"CPU ({platform.processor() or platform.machine()}, {os.cpu_count()} cores)"
-    fuse, extract = make_fuse(intr, cfg, args.max_points)
-    empty = tsdf.create_volume(np.asarray(cfg.roi_center), cfg.roi_size, 128)
+    observe = jax.jit(perception.observe)  # one move: foreground, integration, extraction, `segment_jax`
+
+    def spec_of(world) -> perception.Spec:
+        return perception.Spec.create(settings, world.intrinsics, world.table_height)
 
     scores: dict[tuple[str, int, str], list[float]] = {}
     clouds = []  # fused 5-view surfaces, for the GPU batch
     with jax.default_device(cpu_device):
         for kind in KINDS:
             for seed in range(args.seeds):
-                depth, Ts, truth = render_scene(kind, seed, intr)
-                volume = empty
+                world, depth, Ts, truth = render_scene(kind, seed, args.scale)
+                spec = spec_of(world)
+                state = perception.init_state(spec)
                 for v in range(len(VIEWS)):
-                    volume = fuse(volume, jnp.asarray(depth[v]), jnp.asarray(Ts[v]))
+                    state = observe(spec, state, jnp.asarray(depth[v]), jnp.asarray(Ts[v]))
                     if v + 1 not in (1, 5):
                         continue
-                    s = extract(volume)
+                    s = state.surface
                     p, n, m = np.asarray(s.points), np.asarray(s.normals), np.asarray(s.mask)
                     gt = truth(p, m)
-                    ref = np.asarray(segment.segment(p, n, m, cfg).labels)
-                    twin = np.asarray(segment.segment_jax(p, n, m, cfg).labels)
+                    ref = np.asarray(segment.segment(spec, p, n, m).labels)
+                    twin = np.asarray(state.segments.labels)
                     sel, either = gt >= 0, (ref >= 0) | (twin >= 0)
                     scores.setdefault((kind, v + 1, "reference"), []).append(adjusted_rand_score(gt[sel], ref[sel]))
                     scores.setdefault((kind, v + 1, "jax"), []).append(adjusted_rand_score(gt[sel], twin[sel]))
@@ -113,31 +113,27 @@ def main(argv: list[str] | None = None) -> None:
 
     rows: list[tuple[str, ...]] = []
     with jax.default_device(cpu_device):
-        depth, Ts, _ = render_scene("synthetic", 0, intr)
-        volume = empty
+        world, depth, Ts, _ = render_scene("synthetic", 0, args.scale)
+        spec = spec_of(world)
+        state = perception.init_state(spec)
         for v in range(len(VIEWS) - 1):
-            volume = fuse(volume, jnp.asarray(depth[v]), jnp.asarray(Ts[v]))
+            state = observe(spec, state, jnp.asarray(depth[v]), jnp.asarray(Ts[v]))
+        volume = state.volume
         d, T = jnp.asarray(depth[-1]), jnp.asarray(Ts[-1])
-        fg_fn = jax.jit(lambda d, T: segment.foreground_depth(d, intr, T, cfg))
-        integrate = jax.jit(lambda vol, d, T: tsdf.integrate(vol, d, intr, T))
+        # Each stage on its own (measuring, not wiring): the functions `observe` composes.
+        integrate = jax.jit(lambda vol, d, T: tsdf.integrate(vol, d, spec.intrinsics, T))
+        extract = jax.jit(lambda vol: tsdf.extract_surface(vol, args.max_points))
         steps = {
-            "foreground (`foreground_depth`)": lambda: fg_fn(d, T),
-            "integration (`integrate`)": lambda: integrate(volume, fg_fn(d, T), T),
+            "foreground (`foreground_depth`)": lambda: foreground.foreground_depth(spec, d, T),
+            "integration (`integrate`)": lambda: integrate(volume, foreground.foreground_depth(spec, d, T), T),
             f"extraction (`extract_surface`, {args.max_points} points)": lambda: extract(volume),
         }
-        fg = fg_fn(d, T)
-        surf = extract(integrate(volume, fg, T))
+        surf = extract(integrate(volume, foreground.foreground_depth(spec, d, T), T))
         steps["segmentation, reference (`segment`: scikit-learn DBSCAN + SciPy)"] = lambda: segment.segment(
-            surf.points, surf.normals, surf.mask, cfg)
+            spec, surf.points, surf.normals, surf.mask)
         steps["segmentation, JAX twin (`segment_jax`)"] = lambda: segment.segment_jax(
-            surf.points, surf.normals, surf.mask, cfg)
-
-        def chain():
-            fg = fg_fn(d, T)
-            s = extract(integrate(volume, fg, T))
-            return segment.segment_jax(s.points, s.normals, s.mask, cfg)
-
-        steps["one move: foreground + integration + extraction + `segment_jax`"] = chain
+            spec, surf.points, surf.normals, surf.mask)
+        steps["one move: foreground + integration + extraction + `segment_jax`"] = lambda: observe(spec, state, d, T)
         for name, fn in steps.items():
             first, med, _ = report.timed(fn, args.repeats)
             rows.append((name, cpu, f"{med * 1e3:.1f}", f"{first * 1e3:.0f}", ""))
@@ -146,26 +142,20 @@ def main(argv: list[str] | None = None) -> None:
     notes = []
     if jax.default_backend() == "gpu":
         gpu = f"GPU ({jax.devices()[0].device_kind})"
-        batched_seg = jax.jit(jax.vmap(lambda p, n, m: segment.segment_jax(p, n, m, cfg)))
-
-        def batched_move(vols, depth, T):
-            vols = jax.vmap(fuse)(vols, depth, T)
-            s = jax.vmap(extract)(vols)
-            return vols, jax.vmap(lambda p, n, m: segment.segment_jax(p, n, m, cfg))(s.points, s.normals, s.mask)
-
-        batched_move = jax.jit(batched_move)
+        batched_seg = jax.jit(jax.vmap(segment.segment_jax, in_axes=(None, 0, 0, 0)))
+        batched_move = jax.jit(jax.vmap(perception.observe, in_axes=(None, 0, 0, 0)))
         for batch in args.gpu_batch:
             pick = [clouds[i % len(clouds)] for i in range(batch)]
             p, n, m = (jnp.asarray(np.stack(a)) for a in zip(*pick, strict=True))
-            first, med, _ = report.timed(lambda p=p, n=n, m=m: batched_seg(p, n, m), args.repeats)
+            first, med, _ = report.timed(lambda p=p, n=n, m=m: batched_seg(spec, p, n, m), args.repeats)
             rows.append((f"`segment_jax`, vmap over {batch} fused clouds", gpu, f"{med * 1e3:.2f}",
                          f"{first * 1e3:.0f}", f"{batch / med:.0f} segmentations/s"))
             print(rows[-1], file=sys.stderr)
-            vols = jax.tree.map(lambda x, b=batch: jnp.broadcast_to(x, (b, *x.shape)), jax.device_put(volume))
+            states = jax.tree.map(lambda x, b=batch: jnp.broadcast_to(x, (b, *x.shape)), jax.device_put(state))
             ds = jnp.broadcast_to(jnp.asarray(depth[-1]), (batch, *depth.shape[1:]))
             Tb = jnp.broadcast_to(jnp.asarray(Ts[-1]), (batch, 4, 4))
             try:
-                first, med, _ = report.timed(lambda v=vols, d=ds, T=Tb: batched_move(v, d, T), args.repeats)
+                first, med, _ = report.timed(lambda s=states, d=ds, T=Tb: batched_move(spec, s, d, T), args.repeats)
             except jax.errors.JaxRuntimeError as error:  # out of GPU memory: keep the rows measured so far
                 notes.append(f"one move, vmap over {batch}: {str(error).splitlines()[0][:120]}")
                 continue

@@ -1,11 +1,12 @@
 """TSDF fusion speed: one 640x480 integration into the default 128^3 volume, and one surface extraction.
 
-    python benchmarks/tsdf.py                       # CPU rows (jaxcls.tsdf jitted vs Open3D); GPU rows too
+    python benchmarks/tsdf.py                       # CPU rows (perception.tsdf jitted vs Open3D); GPU rows too
     python benchmarks/tsdf.py --out BENCHMARKS.md   # also append the table as a section
 
-The frame is a builtin 5-object scene rendered by the ``mujoco`` backend from one hemisphere view. Times
-are medians over ``--repeats`` calls after a warm-up call (compile included in "first call"), waiting for
-JAX's asynchronous results. Open3D's legacy ``UniformTSDFVolume`` runs on the same frame in the same
+The frame is a builtin 5-object scene (``make_world``) rendered by the ``mujoco`` backend from one
+hemisphere view; the volume is centred on the scene's centroid and fuses the raw frame (the stage alone,
+not ``perception.observe``'s move). Times are medians over ``--repeats`` calls after a warm-up call
+(compile included in "first call"), waiting for JAX's asynchronous results. Open3D's legacy ``UniformTSDFVolume`` runs on the same frame in the same
 process. "agreement" is the symmetric chamfer distance between the two extracted surfaces, in voxels.
 On a GPU: ``integrate`` vmapped over a batch of episodes' volumes, in integrations/s.
 """
@@ -22,10 +23,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxcls import report, scenes, tsdf
-from jaxcls.assets import builtin_object_set
-from jaxcls.geometry import Intrinsics, hemisphere_viewpoints
-from jaxcls.render import make_renderer
+from jaxcls import report
+from jaxcls.perception import tsdf
+from jaxcls.world import WorldConfig, make_world, scenes
 
 
 def chamfer(a: np.ndarray, b: np.ndarray) -> float:
@@ -47,14 +47,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", help="append the table to this Markdown file")
     args = parser.parse_args(argv)
 
-    object_set = builtin_object_set()
-    scene = scenes.sample_scene(object_set, scenes.SceneConfig(), args.seed)
-    models = scenes.scene_models(scene, object_set)
-    centre = scenes.scene_centroid(scene, models)
-    intr = Intrinsics.kinect_v1()
-    T_wc = hemisphere_viewpoints(centre, 100)[args.view]
-    renderer = make_renderer(scenes.build_model(scene, models, intr), intr, "mujoco")
-    depth = np.asarray(renderer.render(T_wc[None]).depth[0])
+    world = make_world(WorldConfig(backend="mujoco"), args.seed)  # Kinect v1, 100 views at 1 m
+    centre = scenes.scene_centroid(world.scene, world.models)
+    intr = world.intrinsics
+    T_wc = world.poses([args.view])[0]
+    depth = np.asarray(world.render([args.view]).depth[0])
     tsdf.check_frame(depth, intr, T_wc)
     volume = tsdf.create_volume(centre, size=args.size, resolution=args.resolution)
     res, grid = f"{intr.width}x{intr.height}", f"{args.resolution}^3"
@@ -66,11 +63,11 @@ def main(argv: list[str] | None = None) -> None:
     with jax.default_device(cpu_device):
         d, T = jnp.asarray(depth), jnp.asarray(T_wc, jnp.float32)
         first, med, fused = report.timed(lambda: tsdf.integrate(volume, d, intr, T), args.repeats)
-        rows.append(("jaxcls.tsdf `integrate` (jit)", cpu, f"{med * 1e3:.1f}", f"{first * 1e3:.0f}", ""))
+        rows.append(("jaxcls.perception.tsdf `integrate` (jit)", cpu, f"{med * 1e3:.1f}", f"{first * 1e3:.0f}", ""))
         print(rows[-1], file=sys.stderr)
         first, med, surface = report.timed(lambda: tsdf.extract_surface(fused, args.max_points), args.repeats)
         ours = np.asarray(surface.points)[np.asarray(surface.mask)]
-        rows.append((f"jaxcls.tsdf `extract_surface` (max_points={args.max_points})", cpu, f"{med * 1e3:.1f}",
+        rows.append((f"jaxcls.perception.tsdf `extract_surface` (max_points={args.max_points})", cpu, f"{med * 1e3:.1f}",
                      f"{first * 1e3:.0f}", f"{len(ours)} points"))
         print(rows[-1], file=sys.stderr)
 
@@ -109,15 +106,15 @@ def main(argv: list[str] | None = None) -> None:
             ds = jnp.broadcast_to(jnp.asarray(depth), (batch, *depth.shape))
             Ts = jnp.broadcast_to(jnp.asarray(T_wc, jnp.float32), (batch, 4, 4))
             first, med, _ = report.timed(lambda v=vols, d=ds, T=Ts: batched(v, d, T), args.repeats)
-            rows.append((f"jaxcls.tsdf `integrate`, vmap over {batch} volumes", gpu, f"{med * 1e3:.2f}",
+            rows.append((f"jaxcls.perception.tsdf `integrate`, vmap over {batch} volumes", gpu, f"{med * 1e3:.2f}",
                          f"{first * 1e3:.0f}", f"{batch / med:.0f} integrations/s"))
             print(rows[-1], file=sys.stderr)
         vol_gpu = jax.device_put(volume)
         first, med, fused = report.timed(lambda: tsdf.integrate(vol_gpu, jnp.asarray(depth), intr,
                                                           jnp.asarray(T_wc, jnp.float32)), args.repeats)
-        rows.append(("jaxcls.tsdf `integrate`", gpu, f"{med * 1e3:.2f}", f"{first * 1e3:.0f}", ""))
+        rows.append(("jaxcls.perception.tsdf `integrate`", gpu, f"{med * 1e3:.2f}", f"{first * 1e3:.0f}", ""))
         first, med, _ = report.timed(lambda: tsdf.extract_surface(fused, args.max_points), args.repeats)
-        rows.append((f"jaxcls.tsdf `extract_surface` (max_points={args.max_points})", gpu, f"{med * 1e3:.2f}",
+        rows.append((f"jaxcls.perception.tsdf `extract_surface` (max_points={args.max_points})", gpu, f"{med * 1e3:.2f}",
                      f"{first * 1e3:.0f}", ""))
     else:
         notes.append("GPU rows skipped: JAX sees no GPU")

@@ -15,10 +15,11 @@ import argparse
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaxcls import report, scenes
-from jaxcls.assets import object_set_from_config
+from jaxcls import report
+from jaxcls.world import scenes
+from jaxcls.world.objects import object_set_from_config
 from jaxcls.config import load_config
-from jaxcls.dataset import DatasetConfig, scene_seeds
+from jaxcls.world.dataset import DatasetConfig, scene_seeds
 
 
 def main(argv: list[str] | None = None) -> None:

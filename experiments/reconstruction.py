@@ -20,10 +20,12 @@ import numpy as np
 import open3d as o3d
 from tqdm.auto import tqdm
 
-from jaxcls import report, scenes, tsdf
-from jaxcls.assets import object_set_from_config
+from jaxcls import report
+from jaxcls.world import scenes
+from jaxcls.perception import tsdf
+from jaxcls.world.objects import object_set_from_config
 from jaxcls.config import load_config
-from jaxcls.dataset import DatasetConfig, render_scene_views, scene_seeds
+from jaxcls.world.dataset import DatasetConfig, render_scene_views, scene_seeds
 
 
 def distances_to_meshes(points: np.ndarray, scene: scenes.Scene, models) -> np.ndarray:

@@ -1,20 +1,25 @@
 """jaxcls: active 3D classification of multiple objects in cluttered scenes, in pure-functional JAX.
 
-The modules follow the pipeline (``../shared/DESIGN.md``): ``assets`` (object sets) -> ``scenes``
-(cluttered tables as MuJoCo models) -> ``render`` (depth and object ids; sensor model) -> ``dataset`` /
-``recording`` (frames on disk) -> ``tsdf`` (fusion, surface extraction) -> ``segment`` (foreground, N
-segments) -> ``pointnet`` (class scores, top-k; trained by ``train`` on ``clouds``). ``geometry`` holds
-cameras, poses and viewpoints; ``config`` the YAML configs; ``cli`` the ``jaxcls`` command.
+The folders follow the pipeline (``docs/ARCHITECTURE.md``):
 
-Submodules load on first use (``jaxcls.tsdf``), so that training a classifier does not need MuJoCo.
+- ``world``: object sets, cluttered scenes, depth rendering and the sensor model, datasets, recordings,
+  and ``world.setup.make_world``, the one world set-up;
+- ``perception``: one move's perception, stage by stage (``foreground``, ``tsdf``, ``segment``,
+  ``pointnet``), composed by ``perception.observe``;
+- ``learn``: training clouds and the classifier's training;
+- at the top: ``geometry`` (cameras, poses as ``jaxlie.SE3``, viewpoints), ``math`` (NaN-safe norms and
+  divisions), ``config`` (YAML -> typed configs), ``io`` (atomic writes), ``viz`` (figures), ``report``
+  (Markdown tables) and ``cli`` with ``commands`` (the ``jaxcls`` command).
+
+Imports run one way: world -> perception -> (planning -> episode) -> commands; learning reads the world
+and perception. Subpackages load on first use, so that training a classifier does not need MuJoCo.
 """
 
 import importlib
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
-__all__ = ["assets", "clouds", "config", "dataset", "geometry", "pointnet", "recording", "render", "scenes",
-           "segment", "train", "tsdf"]
+__all__ = ["commands", "config", "geometry", "io", "learn", "math", "perception", "report", "viz", "world"]
 
 
 def __getattr__(name: str):

@@ -1,85 +1,118 @@
-"""The ``jaxcls`` command: ``jaxcls <subcommand> [--config FILE] [key.sub=value ...]``."""
+"""The ``jaxcls`` command: ``jaxcls <subcommand> [--config FILE] [key.sub=value ...]``.
+
+Each subcommand is a typed entry of ``COMMANDS``: a one-line summary and the loader of its module's
+``Command`` (schema, run function, arguments; ``jaxcls.commands``). Only the chosen command's module is
+imported, so ``jaxcls train`` needs no MuJoCo and ``jaxcls --help`` starts fast.
+"""
 
 from __future__ import annotations
 
 import argparse
-import importlib
+import dataclasses
 import sys
 from collections.abc import Callable, Sequence
-from typing import Any
 
-from jaxcls.config import ConfigError, load_config, to_yaml
-
-_OVERRIDES_HELP = "dotted overrides applied after the config file, e.g. scene.num_objects=4 seed=3"
-
-
-def _add_config_args(parser: argparse.ArgumentParser, default_config: str | None) -> None:
-    parser.add_argument("--config", default=default_config,
-                        help="YAML config file" + (f" (default: {default_config})" if default_config else ""))
-    parser.add_argument("--print-config", action="store_true", help="print the resolved config and exit")
-    parser.add_argument("overrides", nargs="*", metavar="key=value", help=_OVERRIDES_HELP)
+from jaxcls import __version__
+from jaxcls.commands import Command
+from jaxcls.config import ConfigError
 
 
-def _configured(module: str, schema: str, run: Callable[[Any, Any, argparse.Namespace], str]
-                ) -> Callable[[argparse.Namespace], None]:
-    """A subcommand that loads its config (file, then overrides), prints it or runs ``run(module, config,
-    args)``. The module is imported only when the subcommand runs (``train`` needs no MuJoCo)."""
-    def command(args: argparse.Namespace) -> None:
-        mod = importlib.import_module(f"jaxcls.{module}")
-        config = load_config(getattr(mod, schema), args.config, args.overrides)
-        print(to_yaml(config) if args.print_config else run(mod, config, args))
-    return command
+def _show() -> Command:
+    from jaxcls.commands import show
+
+    return show.COMMAND
 
 
-def _cmd_export(args: argparse.Namespace) -> None:
-    from jaxcls.dataset import export_recording
+def _dataset() -> Command:
+    from jaxcls.commands import dataset
 
-    print(f"recording in {export_recording(args.scene_views, args.folder, overwrite=args.overwrite)}")
+    return dataset.COMMAND
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="jaxcls", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True)
+def _train() -> Command:
+    from jaxcls.commands import train
 
-    show_cmd = sub.add_parser("show", help="save a PNG of a scene: depth of a few views and the view hemisphere",
-                          description="Draw (or load) a scene, render a few viewpoints and save "
-                                      "<out_dir>/scene.png, scene.json and config.yaml.")
-    _add_config_args(show_cmd, None)
-    show_cmd.set_defaults(run=_configured("viz", "ShowConfig", lambda viz, config, _: f"wrote {viz.show(config)}"))
+    return train.COMMAND
 
-    dataset = sub.add_parser("dataset", help="render scenes x all viewpoints to disk (resumable)",
-                             description="Render num_scenes scenes from every hemisphere viewpoint into "
-                                         "out_dir/scene_XXX.npz. An interrupted run resumes.")
-    _add_config_args(dataset, "configs/synthetic.yaml")
-    dataset.add_argument("--overwrite", action="store_true", help="discard what out_dir holds")
-    dataset.set_defaults(run=_configured("dataset", "DatasetConfig", lambda dataset, config, args:
-                                         f"dataset in {dataset.build_dataset(config, overwrite=args.overwrite)}"))
 
-    train = sub.add_parser("train", help="train the PointNet classifier (resumes an interrupted run)",
-                           description="Train PointNet on an object set's clouds (complete and partial views); "
-                                       "writes checkpoints, metrics.json, curve.png, confusion.png and "
-                                       "pointnet.msgpack into out_dir. Run again to resume.")
-    _add_config_args(train, "configs/pointnet.yaml")
-    train.set_defaults(run=_configured("train", "TrainConfig",
-                                       lambda train, config, _: f"run in {train.train(config)}"))
+def _export() -> Command:
+    from jaxcls.commands import export
 
-    export = sub.add_parser("export", help="write one rendered scene as a recorded sequence",
-                            description="Convert a dataset's scene_XXX.npz into the recorded-sequence folder "
-                                        "format (16-bit PNG depth in mm, intrinsics, poses): see "
-                                        "jaxcls.recording.")
-    export.add_argument("scene_views", help="a scene_XXX.npz of a dataset")
-    export.add_argument("folder", help="the recording folder to write")
-    export.add_argument("--overwrite", action="store_true")
-    export.set_defaults(run=_cmd_export)
+    return export.COMMAND
+
+
+@dataclasses.dataclass(frozen=True)
+class Entry:
+    """A subcommand in the registry: its summary for ``jaxcls --help`` and the loader of its ``Command``."""
+
+    summary: str
+    load: Callable[[], Command]
+
+
+COMMANDS: dict[str, Entry] = {
+    "show": Entry("save a PNG of a scene: depth of a few views and the view hemisphere", _show),
+    "dataset": Entry("render scenes x all viewpoints to disk (resumable)", _dataset),
+    "train": Entry("train the PointNet classifier (resumes an interrupted run)", _train),
+    "export": Entry("write one rendered scene as a recorded sequence", _export),
+}
+
+
+def _top_parser() -> argparse.ArgumentParser:
+    lines = [f"  {name:<9} {entry.summary}" for name, entry in COMMANDS.items()]
+    parser = argparse.ArgumentParser(
+        prog="jaxcls", formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Active 3D classification of multiple objects in cluttered scenes.\n\ncommands:\n"
+                    + "\n".join(lines) + "\n\nRun 'jaxcls <command> --help' for a command's options.")
+    parser.add_argument("--version", action="version", version=f"jaxcls {__version__}")
+    parser.add_argument("command", choices=list(COMMANDS), metavar="command", help="one of: " + ", ".join(COMMANDS))
     return parser
 
 
+def command_parser(name: str, command: Command) -> argparse.ArgumentParser:
+    """The parser of one subcommand: its own arguments, then ``--config``, ``--print-config`` and overrides."""
+    parser = argparse.ArgumentParser(prog=f"jaxcls {name}", description=command.description)
+    for argument in command.arguments:
+        parser.add_argument(*argument.flags, **argument.options)
+    if command.schema is not None:
+        default = command.default_config
+        parser.add_argument("--config", default=default, help="YAML config: a path or a shipped config name"
+                            + (f" (default: {default})" if default else " (default: the built-in defaults)"))
+        parser.add_argument("--print-config", action="store_true", help="print the resolved config and exit")
+        example = f", e.g. {command.example}" if command.example else ""
+        parser.add_argument("overrides", nargs="*", metavar="key=value",
+                            help=f"dotted overrides applied after the config file{example}")
+    return parser
+
+
+def _run(name: str, argv: Sequence[str]) -> str:
+    from jaxcls.config import load_config, to_yaml
+
+    command = COMMANDS[name].load()
+    args = command_parser(name, command).parse_args(argv)
+    config = None
+    if command.schema is not None:
+        config = load_config(command.schema, args.config or None, args.overrides, borrow_from=command.borrow_from)
+        if args.print_config:
+            return to_yaml(config)
+    return command.run(config, args)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    top = _top_parser()
+    if not argv or argv[0].startswith("-"):
+        top.parse_args(argv or ["--help"])  # --help / --version exit here; anything else is an error
+        return 2
+    name = argv[0]
+    if name not in COMMANDS:
+        top.parse_args(argv[:1])  # prints the choices and exits with 2
     try:
-        args.run(args)
+        print(_run(name, argv[1:]))
+    except KeyboardInterrupt:
+        print(f"jaxcls {name}: interrupted: run the same command again to resume", file=sys.stderr)
+        return 130
     except (ConfigError, ValueError, OSError, RuntimeError) as e:  # bad input, files, missing GPU
-        print(f"jaxcls {args.command}: error: {e}", file=sys.stderr)
+        print(f"jaxcls {name}: error: {e}", file=sys.stderr)
         return 2
     return 0
 

@@ -1,19 +1,26 @@
 """YAML configs loaded into typed, frozen dataclasses (OmegaConf structured configs).
 
-Each run's schema is a frozen dataclass owned by the module that runs it (``dataset.DatasetConfig``, ...).
-A YAML file fills it; unknown keys and wrong types are errors naming the key and the file; dotted
-``key.sub=value`` overrides from the command line apply last; every run saves the resolved config beside
-its outputs.
+Each concern owns one config block, a frozen dataclass defined beside the code it configures
+(``world.objects.ObjectSetConfig``, ``perception.settings.VolumeConfig``, ...); a command's schema nests
+the blocks it needs (``commands``). A YAML file fills it; unknown keys and wrong types are errors naming
+the key and the file; dotted ``key.sub=value`` overrides from the command line apply last; every run saves
+the resolved config beside its outputs.
+
+Ranges are declared where a field is defined, with ``bounded(default, ge=..., lt=...)``; the block's
+``__post_init__`` calls ``check_bounds(self)`` (Python callers), and ``load_config`` checks the whole tree
+first so that the error names the dotted key (``sensor.random_dropout``) and the file it came from.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Sequence
+from importlib import resources
 from pathlib import Path
 from typing import Any, TypeVar
 
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 T = TypeVar("T")
@@ -21,6 +28,90 @@ T = TypeVar("T")
 
 class ConfigError(ValueError):
     """A config that does not fit its schema; the message names the file and the key."""
+
+
+CONFIG_DIR = resources.files("jaxcls") / "configs"
+
+
+def shipped_configs() -> list[str]:
+    """Names of the configs shipped with the package (``jaxcls/configs/<name>.yaml``)."""
+    return sorted(p.name.removesuffix(".yaml") for p in CONFIG_DIR.iterdir() if p.name.endswith(".yaml"))
+
+
+def resolve_config(name: str | Path) -> Path:
+    """A config file: ``name`` as a path if it exists, else the shipped config named ``name``, ``name.yaml``
+    or ``configs/<name>.yaml`` (so ``synthetic`` and ``configs/synthetic.yaml`` work from any folder).
+    Raises ConfigError listing the shipped configs."""
+    path = Path(name)
+    if path.is_file():
+        return path
+    shipped = Path(str(CONFIG_DIR / f"{path.name.removesuffix('.yaml')}.yaml"))
+    if path.parent in (Path("."), Path("configs")) and shipped.is_file():
+        return shipped
+    raise ConfigError(f"{name}: config file not found (shipped configs: {', '.join(shipped_configs())})")
+
+
+@dataclasses.dataclass(frozen=True)
+class Bounds:
+    """Allowed range of a number (or of each element of a tuple of numbers); None = unbounded."""
+
+    ge: float | None = None
+    gt: float | None = None
+    le: float | None = None
+    lt: float | None = None
+
+    def violation(self, value: Any) -> str | None:
+        """Why ``value`` is out of range, or None."""
+        if isinstance(value, list | tuple | ListConfig):
+            for v in value:
+                if (why := self.violation(v)) is not None:
+                    return f"{why} (each element), got {list(value)}"
+            return None
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            return None  # wrong types are the schema's business
+        if not math.isfinite(value):
+            return f"must be finite, got {value}"
+        for bound, ok, word in ((self.ge, value >= (self.ge or 0), ">="), (self.gt, value > (self.gt or 0), ">"),
+                                (self.le, value <= (self.le or 0), "<="), (self.lt, value < (self.lt or 0), "<")):
+            if bound is not None and not ok:
+                return f"must be {word} {bound}, got {value}"
+        return None
+
+
+def bounded(default: Any, *, ge: float | None = None, gt: float | None = None, le: float | None = None,
+            lt: float | None = None) -> Any:
+    """A dataclass field with a range, checked by ``check_bounds`` and ``load_config``."""
+    return dataclasses.field(default=default, metadata={"bounds": Bounds(ge, gt, le, lt)})
+
+
+def check_bounds(config: Any, prefix: str = "") -> None:
+    """Raise ValueError naming ``prefix + field`` for the first field of ``config`` outside its bounds.
+
+    Call it from a config block's ``__post_init__``; nested blocks check themselves when built.
+    """
+    for f in dataclasses.fields(config):
+        bounds = f.metadata.get("bounds")
+        if bounds is not None and (why := bounds.violation(getattr(config, f.name))) is not None:
+            raise ValueError(f"{prefix}{f.name} {why}")
+
+
+def _check_tree(node: DictConfig, source: str, prefix: str = "") -> None:
+    """``check_bounds`` over a merged, not yet built config tree, naming dotted keys and the source."""
+    schema = OmegaConf.get_type(node)
+    if not dataclasses.is_dataclass(schema):
+        return
+    for f in dataclasses.fields(schema):
+        if f.name not in node:
+            continue
+        child = node[f.name] if isinstance(node._get_node(f.name), DictConfig) else None
+        if child is not None:
+            _check_tree(child, source, f"{prefix}{f.name}.")
+            continue
+        raw = node._get_node(f.name)
+        value = OmegaConf.to_container(raw) if OmegaConf.is_config(raw) else raw._value()
+        bounds = f.metadata.get("bounds")
+        if bounds is not None and (why := bounds.violation(value)) is not None:
+            raise ConfigError(f"{source}: key '{prefix}{f.name}' {why}")
 
 
 def _schema(schema: type[T]) -> DictConfig:
@@ -38,29 +129,43 @@ def _merge(base: DictConfig, layer: DictConfig, source: str) -> DictConfig:
         raise ConfigError(f"{source}: key '{key}': {msg}") from None
 
 
-def load_config(schema: type[T], path: str | Path | None = None, overrides: Sequence[str] = ()) -> T:
-    """The schema's defaults, then the YAML file at ``path`` (if any), then dotted ``overrides``."""
+def load_config(schema: type[T], path: str | Path | None = None, overrides: Sequence[str] = (),
+                borrow_from: Sequence[type] = ()) -> T:
+    """The schema's defaults, then the YAML file at ``path`` (if any), then dotted ``overrides``.
+
+    borrow_from: other schemas whose files this one may read: their top-level keys that ``schema`` lacks
+    are dropped from the file (``jaxcls show`` previews the world of a dataset config).
+    """
     cfg = _schema(schema)
     if path is not None:
-        path = Path(path)
-        if not path.is_file():
-            raise ConfigError(f"{path}: config file not found")
+        path = resolve_config(path)
         try:
             layer = OmegaConf.load(path)
         except Exception as e:  # the YAML parser's own errors carry the line
             raise ConfigError(f"{path}: not valid YAML: {e}") from None
+        if layer is None or (isinstance(layer, DictConfig) and not layer and not path.read_text().strip()):
+            raise ConfigError(f"{path}: the config file is empty (write at least one key, or leave out --config)")
         if not isinstance(layer, DictConfig):
             raise ConfigError(f"{path}: expected a mapping at the top level")
+        own = {f.name for f in dataclasses.fields(schema)}
+        borrowed = {f.name for other in borrow_from for f in dataclasses.fields(other)} - own
+        for key in [k for k in layer if k in borrowed]:
+            del layer[key]
         cfg = _merge(cfg, layer, str(path))
+        _check_tree(cfg, str(path))
     if overrides:
         bad = [o for o in overrides if "=" not in o]
         if bad:
             raise ConfigError(f"command line: overrides must look like key.sub=value, got {bad}")
         cfg = _merge(cfg, OmegaConf.from_dotlist(list(overrides)), "command line")
+        _check_tree(cfg, "command line")
     try:
         return OmegaConf.to_object(cfg)
     except OmegaConfBaseException as e:
         raise ConfigError(f"{path or 'defaults'}: {str(e).splitlines()[0]}") from None
+    except ValueError as e:  # a block's own cross-field rule (__post_init__)
+        where = f"{path} and the command line" if path and overrides else (path or "command line")
+        raise ConfigError(f"{where}: {e}") from None
 
 
 def to_yaml(config: Any) -> str:
@@ -72,7 +177,6 @@ def to_yaml(config: Any) -> str:
 
 def save_config(config: Any, path: str | Path) -> Path:
     """Write the resolved config beside a run's outputs."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(to_yaml(config))
-    return path
+    from jaxcls import io
+
+    return io.write_text(path, to_yaml(config))

@@ -2,6 +2,19 @@
 
 Conventions (DESIGN.md): metres; world z up; OpenCV camera (x right, y down, z forward); a camera pose is
 the 4x4 camera-to-world transform ``T_wc``. Functions take ``...`` leading batch axes.
+
+Poses have one representation, ``jaxlie`` (``SE3``/``SO3`` below, with ``...`` batch axes):
+
+- at module boundaries (arrays handed between modules, datasets, MuJoCo) a pose is a ``[..., 4, 4]`` matrix
+  such as ``T_wc``;
+- where poses are composed, inverted or updated on the tangent space it is a ``jaxlie.SE3``
+  (``pose_from_matrix(T)``, ``a @ b``, ``.inverse()``, ``SE3.exp``, ``.log()``, ``jaxlie.manifold.rplus``), and
+  ``.as_matrix()`` turns it back. Tangent vectors are ``[..., 6]`` in jaxlie's order: translation part
+  first, then rotation (axis-angle), ``(v_x, v_y, v_z, w_x, w_y, w_z)``; ``SE3.exp`` couples them (its
+  translation is ``V(w) v``, not ``v``), and ``rplus(T, d)`` is ``T @ SE3.exp(d)`` (a body-frame update).
+
+Exact float64 host code (scene layout, MuJoCo bodies) stays in NumPy (``yaw_matrix_np``): JAX's default
+float32 would round it. Gradient-safe norms and divisions live in ``jaxcls.math``.
 """
 
 from __future__ import annotations
@@ -9,7 +22,9 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import jax
 import jax.numpy as jnp
+import jaxlie
 import numpy as np
 from flax import struct
 
@@ -118,12 +133,46 @@ def backproject(depth: jnp.ndarray, intrinsics: Intrinsics, T_wc: jnp.ndarray) -
     return jnp.einsum("...ij,...hwj->...hwi", R, points_c) + t[..., None, None, :]
 
 
-def yaw_rotation(yaw: jnp.ndarray) -> jnp.ndarray:
-    """[..., 3, 3] rotations about the world z axis by ``yaw: [...]`` rad (counter-clockwise seen from above)."""
-    yaw = jnp.asarray(yaw)
-    c, s = jnp.cos(yaw), jnp.sin(yaw)
-    zero, one = jnp.zeros_like(c), jnp.ones_like(c)
-    return jnp.stack([jnp.stack([c, -s, zero], -1), jnp.stack([s, c, zero], -1), jnp.stack([zero, zero, one], -1)], -2)
+# ---------------------------------------------------------------- rigid transforms (jaxlie)
+
+SE3 = jaxlie.SE3
+SO3 = jaxlie.SO3
+
+
+def pose_from_matrix(T: jax.Array) -> jaxlie.SE3:
+    """The ``SE3`` of rigid transforms ``T: [..., 4, 4]`` (the last row is assumed to be 0 0 0 1)."""
+    return jaxlie.SE3.from_matrix(jnp.asarray(T))
+
+
+def yaw_pose(yaw: jax.Array, translation: jax.Array) -> jaxlie.SE3:
+    """``SE3`` rotating by ``yaw: [...]`` rad about world z, then translating by ``translation: [..., 3]``."""
+    yaw, translation = _float(yaw), _float(translation)
+    batch = jnp.broadcast_shapes(yaw.shape, translation.shape[:-1])
+    rotation = jaxlie.SO3.from_z_radians(jnp.broadcast_to(yaw, batch))
+    return jaxlie.SE3.from_rotation_and_translation(rotation, jnp.broadcast_to(translation, (*batch, 3)))
+
+
+def yaw_rotation(yaw: jax.Array) -> jax.Array:
+    """[..., 3, 3] rotations about the world z axis by ``yaw: [...]`` rad (counter-clockwise seen from above).
+
+    Differentiable, with finite gradients at 0 (jaxlie's exp switches to its Taylor series there).
+    """
+    return jaxlie.SO3.from_z_radians(_float(yaw)).as_matrix()
+
+
+def _float(x: jax.Array) -> jax.Array:
+    """``x`` as a JAX array of at least float32 (jaxlie knows float32 and float64 only)."""
+    x = jnp.asarray(x)
+    return x.astype(jnp.promote_types(x.dtype, jnp.float32))
+
+
+def yaw_matrix_np(yaw: np.ndarray) -> np.ndarray:
+    """[..., 3, 3] float64 NumPy ``yaw_rotation``, for exact host-side poses (scene layout, MuJoCo bodies)."""
+    yaw = np.asarray(yaw, np.float64)
+    c, s = np.cos(yaw), np.sin(yaw)
+    R = np.zeros((*yaw.shape, 3, 3))
+    R[..., 0, 0], R[..., 0, 1], R[..., 1, 0], R[..., 1, 1], R[..., 2, 2] = c, -s, s, c, 1.0
+    return R
 
 
 def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:
@@ -184,12 +233,15 @@ def opencv_to_mujoco_rotation(R_wc: np.ndarray) -> np.ndarray:
 
 
 def rotation_to_quat(R: np.ndarray) -> np.ndarray:
-    """[..., 4] unit quaternions (w, x, y, z), MuJoCo's order, of rotation matrices ``R: [..., 3, 3]``."""
-    from scipy.spatial.transform import Rotation
+    """[..., 4] float64 unit quaternions (w, x, y, z), MuJoCo's order, w >= 0, of rotations ``R: [..., 3, 3]``.
 
-    R = np.asarray(R, float)
-    xyzw = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_quat()
-    return np.concatenate([xyzw[:, 3:], xyzw[:, :3]], axis=-1).reshape(*R.shape[:-2], 4)
+    Host side: ``jaxlie.SO3.from_matrix`` evaluated in float64 (a local x64 scope), so float64 poses keep
+    float64 accuracy in MuJoCo bodies.
+    """
+    R = np.asarray(R, np.float64)
+    with jax.enable_x64(True):
+        q = np.asarray(jaxlie.SO3.from_matrix(jnp.asarray(R)).wxyz, np.float64)
+    return q * np.where(q[..., :1] < 0, -1.0, 1.0)
 
 
 def is_rigid(T: np.ndarray, atol: float = 1e-4) -> np.ndarray:

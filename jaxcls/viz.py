@@ -1,91 +1,116 @@
-"""Figures of scenes and depth frames (matplotlib, headless)."""
+"""Figures (matplotlib, headless, no pyplot state): scenes and depth frames, training curves, confusion
+matrices. Figures only: the commands and training decide what to draw and where it goes."""
 
 from __future__ import annotations
 
-import dataclasses
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING
 
 import numpy as np
+from matplotlib import colormaps
+from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
+from matplotlib.patches import Patch
+from matplotlib.ticker import MaxNLocator
 
-from jaxcls import geometry, scenes
-from jaxcls.assets import ObjectSetConfig, object_set_from_config
-from jaxcls.config import save_config
-from jaxcls.render import make_renderer, resolve_backend
-
-
-@dataclasses.dataclass(frozen=True)
-class ShowConfig:
-    """``jaxcls show``: one scene, a few of its views, and the viewpoint hemisphere."""
-
-    out_dir: str = "runs/show"
-    seed: int = 0
-    scene_file: str = ""  # a scene JSON to show instead of drawing one
-    views: tuple[int, ...] = (0, 33, 66, 99)
-    backend: Literal["auto", "mujoco", "mjx", "warp"] = "auto"
-    objects: ObjectSetConfig = dataclasses.field(default_factory=ObjectSetConfig)
-    scene: scenes.SceneConfig = dataclasses.field(default_factory=scenes.SceneConfig)
-    camera: geometry.CameraConfig = dataclasses.field(default_factory=geometry.CameraConfig)
-    viewpoints: geometry.ViewpointConfig = dataclasses.field(default_factory=geometry.ViewpointConfig)
+if TYPE_CHECKING:
+    from jaxcls.world.scenes import Scene
 
 
-def show(config: ShowConfig) -> Path:
-    """Render the scene and save ``scene.png`` (depth, object ids, hemisphere), ``scene.json`` and the config."""
-    out = Path(config.out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    if config.scene_file:
-        scene = scenes.Scene.load(config.scene_file)
-        object_set = object_set_from_config(scene.object_set)
+def class_colours(classes: Sequence[str]) -> dict[str, tuple[float, float, float, float]]:
+    """One colour per class name (sorted), from tab10 up to 10 classes, tab20 up to 20, then a hue wheel."""
+    names = sorted(set(classes))
+    if len(names) <= 10:
+        colours = colormaps["tab10"].colors
+    elif len(names) <= 20:
+        colours = colormaps["tab20"].colors
     else:
-        object_set = object_set_from_config(config.objects)
-        scene = scenes.sample_scene(object_set, config.scene, config.seed, config.objects)
-    models = scenes.scene_models(scene, object_set)
-    intrinsics = config.camera.intrinsics()
-    T_wc = scenes.viewpoints(scene, models, config.viewpoints)
-    bad = [v for v in config.views if not 0 <= v < len(T_wc)]
-    if bad:
-        raise ValueError(f"show: views {bad} are outside 0..{len(T_wc) - 1}")
-    backend = resolve_backend(config.backend)
-    renderer = make_renderer(scenes.build_model(scene, models, intrinsics), intrinsics, backend)
-    frames = renderer.render(T_wc[list(config.views)])
-    figure = plot_scene(scene, T_wc, config.views, np.asarray(frames.depth), np.asarray(frames.object_id))
-    path = out / "scene.png"
-    figure.savefig(path, dpi=80)
-    scene.save(out / "scene.json")
-    save_config(config, out / "config.yaml")
-    return path
+        colours = [colormaps["hsv"](i / len(names)) for i in range(len(names))]
+    return {name: (*colours[i][:3], 1.0) for i, name in enumerate(names)}
 
 
-def plot_scene(scene: scenes.Scene, T_wc: np.ndarray, views, depth: np.ndarray,
-               object_id: np.ndarray) -> Figure:
-    """Depth and object ids of ``views`` (rows of ``depth: [K, H, W]``) beside the view hemisphere."""
+def plot_scene(scene: Scene, T_wc: np.ndarray, views: Sequence[int], depth: np.ndarray, object_id: np.ndarray,
+               noisy: bool = False) -> Figure:
+    """Depth and object ids of ``views`` (rows of ``depth: [K, H, W]`` m, ``object_id: [K, H, W]``, -1 =
+    table) beside the view hemisphere ``T_wc: [V, 4, 4]``. Objects are coloured by class (legend); any
+    number of objects. ``noisy``: the depth went through the sensor model (said in the titles)."""
     k = len(views)
-    figure = Figure(figsize=(3.2 * k + 5, 5.5))  # no pyplot: no global state, no GUI backend
+    figure = Figure(figsize=(3.2 * k + 5, 5.5))
     grid = figure.add_gridspec(2, k + 2)
+    colours = class_colours([o.class_name for o in scene.objects])
+    per_object = ListedColormap([colours[o.class_name] for o in scene.objects] or [(0, 0, 0, 1)])
+    kind = "sensor depth" if noisy else "depth"
     for col, view in enumerate(views):
         ax = figure.add_subplot(grid[0, col])
-        valid = depth[col] > 0
-        shown = np.where(valid, depth[col], np.nan)
+        shown = np.where(depth[col] > 0, depth[col], np.nan)
         image = ax.imshow(shown, cmap="viridis")
-        ax.set_title(f"view {view}: depth (m)", fontsize=9)
+        ax.set_title(f"view {view}: {kind} (m)", fontsize=9)
         ax.axis("off")
         figure.colorbar(image, ax=ax, fraction=0.035)
         ax = figure.add_subplot(grid[1, col])
-        ax.imshow(np.ma.masked_less(object_id[col], 0), cmap="tab10", vmin=0, vmax=9, interpolation="nearest")
-        ax.set_title(f"view {view}: object ids", fontsize=9)
+        ax.imshow(np.ma.masked_less(object_id[col], 0), cmap=per_object, vmin=-0.5,
+                  vmax=max(scene.num_objects, 1) - 0.5, interpolation="nearest")
+        ax.set_title(f"view {view}: objects", fontsize=9)
         ax.axis("off")
     ax = figure.add_subplot(grid[:, k:], projection="3d")
     eyes = T_wc[:, :3, 3]
     ax.scatter(*eyes.T, s=8, c="tab:blue", label="viewpoints")
     ax.scatter(*eyes[list(views)].T, s=40, c="tab:red", label="shown")
     for obj in scene.objects:
-        ax.scatter(obj.position[0], obj.position[1], scene.table_height, s=30,
-                   c="k" if obj.target else "tab:gray")
+        ax.scatter(obj.position[0], obj.position[1], scene.table_height, s=30, color=colours[obj.class_name],
+                   marker="o" if obj.target else "x")
         ax.text(obj.position[0], obj.position[1], scene.table_height + 0.05, obj.class_name, fontsize=7)
     ax.set_box_aspect((1, 1, 0.5))
     ax.set_title(f"{len(T_wc)} viewpoints, {scene.num_objects} objects", fontsize=9)
-    ax.legend(fontsize=7, loc="upper left")
+    handles = [Patch(color=c, label=name) for name, c in colours.items()]
+    ax.legend(handles=[*ax.get_legend_handles_labels()[0], *handles], fontsize=7, loc="upper left")
     figure.tight_layout()
     return figure
 
+
+def training_curve(history: list[dict]) -> Figure:
+    """Loss and accuracies (train, and held-out per source) against the epoch, from ``metrics.json``'s history."""
+    figure = Figure(figsize=(10, 4))
+    epochs = [h["epoch"] for h in history]
+    ax = figure.add_subplot(1, 2, 1)
+    ax.plot(epochs, [h["loss"] for h in history])
+    ax.set(xlabel="epoch", ylabel="training loss", yscale="log")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax = figure.add_subplot(1, 2, 2)
+    ax.plot(epochs, [h["train_accuracy"] for h in history], label="train", color="k", lw=1)
+    for source in (history[0]["test_accuracy"] if history else {}):
+        ax.plot(epochs, [h["test_accuracy"][source] for h in history], label=f"held-out, {source}")
+    ax.set(xlabel="epoch", ylabel="accuracy", ylim=(0, 1))
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.legend(fontsize=8)
+    figure.tight_layout()
+    return figure
+
+
+def confusion(confusions: dict[str, np.ndarray], classes: Sequence[str]) -> Figure:
+    """One row-normalised confusion matrix per cloud source (rows: true class, columns: predicted)."""
+    figure = Figure(figsize=(4.2 * len(confusions), 4.4))
+    for col, (source, counts) in enumerate(confusions.items()):
+        ax = figure.add_subplot(1, len(confusions), col + 1)
+        rates = counts / np.maximum(counts.sum(axis=1, keepdims=True), 1)
+        ax.imshow(rates, cmap="Blues", vmin=0, vmax=1)
+        for i, j in np.ndindex(rates.shape):
+            ax.text(j, i, f"{rates[i, j]:.2f}".lstrip("0") if rates[i, j] else "", ha="center", va="center",
+                    fontsize=6, color="w" if rates[i, j] > 0.5 else "k")
+        ax.set_xticks(range(len(classes)), classes, rotation=90, fontsize=7)
+        ax.set_yticks(range(len(classes)), classes, fontsize=7)
+        ax.set_xlabel("predicted class", fontsize=8)
+        ax.set_ylabel("true class", fontsize=8)
+        ax.set_title(f"{source}: accuracy {np.trace(counts) / max(counts.sum(), 1):.3f}", fontsize=9)
+    figure.tight_layout()
+    return figure
+
+
+def save(figure: Figure, path: str | Path, dpi: int = 80) -> Path:
+    """Write ``figure`` as a PNG atomically."""
+    from jaxcls import io
+
+    with io.atomic_write(path) as f:
+        figure.savefig(f, dpi=dpi, format="png")
+    return Path(path)

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from jaxcls import assets, config
+from jaxcls import config
+from jaxcls.world import objects as assets
 
 CLASSES = ("bottle", "bowl", "box", "can", "drill", "jug", "lamp", "mug")
 # Samples are stored in f32: a few 1e-8 m of rounding on coordinates up to 0.2 m.
@@ -322,11 +323,11 @@ def test_load_folder_converts_units_and_rests_models(tmp_path):
 
 def test_load_folder_holds_out_the_last_instances(tmp_path):
     _write_class_folder(tmp_path)
-    objects = assets.load_folder(tmp_path, test_fraction=0.5, surface_samples=32)
+    objects = assets.load_folder(tmp_path, test_fraction=0.5, surface_samples=32, scale=0.001)
     assert [m.name for m in objects.train] == ["block_a", "tin_c"]
     assert [m.name for m in objects.test] == ["block_b"]
     with pytest.raises(ValueError, match="test_fraction"):
-        assets.load_folder(tmp_path, test_fraction=1.0)
+        assets.load_folder(tmp_path, test_fraction=1.0, scale=0.001)
 
 
 def test_load_folder_errors_name_the_file(tmp_path):
@@ -352,6 +353,34 @@ def test_load_folder_errors_name_the_file(tmp_path):
         with pytest.raises(ValueError, match=re.escape(file_name)) as error:
             assets.load_folder(root)
         assert messages[file_name] in str(error.value)
+
+
+def test_load_folder_rejects_millimetre_models_without_scale(tmp_path):
+    """Millimetre meshes loaded as metres (a 60 mm block is 60 m) fail at load time, naming the file and the
+    fix, instead of later in scene building."""
+    _write_class_folder(tmp_path / "objs")
+    a = tmp_path / "objs" / "block" / "a.obj"
+    with pytest.raises(ValueError, match=re.escape(str(a))) as error:
+        assets.load_folder(tmp_path / "objs", surface_samples=16)
+    message = str(error.value)
+    assert "largest extent 60 m" in message and "millimetres" in message
+    assert "objects.scale=0.001" in message and "pass scale=0.001" in message  # YAML / CLI and Python
+    config_folder = assets.ObjectSetConfig(source=str(tmp_path / "objs"), surface_samples=16)
+    with pytest.raises(ValueError, match=r"a\.obj: largest extent 60 m.*objects\.scale=0\.001"):
+        assets.object_set_from_config(config_folder)
+    assert assets.MAX_MODEL_EXTENT == 5.0
+
+
+def test_load_folder_rejects_tiny_models(tmp_path):
+    """Metre meshes loaded with scale=0.001 come out under a millimetre: the error names the file and scale."""
+    (tmp_path / "objs" / "cube").mkdir(parents=True)
+    trimesh.creation.box(extents=[0.05, 0.05, 0.05]).export(tmp_path / "objs" / "cube" / "small.stl")
+    assert assets.load_folder(tmp_path / "objs", surface_samples=16).classes == ("cube",)
+    with pytest.raises(ValueError, match=re.escape(str(tmp_path / "objs" / "cube" / "small.stl"))) as error:
+        assets.load_folder(tmp_path / "objs", surface_samples=16, scale=0.001)
+    message = str(error.value)
+    assert "largest extent 5e-05 m" in message and "under 1 mm" in message
+    assert "in metres" in message and "objects.scale" in message and "scale argument" in message
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -464,6 +493,73 @@ def test_load_object_set_dispatches(tmp_path):
         "block", "tin")
     with pytest.raises(FileNotFoundError, match="absent"):
         assets.load_object_set(str(tmp_path / "absent"))
+
+
+def test_load_object_set_names_a_missing_bop_models_info(tmp_path):
+    """BOP models without models_info.json are an error naming the missing file, not a class "models"."""
+    _write_bop(tmp_path / "lm")
+    (tmp_path / "lm" / "models" / "models_info.json").unlink()
+    missing = tmp_path / "lm" / "models" / "models_info.json"
+    for source in (tmp_path / "lm", tmp_path / "lm" / "models"):
+        with pytest.raises(FileNotFoundError, match=re.escape(str(missing))) as error:
+            assets.load_object_set(str(source), surface_samples=16)
+        assert "obj_*.ply" in str(error.value)
+    with pytest.raises(FileNotFoundError, match=re.escape(str(missing))):
+        assets.object_set_from_config(assets.ObjectSetConfig(source=str(tmp_path / "lm"), scale=0.001))
+    # A class folder may still have a class named "models", as long as it holds no BOP model files.
+    (tmp_path / "own" / "models").mkdir(parents=True)
+    trimesh.creation.box(extents=[0.05, 0.05, 0.05]).export(tmp_path / "own" / "models" / "cube.stl")
+    assert assets.load_object_set(str(tmp_path / "own"), surface_samples=16).classes == ("models",)
+
+
+def test_max_distance_is_the_largest_vertex_distance():
+    rng = np.random.default_rng(0)
+    for vertices in (rng.normal(size=(300, 3)), np.array([[0.0, 0, 0], [1, 0, 0], [3, 0, 0]]),  # collinear
+                     np.c_[rng.normal(size=(50, 2)), np.zeros(50)], np.zeros((1, 3))):  # coplanar, one point
+        brute = np.linalg.norm(vertices[:, None] - vertices[None], axis=-1).max()
+        assert assets._max_distance(vertices) == pytest.approx(brute, rel=1e-12)
+
+
+@pytest.mark.parametrize(("field", "value", "rule"), [
+    ("surface_samples", 0, ">= 1"), ("train_per_class", -1, ">= 0"), ("test_per_class", -1, ">= 0"),
+    ("seed", -3, ">= 0"), ("test_fraction", 1.0, "in [0, 1)"), ("test_fraction", -0.1, "in [0, 1)"),
+    ("scale", 0.0, "positive"), ("scale", float("inf"), "positive"), ("up_axis", "w", "one of"),
+])
+def test_object_set_config_rejects_out_of_range_values(tmp_path, field, value, rule):
+    """In Python, on the command line and in a YAML file, the error names the key ``objects.<field>``."""
+    with pytest.raises(ValueError, match=rf"objects\.{field} must be {re.escape(rule)}"):
+        assets.ObjectSetConfig(**{field: value})
+
+    @dataclasses.dataclass(frozen=True)
+    class Run:
+        name: str = "run"
+        objects: assets.ObjectSetConfig = dataclasses.field(default_factory=assets.ObjectSetConfig)
+
+    with pytest.raises(config.ConfigError, match=rf"command line: objects\.{field} must be {re.escape(rule)}"):
+        config.load_config(Run, overrides=[f"objects.{field}={value}"])
+    path = tmp_path / "run.yaml"
+    path.write_text(f"objects:\n  {field}: {value}\n")
+    with pytest.raises(config.ConfigError, match=rf"{re.escape(str(path))}: objects\.{field} must be"):
+        config.load_config(Run, path)
+
+
+def test_objects_package_imports_stay_one_way():
+    """The object-set modules import only the standard library, NumPy, SciPy, trimesh and each other."""
+    import ast
+    import sys
+
+    allowed = {"numpy", "scipy", "trimesh", "__future__"} | set(sys.stdlib_module_names)
+    package = Path(assets.__file__).parent
+    for file in sorted(package.glob("*.py")):
+        for node in ast.walk(ast.parse(file.read_text())):
+            if isinstance(node, ast.Import):
+                names = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                names = [node.module or ""]
+            else:
+                continue
+            for name in names:
+                assert name.startswith("jaxcls.world.objects.") or name.split(".")[0] in allowed, (file, name)
 
 
 def test_object_set_config_round_trips_and_dispatches(tmp_path):

@@ -1,10 +1,11 @@
 import numpy as np
 import pytest
 
-from jaxcls import dataset, geometry, recording, scenes
+from jaxcls.world import dataset, recording, scenes
+from jaxcls import geometry
 from jaxcls.cli import main
 from jaxcls.config import load_config
-from jaxcls.render import make_renderer
+from jaxcls.world.render import SensorConfig, make_renderer
 
 SMALL = ["camera.width=64", "camera.height=48", "camera.fx=52.5", "camera.fy=52.5", "camera.cx=31.5",
          "camera.cy=23.5", "viewpoints.count=6", "num_scenes=2", "batch_size=4", "backend=mujoco"]
@@ -17,7 +18,7 @@ def _config(tmp_path, path="configs/synthetic.yaml", extra=()):
 def test_shipped_configs_load():
     synthetic = load_config(dataset.DatasetConfig, "configs/synthetic.yaml")
     assert (synthetic.num_scenes, synthetic.scene.num_objects, synthetic.viewpoints.count) == (7, 5, 100)
-    assert synthetic.sensor == dataset.SensorConfig.ideal()
+    assert synthetic.sensor == SensorConfig.ideal()
     real = load_config(dataset.DatasetConfig, "configs/real_like.yaml")
     assert (real.scene.num_objects, real.scene.num_clutter) == (5, 2)
     assert real.sensor.axial_noise and real.sensor.pose_noise

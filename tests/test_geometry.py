@@ -113,3 +113,99 @@ def test_yaw_rotation_turns_x_towards_y_about_z():
     np.testing.assert_allclose(R[0], np.eye(3), atol=1e-7)
     np.testing.assert_allclose(R[2] @ R[2].T, np.eye(3), atol=1e-6)
     np.testing.assert_allclose(R[:, 2], [[0, 0, 1]] * 3, atol=1e-7)
+
+
+# ---------------------------------------------------------------- jaxlie poses and jaxcls.math
+
+
+def _random_poses(shape: tuple[int, ...], seed: int = 0) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    n = int(np.prod(shape))
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, :3, :3] = Rotation.random(n, random_state=seed).as_matrix()
+    T[:, :3, 3] = np.random.default_rng(seed).normal(size=(n, 3))
+    return T.reshape(*shape, 4, 4)
+
+
+@pytest.mark.parametrize("shape", [(), (3,), (2, 4)])
+def test_pose_from_matrix_round_trips_over_batch_shapes(shape):
+    T = _random_poses(shape)
+    pose = geometry.pose_from_matrix(T)
+    assert isinstance(pose, geometry.SE3) and pose.get_batch_axes() == shape
+    np.testing.assert_allclose(np.asarray(pose.as_matrix()), T, atol=1e-6)
+    # exp(log(T)) == T, and composing with the inverse gives the identity
+    np.testing.assert_allclose(np.asarray(geometry.SE3.exp(pose.log()).as_matrix()), T, atol=2e-6)
+    assert pose.log().shape == (*shape, 6)
+    np.testing.assert_allclose(np.asarray((pose @ pose.inverse()).as_matrix()), np.broadcast_to(np.eye(4), T.shape),
+                               atol=2e-6)
+
+
+def test_pose_log_puts_translation_before_rotation():
+    import jax.numpy as jnp
+
+    tangent = np.asarray(geometry.yaw_pose(0.0, jnp.asarray([0.1, -0.2, 0.3])).log())
+    np.testing.assert_allclose(tangent, [0.1, -0.2, 0.3, 0, 0, 0], atol=1e-7)
+    tangent = np.asarray(geometry.yaw_pose(0.4, jnp.zeros(3)).log())
+    np.testing.assert_allclose(tangent, [0, 0, 0, 0, 0, 0.4], atol=1e-6)
+
+
+def test_yaw_pose_matches_the_hand_derived_matrix():
+    yaw = np.array([[0.0, 0.3, -2.0], [np.pi / 2, np.pi, 1.0]])
+    t = np.random.default_rng(1).normal(size=(2, 3, 3))
+    T = np.asarray(geometry.yaw_pose(yaw, t).as_matrix())
+    c, s = np.cos(yaw), np.sin(yaw)
+    expected = np.zeros((2, 3, 4, 4))
+    expected[..., 0, 0], expected[..., 0, 1], expected[..., 1, 0], expected[..., 1, 1] = c, -s, s, c
+    expected[..., 2, 2] = expected[..., 3, 3] = 1.0
+    expected[..., :3, 3] = t
+    np.testing.assert_allclose(T, expected, atol=1e-6)
+    # a scalar yaw broadcasts over a batch of translations
+    assert geometry.yaw_pose(0.5, t).get_batch_axes() == (2, 3)
+    np.testing.assert_allclose(np.asarray(geometry.yaw_rotation(yaw)), expected[..., :3, :3], atol=1e-6)
+    np.testing.assert_allclose(geometry.yaw_matrix_np(yaw), expected[..., :3, :3], atol=1e-15)
+
+
+def test_yaw_rotation_has_finite_gradients_at_zero():
+    import jax
+    import jax.numpy as jnp
+
+    weights = jnp.arange(9.0).reshape(3, 3)
+    for yaw in (0.0, 1e-4, np.pi):
+        grad = jax.grad(lambda y: jnp.sum(geometry.yaw_rotation(y) * weights))(jnp.float32(yaw))
+        # d/dy of sum(W * R(y)) = W00 (-s) + W01 (-c) + W10 c + W11 (-s)
+        c, s = np.cos(yaw), np.sin(yaw)
+        assert np.isfinite(grad) and float(grad) == pytest.approx(-4 * s - c + 3 * c, abs=1e-5)
+
+
+def test_rotation_to_quat_is_float64_with_nonnegative_w():
+    T = _random_poses((50,), seed=3)
+    q = geometry.rotation_to_quat(T[..., :3, :3])
+    assert q.dtype == np.float64 and q.shape == (50, 4) and np.all(q[:, 0] >= 0)
+    from scipy.spatial.transform import Rotation
+
+    xyzw = Rotation.from_matrix(T[..., :3, :3]).as_quat()
+    ref = np.concatenate([xyzw[:, 3:], xyzw[:, :3]], axis=-1)
+    np.testing.assert_allclose(q, ref * np.sign(ref[:, :1]), atol=1e-12)
+
+
+def test_safe_math_values_and_finite_gradients_at_zero():
+    import jax
+    import jax.numpy as jnp
+
+    from jaxcls.math import normalize, safe_div, safe_norm
+
+    x = jnp.asarray([[3.0, 4.0, 0.0], [0.0, 0.0, 0.0]])
+    np.testing.assert_allclose(np.asarray(safe_norm(x)), [5.0, 0.0])
+    assert safe_norm(x, keepdims=True).shape == (2, 1)
+    np.testing.assert_allclose(np.asarray(normalize(x)), [[0.6, 0.8, 0.0], [0.0, 0.0, 0.0]], atol=1e-7)
+    np.testing.assert_allclose(np.asarray(safe_div(jnp.asarray([1.0, 2.0]), jnp.asarray([4.0, 0.0]))), [0.25, 0.0])
+    np.testing.assert_allclose(np.asarray(safe_div(1.0, jnp.asarray(0.0), fallback=7.0)), 7.0)
+
+    zero = jnp.zeros(3)
+    np.testing.assert_array_equal(np.asarray(jax.grad(safe_norm)(zero)), np.zeros(3))
+    np.testing.assert_allclose(np.asarray(jax.grad(safe_norm)(jnp.asarray([3.0, 4.0, 0.0]))), [0.6, 0.8, 0.0])
+    jac = np.asarray(jax.jacobian(normalize)(zero))
+    assert np.all(np.isfinite(jac))
+    num, den = jax.grad(lambda n, d: safe_div(n, d), argnums=(0, 1))(1.0, 0.0)
+    assert np.isfinite(num) and np.isfinite(den)

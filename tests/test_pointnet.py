@@ -8,8 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxcls import pointnet
-from jaxcls.assets import BUILTIN_CLASSES, builtin_object_set
+from jaxcls.perception import pointnet
+from jaxcls.world.objects import BUILTIN_CLASSES, builtin_object_set
 
 CONFIG = pointnet.ModelConfig(num_points=256)
 

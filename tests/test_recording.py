@@ -12,9 +12,9 @@ import pytest
 from PIL import Image
 from scipy.spatial.transform import Rotation
 
-from jaxcls import recording as rec
+from jaxcls.world import recording as rec
 from jaxcls.geometry import Intrinsics
-from jaxcls.recording import (
+from jaxcls.world.recording import (
     Recording,
     RecordingError,
     quantise_depth,

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from jaxcls.geometry import Intrinsics, look_at, pixel_rays, rotation_to_quat
-from jaxcls.render import DepthFrames, contract, default_backend, make_renderer, object_ids_of_geoms, testing
-from jaxcls.render import warp as warp_backend
+from jaxcls.world.render import DepthFrames, contract, default_backend, make_renderer, object_ids_of_geoms, testing
+from jaxcls.world.render import warp as warp_backend
 
 # float64 C ray casting against float64 analytic intersections: only rounding separates them.
 _ANALYTIC_TOL = 1e-4  # m
@@ -194,7 +194,7 @@ def test_mjx_chunk_does_not_change_result(with_mesh, mjx_renderer):
 
 
 def test_mjx_render_is_pure_and_vmaps(with_mesh):
-    from jaxcls.render import mjx_ray
+    from jaxcls.world.render import mjx_ray
 
     mx, dx, geom_object = mjx_ray.put_scene(with_mesh)
     T = jnp.asarray(_oblique_views()[:2], jnp.float32)

@@ -6,8 +6,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from jaxcls import geometry, scenes
-from jaxcls.assets import ObjectSetConfig, builtin_object_set
+from jaxcls import geometry
+from jaxcls.world import scenes
+from jaxcls.world.objects import ObjectSetConfig, builtin_object_set
 
 
 @pytest.fixture(scope="module")
@@ -152,7 +153,7 @@ def test_image_axes_follow_the_world(object_set):
     """An absolute check of the camera convention, independent of pixel_rays: from straight above
     (image right = world +x, image down = world -y), an object at +x lands right of centre, one at -y
     below it; from the side, the far table is higher in the image than the near table."""
-    from jaxcls.render import make_renderer
+    from jaxcls.world.render import make_renderer
 
     scene = scenes.sample_scene(object_set, scenes.SceneConfig(num_objects=2), seed=0)
     scene = dataclasses.replace(scene, objects=(dataclasses.replace(scene.objects[0], position=(0.2, 0.0)),
@@ -199,7 +200,7 @@ def test_occlusion_counts(object_set):
 
 def test_builtin_scene_renders_alike_in_mujoco_and_mjx(object_set):
     """The peer check on a real scene: MJX's ray casting against MuJoCo's C caster, ids included."""
-    from jaxcls.render import make_renderer
+    from jaxcls.world.render import make_renderer
 
     scene = scenes.sample_scene(object_set, scenes.SceneConfig(), seed=3)
     models = scenes.scene_models(scene, object_set)

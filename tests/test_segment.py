@@ -10,14 +10,18 @@ import pytest
 from scipy.spatial import cKDTree
 from sklearn.metrics import adjusted_rand_score
 
-from jaxcls import scenes, segment, tsdf
-from jaxcls.assets import builtin_object_set
-from jaxcls.geometry import Intrinsics, hemisphere_viewpoints
-from jaxcls.render import make_renderer
+from jaxcls import perception
+from jaxcls.geometry import CameraConfig, Intrinsics
+from jaxcls.perception import foreground, segment
+from jaxcls.perception.segment import grid
+from jaxcls.perception.settings import ForegroundConfig, PerceptionConfig, ShapeConfig, Spec
+from jaxcls.world import scenes
+from jaxcls.world.setup import WorldConfig, make_world
 
 SMALL = Intrinsics.kinect_v1(0.5)  # 320 x 240
 VIEWS = (20, 35, 50, 65, 80)  # five hemisphere views from low to high elevation
-CFG = segment.SegmentConfig()
+SPEC = Spec.create(PerceptionConfig(shapes=ShapeConfig(surface_points=32768)), SMALL)
+CAMERA = CameraConfig(width=SMALL.width, height=SMALL.height, fx=SMALL.fx, fy=SMALL.fy, cx=SMALL.cx, cy=SMALL.cy)
 # A point farther than this from every posed object surface is table or noise: left out of the ARI.
 _GT_RADIUS = 0.01
 SEEDS = range(12)
@@ -28,13 +32,11 @@ _ARI_FLOOR = 0.75
 
 
 def _scene_frames(config: scenes.SceneConfig, seed: int, views=VIEWS):
-    object_set = builtin_object_set()
-    scene = scenes.sample_scene(object_set, config, seed)
-    models = scenes.scene_models(scene, object_set)
-    Ts = hemisphere_viewpoints(scenes.scene_centroid(scene, models), 100)[list(views)]
-    frames = make_renderer(scenes.build_model(scene, models, SMALL), SMALL, "mujoco").render(Ts)
-    samples = [(T[:3, :3] @ m.surface_points.T).T + T[:3, 3] for m, T in zip(models, scene.object_poses(), strict=True)]
-    return frames, Ts, samples
+    world = make_world(WorldConfig(scene=config, camera=CAMERA, backend="mujoco"), seed)
+    frames = world.render(list(views))
+    samples = [(T[:3, :3] @ m.surface_points.T).T + T[:3, 3]
+               for m, T in zip(world.models, world.scene.object_poses(), strict=True)]
+    return frames, world.poses(list(views)), samples
 
 
 def _ground_truth(points: np.ndarray, mask: np.ndarray, samples: list[np.ndarray]) -> np.ndarray:
@@ -47,11 +49,10 @@ def _ground_truth(points: np.ndarray, mask: np.ndarray, samples: list[np.ndarray
 
 def _fused(config: scenes.SceneConfig, seed: int):
     frames, Ts, samples = _scene_frames(config, seed)
-    depths = np.stack([np.asarray(segment.foreground_depth(jnp.asarray(d), SMALL, jnp.asarray(T, jnp.float32), CFG))
-                       for d, T in zip(frames.depth, Ts, strict=True)])
-    vol = tsdf.create_volume(np.asarray(CFG.roi_center), size=CFG.roi_size, resolution=128)
-    vol = tsdf.integrate_frames(vol, jnp.asarray(depths), SMALL, jnp.asarray(Ts, jnp.float32))
-    surf = tsdf.extract_surface(vol, 32768)
+    state = perception.init_state(SPEC)
+    for d, T in zip(frames.depth, Ts, strict=True):
+        state = perception.observe(SPEC, state, d, T)
+    surf = state.surface
     points, mask = np.asarray(surf.points), np.asarray(surf.mask)
     return points, np.asarray(surf.normals), mask, _ground_truth(points, mask, samples)
 
@@ -71,24 +72,24 @@ def fused_scenes():
 def test_foreground_depth_drops_table_and_far_pixels_keeps_objects():
     frames, Ts, _ = _scene_frames(scenes.SceneConfig(), 0, views=(30,))
     depth, ids, T = frames.depth[0], frames.object_id[0], Ts[0]
-    fg = np.asarray(segment.foreground_depth(jnp.asarray(depth), SMALL, jnp.asarray(T, jnp.float32), CFG))
+    fg = np.asarray(foreground.foreground_depth(SPEC, jnp.asarray(depth), jnp.asarray(T, jnp.float32)))
     assert fg.dtype == np.float32 and np.all(np.isfinite(fg))
     from jaxcls.geometry import backproject
     z = np.asarray(backproject(jnp.asarray(fg), SMALL, jnp.asarray(T, jnp.float32)))[..., 2]
     kept = fg > 0
-    assert np.all(z[kept] > CFG.table_height + CFG.table_eps), "table points kept"
-    assert np.all(fg[kept] <= CFG.max_depth), "far points kept"
+    assert np.all(z[kept] > SPEC.floor), "table points kept"
+    assert np.all(fg[kept] <= SPEC.config.foreground.max_depth), "far points kept"
     # Object pixels above the table band are all kept (the bottom table_eps of every object is cut by design).
     z_raw = np.asarray(backproject(jnp.asarray(depth), SMALL, jnp.asarray(T, jnp.float32)))[..., 2]
-    obj = (ids >= 0) & (depth > 0) & (z_raw > CFG.table_height + CFG.table_eps)
+    obj = (ids >= 0) & (depth > 0) & (z_raw > SPEC.floor)
     assert kept[obj].mean() >= 0.99, f"object pixels kept: {kept[obj].mean():.3f}"
-    near = np.asarray(segment.foreground_depth(jnp.asarray(depth), SMALL, jnp.asarray(T, jnp.float32),
-                                               segment.SegmentConfig(max_depth=0.9)))
+    near_spec = Spec.create(PerceptionConfig(foreground=ForegroundConfig(max_depth=0.9)), SMALL)
+    near = np.asarray(foreground.foreground_depth(near_spec, jnp.asarray(depth), jnp.asarray(T, jnp.float32)))
     assert np.all(near <= 0.9)
     bad = depth.copy()
     bad[:10] = np.nan
     bad[10:20] = np.inf
-    out = np.asarray(segment.foreground_depth(jnp.asarray(bad), SMALL, jnp.asarray(T, jnp.float32), CFG))
+    out = np.asarray(foreground.foreground_depth(SPEC, jnp.asarray(bad), jnp.asarray(T, jnp.float32)))
     assert np.all(np.isfinite(out)) and np.all(out[:20] == 0)
 
 
@@ -101,11 +102,11 @@ def _blobs(centres, n=200, spread=0.01, seed=0):
     return pts.astype(np.float32), nrm.astype(np.float32), np.ones(len(pts), bool)
 
 
-def _segment_jax_padded(points, normals, mask, config, size=2048):
+def _segment_jax_padded(spec, points, normals, mask, size=2048):
     """``segment_jax`` on inputs padded to one static size (one compilation for all the small tests)."""
     P = len(points)
     pad = ((0, size - P), (0, 0))
-    seg = segment.segment_jax(np.pad(points, pad), np.pad(normals, pad), np.pad(mask, (0, size - P)), config)
+    seg = segment.segment_jax(spec, np.pad(points, pad), np.pad(normals, pad), np.pad(mask, (0, size - P)))
     return seg.replace(labels=seg.labels[:P])
 
 
@@ -118,8 +119,8 @@ def test_exactly_n_segments_for_fewer_or_more_clusters(count, path):
     angles = np.linspace(0, 2 * np.pi, count, endpoint=False)
     centres = [np.array([0.15 * np.cos(a), 0.15 * np.sin(a), 0.08]) for a in angles]
     pts, nrm, m = _blobs(centres)
-    seg = PATHS[path](pts, nrm, m, CFG)
-    assert seg.points.shape == (5, CFG.points_per_segment, 3) and seg.mask.shape == (5, CFG.points_per_segment)
+    seg = PATHS[path](SPEC, pts, nrm, m)
+    assert seg.points.shape == (5, SPEC.points_per_segment, 3) and seg.mask.shape == (5, SPEC.points_per_segment)
     assert seg.labels.dtype == jnp.int32
     assert all(int(k) > 0 for k in np.asarray(seg.mask).sum(1)), "an empty segment"
     assert set(np.unique(np.asarray(seg.labels))) <= set(range(5)) | {-1}
@@ -129,14 +130,14 @@ def test_exactly_n_segments_for_fewer_or_more_clusters(count, path):
 def test_only_noise_and_empty_inputs_give_defined_outputs(path):
     rng = np.random.default_rng(0)
     noise = (rng.uniform(-0.25, 0.25, (40, 3)) + np.array([0, 0, 0.25])).astype(np.float32)  # sparse: DBSCAN noise
-    seg = PATHS[path](noise, np.zeros_like(noise), np.ones(40, bool), CFG)
+    seg = PATHS[path](SPEC, noise, np.zeros_like(noise), np.ones(40, bool))
     assert not np.any(np.isnan(np.asarray(seg.points)))
-    empty = PATHS[path](np.zeros((10, 3), np.float32), np.zeros((10, 3), np.float32), np.zeros(10, bool), CFG)
+    empty = PATHS[path](SPEC, np.zeros((10, 3), np.float32), np.zeros((10, 3), np.float32), np.zeros(10, bool))
     assert not np.asarray(empty.mask).any() and np.all(np.asarray(empty.labels) == -1)
-    few = PATHS[path](np.full((3, 3), 0.1, np.float32), np.zeros((3, 3), np.float32), np.ones(3, bool), CFG)
+    few = PATHS[path](SPEC, np.full((3, 3), 0.1, np.float32), np.zeros((3, 3), np.float32), np.ones(3, bool))
     assert not np.asarray(few.mask).any()
     nan = np.full((10, 3), np.nan, np.float32)
-    out = PATHS[path](nan, nan, np.ones(10, bool), CFG)
+    out = PATHS[path](SPEC, nan, nan, np.ones(10, bool))
     assert not np.asarray(out.mask).any() and not np.any(np.isnan(np.asarray(out.points)))
 
 
@@ -144,13 +145,13 @@ def test_only_noise_and_empty_inputs_give_defined_outputs(path):
 def test_padding_invariance_and_determinism(path):
     centres = [np.array([x, 0.0, 0.08]) for x in (-0.2, -0.1, 0.0, 0.1, 0.2)]
     pts, nrm, m = _blobs(centres, spread=0.008)
-    a = PATHS[path](pts, nrm, m, CFG)
+    a = PATHS[path](SPEC, pts, nrm, m)
     pad = np.concatenate([pts, np.full((100, 3), 0.05, np.float32)])
-    b = PATHS[path](pad, np.concatenate([nrm, nrm[:100]]), np.concatenate([m, np.zeros(100, bool)]), CFG)
+    b = PATHS[path](SPEC, pad, np.concatenate([nrm, nrm[:100]]), np.concatenate([m, np.zeros(100, bool)]))
     np.testing.assert_array_equal(np.asarray(a.labels), np.asarray(b.labels)[: len(pts)])
     assert np.all(np.asarray(b.labels)[len(pts):] == -1)
     np.testing.assert_array_equal(np.asarray(a.points), np.asarray(b.points))
-    c = PATHS[path](pts, nrm, m, CFG)
+    c = PATHS[path](SPEC, pts, nrm, m)
     np.testing.assert_array_equal(np.asarray(a.points), np.asarray(c.points))
     # DBSCAN marks a few outliers as noise (-1).
     assert adjusted_rand_score(np.repeat(np.arange(5), 200), np.asarray(a.labels)) > 0.95
@@ -163,8 +164,8 @@ def test_fused_scenes_ari_and_twin_agreement(fused_scenes):
     scores, agree = {}, []
     for kind, clouds in zip(("synthetic", "touching"), fused_scenes, strict=True):
         for p, n, m, gt in clouds:
-            ref = np.asarray(segment.segment(p, n, m, CFG).labels)
-            twin = np.asarray(segment.segment_jax(p, n, m, CFG).labels)
+            ref = np.asarray(segment.segment(SPEC, p, n, m).labels)
+            twin = np.asarray(segment.segment_jax(SPEC, p, n, m).labels)
             scores.setdefault(kind, []).append(_ari(ref, gt))
             scores.setdefault(kind + " (jax)", []).append(_ari(twin, gt))
             either = (ref >= 0) | (twin >= 0)
@@ -178,13 +179,12 @@ def test_fused_scenes_ari_and_twin_agreement(fused_scenes):
 
 def test_single_view_points_static_and_segmented():
     frames, Ts, samples = _scene_frames(scenes.SceneConfig(), 0, views=(50,))
-    pts, m = segment.single_view_points(jnp.asarray(frames.depth[0]), SMALL, jnp.asarray(Ts[0], jnp.float32), CFG,
-                                        8192)
+    pts, m = foreground.single_view_points(SPEC, jnp.asarray(frames.depth[0]), jnp.asarray(Ts[0], jnp.float32), 8192)
     assert pts.shape == (8192, 3) and m.shape == (8192,) and int(m.sum()) > 1000
     pts, m = np.asarray(pts), np.asarray(m)
-    assert np.all(pts[m, 2] > CFG.table_height + CFG.table_eps) and not np.any(pts[~m])
+    assert np.all(pts[m, 2] > SPEC.floor) and not np.any(pts[~m])
     gt = _ground_truth(pts, m, samples)
-    ari = _ari(segment.segment(pts, np.zeros_like(pts), m, CFG).labels, gt)
+    ari = _ari(segment.segment(SPEC, pts, np.zeros_like(pts), m).labels, gt)
     print(f"single-view ARI {ari:.3f}")
     assert ari >= 0.5
 
@@ -197,9 +197,9 @@ def test_jax_twin_vmaps_over_episodes():
         clouds.append(_blobs(centres, spread=0.008, seed=seed))
     p, n, m = (np.stack([np.pad(x, [(0, 2048 - len(x))] + [(0, 0)] * (x.ndim - 1)) for x in a])
                for a in zip(*clouds, strict=True))
-    batched = jax.vmap(lambda a, b, c: segment.segment_jax(a, b, c, CFG))(p, n, m)
+    batched = jax.vmap(segment.segment_jax, in_axes=(None, 0, 0, 0))(SPEC, p, n, m)
     for i in range(2):
-        one = segment.segment_jax(p[i], n[i], m[i], CFG)
+        one = segment.segment_jax(SPEC, p[i], n[i], m[i])
         np.testing.assert_array_equal(np.asarray(batched.labels[i]), np.asarray(one.labels))
         np.testing.assert_array_equal(np.asarray(batched.points[i]), np.asarray(one.points))
 
@@ -225,13 +225,13 @@ def test_grid_building_blocks_match_scipy():
     occ[40:80, 40:80] = True
     occ[55:60, 55:60] = False  # a hole
     occ_j = jnp.asarray(occ)
-    label = np.asarray(segment._components(occ_j, 64))
+    label = np.asarray(grid._components(occ_j, 64))
     ref, _ = ndimage.label(occ, structure=np.ones((3, 3)))
     assert adjusted_rand_score(ref[occ], label[occ]) == 1.0 and np.all(label[~occ] == -1)
-    filled = np.asarray(segment._fill_holes(occ_j, 64))
+    filled = np.asarray(grid._fill_holes(occ_j, 64))
     np.testing.assert_array_equal(filled, ndimage.binary_fill_holes(occ))
-    np.testing.assert_allclose(np.asarray(segment._distance_transform(occ_j)), ndimage.distance_transform_edt(occ),
+    np.testing.assert_allclose(np.asarray(grid._distance_transform(occ_j)), ndimage.distance_transform_edt(occ),
                                atol=1e-5)
     votes = rng.random((120, 120))
-    np.testing.assert_allclose(np.asarray(segment._blur(jnp.asarray(votes, jnp.float32), 1.0)),
+    np.testing.assert_allclose(np.asarray(grid._blur(jnp.asarray(votes, jnp.float32), 1.0)),
                                ndimage.gaussian_filter(votes, 1.0, mode="reflect"), atol=1e-5)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from jaxcls.geometry import Intrinsics, is_rigid, look_at
-from jaxcls.render import SensorConfig, apply_sensor, perturb_poses
+from jaxcls.world.render import SensorConfig, apply_sensor, perturb_poses
 
 INTR = Intrinsics.kinect_v1(0.1)  # 64 x 48
 KEY = jax.random.PRNGKey(0)
@@ -110,7 +110,7 @@ def _tilted_plane(tilt_deg: float) -> tuple[np.ndarray, np.ndarray]:
 
 @pytest.mark.parametrize("tilt_deg", [0.0, 45.0, 70.0, 85.0])
 def test_incidence_from_depth_gradients_is_exact_on_planes(tilt_deg):
-    from jaxcls.render.sensor import _cos_incidence
+    from jaxcls.world.render.sensor import _cos_incidence
 
     depth, cos = _tilted_plane(tilt_deg)
     ours = np.asarray(_cos_incidence(jnp.asarray(depth), INTR))[0]

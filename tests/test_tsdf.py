@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from jaxcls import scenes, tsdf
-from jaxcls.assets import builtin_object_set
+from jaxcls.world import scenes
+from jaxcls.perception import tsdf
+from jaxcls.world.objects import builtin_object_set
 from jaxcls.geometry import Intrinsics, hemisphere_viewpoints, look_at
-from jaxcls.render import make_renderer
+from jaxcls.world.render import make_renderer
 
 SMALL = Intrinsics.kinect_v1(0.25)  # 160 x 120, the Kinect's field of view
 # f32 arithmetic on values of order 1: only rounding separates the TSDF from the analytic signed distance.

@@ -26,6 +26,7 @@ from typing import Any, Literal
 
 import jax
 import jax.numpy as jnp
+import jaxlie
 import mujoco
 import mujoco.mjx.warp as mjxw  # imports warp-lang when installed (and prints when not)
 import numpy as np
@@ -33,8 +34,9 @@ from flax import struct
 from mujoco import mjx
 
 from jaxcls.geometry import CV_TO_MJ, Intrinsics
-from jaxcls.render import contract
-from jaxcls.render.types import NO_DEPTH, NO_OBJECT, Backend, DepthFrames
+from jaxcls.math import normalize
+from jaxcls.world.render import contract
+from jaxcls.world.render.types import NO_DEPTH, NO_OBJECT, Backend, DepthFrames
 
 INSTALL_HINT = ("The warp backend needs a CUDA GPU visible to JAX (jax[cuda]) and warp-lang at the "
                 "version MJX pins: pip install 'mujoco-mjx[warp]' (MuJoCo Warp itself ships inside "
@@ -111,27 +113,11 @@ def mocap_poses(T_wc: jax.Array, T_body_cam: np.ndarray) -> tuple[jax.Array, jax
 def quat_from_matrix(R: jax.Array) -> jax.Array:
     """[..., 4] unit quaternions (w, x, y, z), w >= 0, of rotations ``R: [..., 3, 3]``.
 
-    Branch-free Shepperd: the four candidate formulas are all computed and the best-conditioned one
-    (largest of w, x, y, z) is kept, so no square root sees a negative number.
+    ``jaxlie.SO3.from_matrix`` (branch-free: every square root sees at least 1), with MuJoCo's sign and
+    the norm of float32 rounding taken out.
     """
-    m = R
-    t = jnp.stack([1 + m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2],
-                   1 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2],
-                   1 - m[..., 0, 0] + m[..., 1, 1] - m[..., 2, 2],
-                   1 - m[..., 0, 0] - m[..., 1, 1] + m[..., 2, 2]], axis=-1)
-    s = 2 * jnp.sqrt(jnp.maximum(t, 1e-12))  # [..., 4] = 4 * |component|
-    d21, d02, d10 = m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]
-    s21, s02, s10 = m[..., 2, 1] + m[..., 1, 2], m[..., 0, 2] + m[..., 2, 0], m[..., 1, 0] + m[..., 0, 1]
-    candidates = jnp.stack([
-        jnp.stack([s[..., 0] / 4, d21 / s[..., 0], d02 / s[..., 0], d10 / s[..., 0]], -1),
-        jnp.stack([d21 / s[..., 1], s[..., 1] / 4, s10 / s[..., 1], s02 / s[..., 1]], -1),
-        jnp.stack([d02 / s[..., 2], s10 / s[..., 2], s[..., 2] / 4, s21 / s[..., 2]], -1),
-        jnp.stack([d10 / s[..., 3], s02 / s[..., 3], s21 / s[..., 3], s[..., 3] / 4], -1),
-    ], axis=-2)  # [..., 4 candidates, 4]
-    best = jnp.argmax(t, axis=-1)
-    q = jnp.take_along_axis(candidates, best[..., None, None], axis=-2)[..., 0, :]
-    q = q * jnp.where(q[..., :1] < 0, -1.0, 1.0)
-    return q / jnp.linalg.norm(q, axis=-1, keepdims=True)
+    q = jaxlie.SO3.from_matrix(R).wxyz
+    return normalize(q * jnp.where(q[..., :1] < 0, -1.0, 1.0))
 
 
 # ---------------------------------------------------------------- GPU parts

@@ -28,14 +28,16 @@ import orbax.checkpoint as ocp
 from flax import struct
 from flax.training import train_state
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
-from matplotlib.figure import Figure
 from omegaconf import OmegaConf
+from sklearn.metrics import confusion_matrix
 from tqdm.auto import tqdm
 
-from jaxcls import geometry, pointnet
-from jaxcls.assets import ObjectSetConfig, object_set_from_config
-from jaxcls.clouds import SOURCES, CloudConfig, CloudSet, load_clouds, sample_batch
+from jaxcls import geometry, io, viz
 from jaxcls.config import load_config, save_config
+from jaxcls.learn.clouds import SOURCES, CloudConfig, CloudSet, load_clouds, sample_batch
+from jaxcls.perception import pointnet
+from jaxcls.perception.settings import PerceptionConfig
+from jaxcls.world.objects import ObjectSetConfig, object_set_from_config
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,6 +61,8 @@ class TrainConfig:
     data: CloudConfig = dataclasses.field(default_factory=CloudConfig)
     mix: Mix = dataclasses.field(default_factory=Mix)
     model: pointnet.ModelConfig = dataclasses.field(default_factory=pointnet.ModelConfig)
+    # The loop the classifier trains for: its foreground and TSDF volume make the partial clouds.
+    perception: PerceptionConfig = dataclasses.field(default_factory=PerceptionConfig)
     epochs: int = 250
     steps_per_epoch: int = 0  # 0: one pass over the training clouds the mix draws from
     batch_size: int = 32
@@ -198,11 +202,6 @@ def predict_all(classifier: pointnet.Classifier, points: np.ndarray, mask: np.nd
     return np.concatenate(out)
 
 
-def confusion_matrix(labels: np.ndarray, predicted: np.ndarray, num_classes: int) -> np.ndarray:
-    """[M, M] counts: row = true class, column = predicted."""
-    return np.bincount(labels * num_classes + predicted, minlength=num_classes**2).reshape(num_classes, num_classes)
-
-
 def _checkpoint_manager(run_dir: Path, config: TrainConfig) -> ocp.CheckpointManager:
     return ocp.CheckpointManager(run_dir.resolve() / "checkpoints",
                                  options=ocp.CheckpointManagerOptions(max_to_keep=config.keep_checkpoints))
@@ -254,8 +253,10 @@ def train(config: TrainConfig, show_progress: bool = True) -> Path:
     start = _resume_point(run_dir, config, classes, manager)
     save_config(config, run_dir / "config.yaml")
 
-    train_clouds = load_clouds(object_set, "train", config.data, config.objects, config.seed, show_progress)
-    test_clouds = load_clouds(object_set, "test", config.data, config.objects, config.seed, show_progress)
+    train_clouds = load_clouds(object_set, "train", config.data, config.objects, config.seed, show_progress,
+                               config.perception)
+    test_clouds = load_clouds(object_set, "test", config.data, config.objects, config.seed, show_progress,
+                              config.perception)
     used = np.asarray([getattr(config.mix, s) > 0 for s in SOURCES])[train_clouds.source]
     steps = config.steps_per_epoch or max(1, int(used.sum()) // config.batch_size)
     mesh = Mesh(np.asarray(devices), ("data",))
@@ -286,7 +287,7 @@ def train(config: TrainConfig, show_progress: bool = True) -> Path:
                   for s, (p, m, y) in evals.items()}
         history.append({"epoch": epoch + 1, "loss": loss, "train_accuracy": accuracy, "test_accuracy": scores,
                         "train_seconds": seconds, "clouds_per_second": steps * config.batch_size / seconds})
-        metrics_path.write_text(json.dumps({"classes": list(classes), "history": history}, indent=1) + "\n")
+        io.write_json(metrics_path, {"classes": list(classes), "history": history})
         manager.save(epoch + 1, args=ocp.args.StandardSave(_saved(state)))
         bar.set_postfix(loss=f"{loss:.3f}", acc=f"{accuracy:.3f}",
                         **{f"test_{s}": f"{v:.3f}" for s, v in scores.items()})
@@ -303,53 +304,17 @@ def finish(run_dir: Path, config: TrainConfig, classes: tuple[str, ...], state: 
     final: dict[str, Any] = {}
     for source, (p, m, y) in evals.items():
         predicted = predict_all(classifier, p, m, config.eval_batch)
-        confusion = confusion_matrix(y, predicted, M)
+        confusion = confusion_matrix(y, predicted, labels=np.arange(M))
         final[source] = {"accuracy": float(np.mean(predicted == y)), "count": len(y),
                          "per_class": {c: float(confusion[i, i] / confusion[i].sum()) if confusion[i].sum() else None
                                        for i, c in enumerate(classes)},
                          "confusion": confusion.tolist()}
-    (run_dir / "metrics.json").write_text(json.dumps({"classes": list(classes), "final": final,
-                                                      "history": history}, indent=1) + "\n")
-    save_training_curve(history, run_dir / "curve.png")
-    save_confusion({s: np.asarray(f["confusion"]) for s, f in final.items()}, classes, run_dir / "confusion.png")
+    io.write_json(run_dir / "metrics.json", {"classes": list(classes), "final": final, "history": history})
+    viz.save(viz.training_curve(history), run_dir / "curve.png")
+    viz.save(viz.confusion({s: np.asarray(f["confusion"]) for s, f in final.items()}, classes),
+             run_dir / "confusion.png")
     pointnet.save_classifier(run_dir / "pointnet.msgpack", jax.device_get(classifier), {
         "object_set": config.objects.source, "trained_by": f"jaxcls train ({config.name})",
         "epochs": history[-1]["epoch"] if history else 0,
         "test_accuracy": {s: f["accuracy"] for s, f in final.items()}})
     return run_dir
-
-
-def save_training_curve(history: list[dict], path: str | Path) -> Path:
-    """Loss and accuracies (train, and held-out per source) against the epoch, from ``metrics.json``'s history."""
-    figure = Figure(figsize=(10, 4))
-    epochs = [h["epoch"] for h in history]
-    ax = figure.add_subplot(1, 2, 1)
-    ax.plot(epochs, [h["loss"] for h in history])
-    ax.set(xlabel="epoch", ylabel="training loss", yscale="log")
-    ax = figure.add_subplot(1, 2, 2)
-    ax.plot(epochs, [h["train_accuracy"] for h in history], label="train", color="k", lw=1)
-    for source in (history[0]["test_accuracy"] if history else {}):
-        ax.plot(epochs, [h["test_accuracy"][source] for h in history], label=f"held-out, {source}")
-    ax.set(xlabel="epoch", ylabel="accuracy", ylim=(0, 1))
-    ax.legend(fontsize=8)
-    figure.tight_layout()
-    figure.savefig(path, dpi=80)
-    return Path(path)
-
-
-def save_confusion(confusions: dict[str, np.ndarray], classes: tuple[str, ...], path: str | Path) -> Path:
-    """One row-normalised confusion matrix per cloud source (rows: true class, columns: predicted)."""
-    figure = Figure(figsize=(4.2 * len(confusions), 4))
-    for col, (source, counts) in enumerate(confusions.items()):
-        ax = figure.add_subplot(1, len(confusions), col + 1)
-        rates = counts / np.maximum(counts.sum(axis=1, keepdims=True), 1)
-        ax.imshow(rates, cmap="Blues", vmin=0, vmax=1)
-        for i, j in np.ndindex(rates.shape):
-            ax.text(j, i, f"{rates[i, j]:.2f}".lstrip("0") if rates[i, j] else "", ha="center", va="center",
-                    fontsize=6, color="w" if rates[i, j] > 0.5 else "k")
-        ax.set_xticks(range(len(classes)), classes, rotation=90, fontsize=7)
-        ax.set_yticks(range(len(classes)), classes, fontsize=7)
-        ax.set_title(f"{source}: accuracy {np.trace(counts) / max(counts.sum(), 1):.3f}", fontsize=9)
-    figure.tight_layout()
-    figure.savefig(path, dpi=80)
-    return Path(path)

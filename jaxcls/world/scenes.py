@@ -18,13 +18,15 @@ import json
 import math
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
-import mujoco
 import numpy as np
 
 from jaxcls import geometry
-from jaxcls.assets import ObjectModel, ObjectSet, ObjectSetConfig, object_set_from_config
+from jaxcls.world.objects import ObjectModel, ObjectSet, ObjectSetConfig, object_set_from_config
+
+if TYPE_CHECKING:
+    import mujoco
 
 SCENE_FORMAT = "jaxcls-scene"
 SCENE_VERSION = 1
@@ -144,16 +146,16 @@ class Scene:
 
 
 def _pose(position, yaw: float, z: float) -> np.ndarray:
-    c, s = math.cos(yaw), math.sin(yaw)
+    """[4, 4] float64 pose of an object standing at ``position`` (x, y) and height ``z``, turned by ``yaw``."""
     T = np.eye(4)
-    T[:2, :2] = [[c, -s], [s, c]]
+    T[:3, :3] = geometry.yaw_matrix_np(yaw)
     T[:3, 3] = [position[0], position[1], z]
     return T
 
 
 def _place_footprint(hull: np.ndarray, position: np.ndarray, yaw: float) -> np.ndarray:
-    c, s = math.cos(yaw), math.sin(yaw)
-    return hull @ np.array([[c, s], [-s, c]]) + position
+    """``hull: [K, 2]`` (object frame) turned by ``yaw`` and moved to ``position`` (x, y)."""
+    return hull @ geometry.yaw_matrix_np(yaw)[:2, :2].T + position
 
 
 def footprint_separation(a: np.ndarray, b: np.ndarray) -> float:
@@ -275,6 +277,8 @@ def viewpoints(scene: Scene, models: tuple[ObjectModel, ...], config: geometry.V
 def build_model(scene: Scene, models: tuple[ObjectModel, ...] | None = None,
                 intrinsics: geometry.Intrinsics | None = None) -> mujoco.MjModel:
     """The MuJoCo model of ``scene`` with the depth camera on a mocap body (see the module docstring)."""
+    import mujoco  # here: scene descriptions and configs load without MuJoCo
+
     models = models if models is not None else scene_models(scene)
     intrinsics = intrinsics or geometry.Intrinsics.kinect_v1()
     intrinsics.validate_mujoco()
@@ -309,6 +313,8 @@ def object_distances(model: mujoco.MjModel, distmax: float = 0.1) -> np.ndarray:
 
     Negative means interpenetration. Pairs farther than ``distmax`` read ``distmax``.
     """
+    import mujoco
+
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
     geoms = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, f"object_{i}")
@@ -329,7 +335,7 @@ def occlusion_counts(scene: Scene, models: tuple[ObjectModel, ...], intrinsics: 
     ``seen``: pixels of object j in the scene seen from ``T_wc: [V, 4, 4]``; ``alone``: its pixels with
     the other objects removed (the table stays). ``seen / alone`` is the visible fraction, where alone > 0.
     """
-    from jaxcls.render import make_renderer
+    from jaxcls.world.render import make_renderer
 
     def counts(sub: Scene, sub_models: tuple[ObjectModel, ...]) -> np.ndarray:
         frames = make_renderer(build_model(sub, sub_models, intrinsics), intrinsics, backend).render(T_wc)

@@ -17,8 +17,8 @@ import numpy as np
 from mujoco import mjx
 
 from jaxcls.geometry import Intrinsics, pixel_rays
-from jaxcls.render import contract
-from jaxcls.render.types import NO_DEPTH, NO_OBJECT, Backend, DepthFrames
+from jaxcls.world.render import contract
+from jaxcls.world.render.types import NO_DEPTH, NO_OBJECT, Backend, DepthFrames
 
 # Intermediate floats of one chunk stay near this budget: about 32 floats per (ray, triangle) pair.
 _CHUNK_PAIRS = 1 << 22

@@ -23,6 +23,7 @@ from flax import struct
 
 from jaxcls import geometry
 from jaxcls.geometry import Intrinsics
+from jaxcls.math import normalize, safe_norm
 
 # Voxel pairs whose values are this close to +-1 sit on a truncation edge, not on the surface.
 _TRUNCATION_EDGE = 0.99
@@ -108,8 +109,9 @@ def _integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_w
                max_depth: float | None) -> TSDFVolume:
     """Unjitted body of ``integrate`` (scanned by ``integrate_frames``)."""
     H, W = intrinsics.height, intrinsics.width
-    assert depth.shape == (H, W), f"depth must be [H, W] = {(H, W)}, got {depth.shape}"
-    assert T_wc.shape == (4, 4), f"T_wc must be [4, 4], got {T_wc.shape}"
+    if tuple(depth.shape) != (H, W) or tuple(T_wc.shape) != (4, 4):
+        raise ValueError(f"integrate: need depth [H, W] = {[H, W]} and T_wc [4, 4], got shapes "
+                         f"{tuple(depth.shape)} and {tuple(T_wc.shape)}")
     depth = jnp.asarray(depth, jnp.float32)
     T_wc = jnp.asarray(T_wc, jnp.float32)
     # Bad pixels (NaN, inf, <= 0, beyond max_depth) become "no return"; the double where keeps gradients finite.
@@ -146,7 +148,9 @@ def _integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_w
     return volume.replace(tsdf=tsdf, weight=weight)
 
 
-@functools.partial(jax.jit, static_argnames=("intrinsics", "max_depth"))
+_integrate_jit = jax.jit(_integrate, static_argnames=("intrinsics", "max_depth"))
+
+
 def integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_wc: jax.Array,
               max_depth: float | None = None) -> TSDFVolume:
     """Fuse one depth map: projective TSDF with a running average of weight-1 observations.
@@ -154,8 +158,13 @@ def integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_wc
     depth: [H, W] z-depth, m (0, negative, NaN or inf = no return; returns beyond ``max_depth`` m are
     dropped); T_wc: [4, 4] camera-to-world. Voxels in front of the observed surface, or behind it by less
     than the truncation, are updated; the others keep their value. Differentiable w.r.t. ``depth``.
+
+    Called with concrete arrays, the frame is validated first (``check_frame``: shapes, a rigid finite
+    pose); under ``jit``/``vmap`` (traced arrays) only the shapes are checked and the jitted core runs.
     """
-    return _integrate(volume, depth, intrinsics, T_wc, max_depth)
+    if not any(isinstance(a, jax.core.Tracer) for a in (depth, T_wc)):
+        check_frame(depth, intrinsics, T_wc)
+    return _integrate_jit(volume, depth, intrinsics, T_wc, max_depth)
 
 
 @functools.partial(jax.jit, static_argnames=("intrinsics", "max_depth"))
@@ -272,9 +281,7 @@ def extract_surface(volume: TSDFVolume, max_points: int, weight_threshold: float
     grad = (1.0 - s) * _gradient_at(f, idx0) + s * _gradient_at(f, idx1)
     # Fallback where the central differences cancel: the difference along the crossing edge itself.
     fallback = e.astype(jnp.float32) * (f1 - f0)[:, None]
-    norm = jnp.linalg.norm(grad, axis=-1, keepdims=True)
-    grad = jnp.where(norm > 1e-6, grad, fallback)
-    norm = jnp.linalg.norm(grad, axis=-1, keepdims=True)
-    normals = grad / jnp.where(norm > 0, norm, 1.0)
+    grad = jnp.where(safe_norm(grad, keepdims=True) > 1e-6, grad, fallback)
+    normals = normalize(grad, eps=0.0)
     m = mask[:, None]
     return Surface(points=jnp.where(m, points, 0.0), normals=jnp.where(m, normals, 0.0), mask=mask)

@@ -20,9 +20,11 @@ import math
 
 import jax
 import jax.numpy as jnp
+import jaxlie
 from flax import struct
 
 from jaxcls.geometry import Intrinsics, pixel_rays
+from jaxcls.math import safe_div, safe_norm
 
 # Depth differences in the same units as depth; 0 = no return. Normals of zero length are "unknown".
 _TINY = 1e-12
@@ -138,23 +140,8 @@ def perturb_poses(key: jax.Array, T_wc: jax.Array, config: SensorConfig) -> jax.
     k_rot, k_trans = jax.random.split(key)
     omega = math.radians(config.pose_rot_sigma_deg) * jax.random.normal(k_rot, (*batch, 3), T_wc.dtype)
     trans = config.pose_trans_sigma * jax.random.normal(k_trans, (*batch, 3), T_wc.dtype)
-    dT = jnp.zeros((*batch, 4, 4), T_wc.dtype)
-    dT = dT.at[..., :3, :3].set(_so3_exp(omega)).at[..., :3, 3].set(trans).at[..., 3, 3].set(1.0)
+    dT = jaxlie.SE3.from_rotation_and_translation(jaxlie.SO3.exp(omega), trans).as_matrix().astype(T_wc.dtype)
     return jnp.matmul(T_wc, dT, precision=jax.lax.Precision.HIGHEST)  # not TF32 on GPUs
-
-
-def _so3_exp(omega: jax.Array) -> jax.Array:
-    """[..., 3, 3] rotation of axis-angle ``omega: [..., 3]`` (Rodrigues; Taylor series near 0)."""
-    theta2 = jnp.sum(omega**2, axis=-1)[..., None, None]
-    small = theta2 < 1e-8
-    theta = jnp.sqrt(jnp.where(small, 1.0, theta2))  # safe: the branch not taken sees 1
-    a = jnp.where(small, 1 - theta2 / 6, jnp.sin(theta) / theta)
-    b = jnp.where(small, 0.5 - theta2 / 24, (1 - jnp.cos(theta)) / jnp.where(small, 1.0, theta2))
-    x, y, z = omega[..., 0], omega[..., 1], omega[..., 2]
-    zero = jnp.zeros_like(x)
-    K = jnp.stack([jnp.stack([zero, -z, y], -1), jnp.stack([z, zero, -x], -1),
-                   jnp.stack([-y, x, zero], -1)], -2)
-    return jnp.eye(3, dtype=omega.dtype) + a * K + b * jnp.matmul(K, K, precision=jax.lax.Precision.HIGHEST)
 
 
 def _quantize(z: jax.Array, config: SensorConfig) -> jax.Array:
@@ -217,7 +204,6 @@ def _cos_incidence(depth: jax.Array, intrinsics: Intrinsics) -> jax.Array:
     t_u = tangent(P[..., 1:-1, :-2, :], P[..., 1:-1, 2:, :], ok[0], ok[1])
     t_v = tangent(P[..., :-2, 1:-1, :], P[..., 2:, 1:-1, :], ok[2], ok[3])
     normal = jnp.cross(t_u, t_v)
-    n_norm = jnp.sqrt(jnp.sum(normal**2, axis=-1))
-    r_norm = jnp.sqrt(jnp.sum(rays**2, axis=-1))
-    cos = jnp.abs(jnp.sum(normal * rays, axis=-1)) / jnp.maximum(n_norm * r_norm, _TINY)
+    n_norm = safe_norm(normal)
+    cos = safe_div(jnp.abs(jnp.sum(normal * rays, axis=-1)), n_norm * safe_norm(rays))
     return jnp.where((n_norm > _TINY) & (depth > 0), jnp.clip(cos, 0.0, 1.0), 1.0)

@@ -21,8 +21,8 @@ import mujoco
 import numpy as np
 
 from jaxcls.geometry import Intrinsics, pixel_rays
-from jaxcls.render import contract
-from jaxcls.render.types import NO_DEPTH, NO_OBJECT, Backend, DepthFrames
+from jaxcls.world.render import contract
+from jaxcls.world.render.types import NO_DEPTH, NO_OBJECT, Backend, DepthFrames
 
 # Rays per block of the closed-form table pass: 8 f64 work rows of this length fit in L2 cache.
 _BLOCK = 8192

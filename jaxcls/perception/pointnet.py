@@ -27,6 +27,8 @@ import numpy as np
 from flax import linen as nn
 from flax import serialization, struct
 
+from jaxcls.math import safe_norm
+
 WEIGHTS_DIR = Path(__file__).parent / "weights"
 BUILTIN_WEIGHTS = WEIGHTS_DIR / "pointnet_builtin.msgpack"
 
@@ -51,7 +53,7 @@ def normalise(points: jax.Array, mask: jax.Array) -> tuple[jax.Array, jax.Array]
     points = jnp.where(mask[..., None], points, 0.0)
     count = jnp.maximum(jnp.sum(mask, axis=-1, keepdims=True), 1)[..., None]
     centred = points - jnp.sum(points, axis=-2, keepdims=True) / count
-    radius = jnp.max(jnp.where(mask, jnp.linalg.norm(centred, axis=-1), 0.0), axis=-1)[..., None, None]
+    radius = jnp.max(jnp.where(mask, safe_norm(centred), 0.0), axis=-1)[..., None, None]
     return jnp.where(mask[..., None], centred / jnp.maximum(radius, 1e-9), 0.0), mask
 
 

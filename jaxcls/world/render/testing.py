@@ -1,6 +1,6 @@
 """Small scenes that follow the scene contract, for the render tests and benchmarks only.
 
-The real scenes come from ``jaxcls.scenes``; these stand in for them where a known layout is needed:
+The real scenes come from ``jaxcls.world.scenes``; these stand in for them where a known layout is needed:
 analytic primitives to check depth against, and a few trimesh meshes of realistic triangle counts.
 """
 
@@ -13,7 +13,7 @@ import numpy as np
 import trimesh
 
 from jaxcls.geometry import Intrinsics
-from jaxcls.render import contract
+from jaxcls.world.render import contract
 
 TABLE_HALF_EXTENT = (0.5, 0.4)  # m, x and y
 TABLE_THICKNESS = 0.04  # m
@@ -76,7 +76,7 @@ def primitives_scene(intrinsics: Intrinsics, table_height: float = 0.0, mesh: bo
 def mesh_scene(intrinsics: Intrinsics, num_objects: int = 5, seed: int = 0,
                table_height: float = 0.0) -> mujoco.MjModel:
     """``num_objects`` trimesh objects (about 6k triangles for five) on a ring, random yaws: a stand-in for
-    a ``jaxcls.scenes`` scene."""
+    a ``jaxcls.world.scenes`` scene."""
     shapes = [
         trimesh.creation.cylinder(radius=0.04, height=0.14, sections=64),
         trimesh.creation.icosphere(subdivisions=3, radius=0.05),

@@ -17,43 +17,34 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import warnings
 import zipfile
 from pathlib import Path
-from typing import Literal
 
 import jax
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaxcls import geometry, recording, scenes
-from jaxcls.assets import ObjectSetConfig, object_set_from_config
-from jaxcls.config import load_config, save_config
-from jaxcls.render import DepthFrames, make_renderer, resolve_backend
-from jaxcls.render.sensor import SensorConfig, apply_sensor, perturb_poses
+from jaxcls import geometry, io
+from jaxcls.config import bounded, check_bounds, load_config, save_config
+from jaxcls.world import recording, scenes
+from jaxcls.world.objects import object_set_from_config
+from jaxcls.world.setup import WorldConfig, make_world
 
 
 @dataclasses.dataclass(frozen=True)
-class DatasetConfig:
-    """``jaxcls dataset``: which scenes, which views, which sensor, where to."""
+class DatasetConfig(WorldConfig):
+    """``jaxcls dataset``: the world (``WorldConfig``: objects, scene, camera, viewpoints, sensor, backend),
+    how many scenes, where to."""
 
     name: str = "synthetic"
     out_dir: str = "data/synthetic"
-    num_scenes: int = 7
+    num_scenes: int = bounded(7, ge=1)
     seed: int = 0
-    backend: Literal["auto", "mujoco", "mjx", "warp"] = "auto"
-    batch_size: int = 50  # views rendered together
-    objects: ObjectSetConfig = dataclasses.field(default_factory=ObjectSetConfig)
-    scene: scenes.SceneConfig = dataclasses.field(default_factory=scenes.SceneConfig)
-    camera: geometry.CameraConfig = dataclasses.field(default_factory=geometry.CameraConfig)
-    viewpoints: geometry.ViewpointConfig = dataclasses.field(default_factory=geometry.ViewpointConfig)
-    sensor: SensorConfig = dataclasses.field(default_factory=SensorConfig.ideal)
+    batch_size: int = bounded(50, ge=1)  # views rendered together
 
     def __post_init__(self) -> None:
-        for key in ("num_scenes", "batch_size"):
-            if getattr(self, key) < 1:
-                raise ValueError(f"dataset: '{key}' must be >= 1, got {getattr(self, key)}")
+        check_bounds(self, "")
 
     def output_defining(self) -> DatasetConfig:
         """This config without the fields that do not change what is written (where, how many at once)."""
@@ -80,23 +71,15 @@ class SceneViews:
     backend: str = "mujoco"
 
     def save(self, path: str | Path) -> Path:
-        """Write atomically: a temporary file, flushed to disk, renamed into place; never a partial file."""
-        path = Path(path)
-        tmp = path.with_name(f".{path.name}.tmp")
+        """Write atomically (``io.atomic_write``): never a partial file."""
         intr = self.intrinsics
-        try:
-            with open(tmp, "wb") as f:
-                np.savez_compressed(
-                    f, depth=self.depth.astype(np.float32), object_id=self.object_id.astype(np.int16),
-                    T_wc=self.T_wc, T_wc_true=self.T_wc_true,
-                    intrinsics=np.array([intr.width, intr.height, intr.fx, intr.fy, intr.cx, intr.cy]),
-                    scene_json=np.array(json.dumps(self.scene.to_dict())), backend=np.array(self.backend))
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, path)
-        finally:
-            tmp.unlink(missing_ok=True)
-        return path
+        with io.atomic_write(path) as f:
+            np.savez_compressed(
+                f, depth=self.depth.astype(np.float32), object_id=self.object_id.astype(np.int16),
+                T_wc=self.T_wc, T_wc_true=self.T_wc_true,
+                intrinsics=np.array([intr.width, intr.height, intr.fx, intr.fy, intr.cx, intr.cy]),
+                scene_json=np.array(json.dumps(self.scene.to_dict())), backend=np.array(self.backend))
+        return Path(path)
 
     @classmethod
     def load(cls, path: str | Path) -> SceneViews:
@@ -137,27 +120,11 @@ def scene_file(out_dir: str | Path, index: int) -> Path:
 def render_scene_views(config: DatasetConfig, scene: scenes.Scene, key: jax.Array,
                        object_set=None, progress: tqdm | None = None) -> SceneViews:
     """Render ``scene`` from every viewpoint of ``config`` and apply its sensor model."""
-    models = scenes.scene_models(scene, object_set)
-    intrinsics = config.camera.intrinsics()
-    model = scenes.build_model(scene, models, intrinsics)
-    T_wc = scenes.viewpoints(scene, models, config.viewpoints)
-    backend = resolve_backend(config.backend)
-    renderer = make_renderer(model, intrinsics, backend)
-    depth, object_id = [], []
-    for start in range(0, len(T_wc), config.batch_size):
-        frames: DepthFrames = renderer.render(T_wc[start:start + config.batch_size])
-        depth.append(np.asarray(frames.depth))
-        object_id.append(np.asarray(frames.object_id))
-        if progress is not None:
-            progress.update(len(frames.depth))
-    depth = np.concatenate(depth)
-    key_depth, key_pose = jax.random.split(key)
-    depth = np.asarray(apply_sensor(key_depth, depth, intrinsics, config.sensor))
-    T_believed = T_wc  # float64: a pass through jax would round exact poses to float32
-    if config.sensor.pose_noise:
-        T_believed = np.asarray(perturb_poses(key_pose, T_wc, config.sensor), dtype=np.float64)
-    return SceneViews(scene=scene, intrinsics=intrinsics, depth=depth, object_id=np.concatenate(object_id),
-                      T_wc=T_believed, T_wc_true=T_wc, backend=backend)
+    world = make_world(config.world_config(), scene=scene, object_set=object_set)
+    depth, T_believed, object_id, T_true = world.measure(key, np.arange(len(world.viewpoints)), config.batch_size,
+                                                         progress)
+    return SceneViews(scene=scene, intrinsics=world.intrinsics, depth=depth, object_id=object_id,
+                      T_wc=T_believed, T_wc_true=T_true, backend=world.backend)
 
 
 def build_dataset(config: DatasetConfig, overwrite: bool = False, show_progress: bool = True) -> Path:
@@ -201,6 +168,6 @@ def _finished(path: Path) -> bool:
 
 
 def export_recording(scene_views_file: str | Path, folder: str | Path, overwrite: bool = False) -> Path:
-    """Write one rendered scene as a recorded sequence (``jaxcls.recording``'s folder format)."""
+    """Write one rendered scene as a recorded sequence (``jaxcls.world.recording``'s folder format)."""
     views = SceneViews.load(scene_views_file)
     return recording.write_recording(folder, views.to_recording(), overwrite=overwrite)

@@ -9,7 +9,9 @@ Four sources, each a cloud of one instance in a z-up frame:
 - ``fused``: 2-3 such frames fused into a TSDF and its surface extracted (a partial reconstruction).
 
 Clouds are stored centred on their mean (the classifier normalises position and scale away), in float16.
-Points at or below the table band (``SegmentConfig.table_eps``) are dropped, as segmentation drops them.
+They are made with the perception settings of the loop they train for (``PerceptionConfig``: the table
+band of ``foreground``, the TSDF ``volume``): points at or below the table band are dropped, as the
+loop's foreground drops them, and fused clouds come from ``perception.observation.fuse``.
 Rendering uses the configured backend (``mujoco`` on the CPU; ``warp`` on a GPU). Clouds of each instance
 are cached in one file under ``cache_dir``, so an interrupted generation resumes where it stopped.
 """
@@ -28,11 +30,21 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaxcls import geometry, segment, tsdf
-from jaxcls.assets import ObjectModel, ObjectSet, ObjectSetConfig
+from jaxcls import geometry, io
+from jaxcls.perception import foreground, observation, tsdf
+from jaxcls.perception.settings import PerceptionConfig, Spec
+from jaxcls.world.objects import ObjectModel, ObjectSet, ObjectSetConfig
 
 SOURCES = ("full", "view", "occluded", "fused")
 _CACHE_VERSION = 1  # bump when the way clouds are made changes (scene layout, volume, intrinsics)
+_FUSED_SURFACE_POINTS = 8192  # surface points extracted for a fused cloud of one instance
+
+
+def scenes_config():
+    """The scene layout clouds are rendered in: the default table (the world's one owner of its height)."""
+    from jaxcls.world import scenes
+
+    return scenes.SceneConfig()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -114,23 +126,24 @@ class _InstanceRenderer:
     """Renders clouds of one instance: alone, among occluders, fused."""
 
     def __init__(self, model: ObjectModel, pool: tuple[ObjectModel, ...], object_set_config: ObjectSetConfig,
-                 config: CloudConfig, rng: np.random.Generator):
-        from jaxcls.render import resolve_backend  # here, not at the top: cached clouds need no MuJoCo
+                 config: CloudConfig, rng: np.random.Generator, perception: PerceptionConfig):
+        from jaxcls.world.render import resolve_backend  # here, not at the top: cached clouds need no MuJoCo
 
         self.model, self.pool, self.config, self.rng = model, pool, config, rng
         self.object_set_config = object_set_config
         self.intrinsics = geometry.Intrinsics.kinect_v1(config.image_scale)
-        self.segment_config = segment.SegmentConfig()
-        self.table_top = self.segment_config.table_height + self.segment_config.table_eps
+        self.scene_config = scenes_config()
+        self.spec = Spec.create(perception, self.intrinsics, table_height=self.scene_config.table_height)
+        self.table_top = self.spec.floor
         self.backend = resolve_backend(config.backend)
 
     def _scene(self, others: tuple[ObjectModel, ...]):
         """(renderer, index of the instance, its centre [3], its pose [4, 4]) with ``others`` placed around it."""
-        from jaxcls import scenes
-        from jaxcls.render import make_renderer
+        from jaxcls.world import scenes
+        from jaxcls.world.render import make_renderer
 
         models = (self.model, *others)
-        scene = scenes.arrange_scene(models, scenes.SceneConfig(), int(self.rng.integers(2**31)),
+        scene = scenes.arrange_scene(models, self.scene_config, int(self.rng.integers(2**31)),
                                      self.object_set_config)
         by_name = {m.name: m for m in models}
         placed = tuple(by_name[o.name] for o in scene.objects)
@@ -177,18 +190,15 @@ class _InstanceRenderer:
         if self.config.fused_per_instance == 0:
             return []
         renderer, index, centre, _ = self._scene(())
-        cfg = self.segment_config
-        empty = tsdf.create_volume(np.asarray(cfg.roi_center), cfg.roi_size, 128)
+        empty = observation.empty_volume(self.spec)
         clouds = []
         for _ in range(self.config.fused_per_instance):
             _, frames = self._views(renderer, index, centre, int(self.rng.integers(2, 4)))
             volume = empty
             for depth, T in frames:
-                T = jnp.asarray(T, jnp.float32)
-                volume = tsdf.integrate(volume, segment.foreground_depth(jnp.asarray(depth), self.intrinsics, T, cfg),
-                                        self.intrinsics, T)
-            surface = tsdf.extract_surface(volume, 8192)
-            keep = np.asarray(segment.foreground_mask(surface.points, surface.mask, cfg))
+                volume = observation.fuse(self.spec, volume, depth, T)
+            surface = tsdf.extract_surface(volume, _FUSED_SURFACE_POINTS)
+            keep = np.asarray(foreground.foreground_mask(self.spec, surface.points, surface.mask))
             pts = np.asarray(surface.points)[keep]
             if len(pts) >= self.config.min_points:
                 clouds.append(pts)
@@ -196,11 +206,11 @@ class _InstanceRenderer:
 
 
 def instance_clouds(model: ObjectModel, pool: tuple[ObjectModel, ...], label: int, object_set_config: ObjectSetConfig,
-                    config: CloudConfig, seed: int) -> CloudSet:
+                    config: CloudConfig, seed: int, perception: PerceptionConfig | None = None) -> CloudSet:
     """Every source's clouds of one instance (``pool``: the instances occluders are drawn from)."""
     rng = np.random.default_rng(seed)
     full = [_subset(model.surface_points, config.full_points, rng) for _ in range(config.full_per_instance)]
-    maker = _InstanceRenderer(model, pool, object_set_config, config, rng)
+    maker = _InstanceRenderer(model, pool, object_set_config, config, rng, perception or PerceptionConfig())
     by_source = {"full": full, "view": maker.single(), "occluded": maker.occluded(), "fused": maker.fused()}
     clouds = [_subset(c, config.max_points if s != "full" else config.full_points, rng)
               for s in SOURCES for c in by_source[s]]
@@ -211,10 +221,12 @@ def instance_clouds(model: ObjectModel, pool: tuple[ObjectModel, ...], label: in
 
 
 def _cache_key(object_set: ObjectSet, split: str, config: CloudConfig, object_set_config: ObjectSetConfig,
-               seed: int) -> str:
+               seed: int, perception: PerceptionConfig) -> str:
     defining = {**dataclasses.asdict(config), "backend": None, "cache_dir": None, "objects": dataclasses.asdict(
         object_set_config), "object_set": object_set.name, "classes": object_set.classes, "split": split,
-        "seed": seed, "segment": dataclasses.asdict(segment.SegmentConfig()), "version": _CACHE_VERSION}
+        "seed": seed, "foreground": dataclasses.asdict(perception.foreground),
+        "volume": dataclasses.asdict(perception.volume), "table_height": scenes_config().table_height,
+        "version": _CACHE_VERSION}
     digest = hashlib.sha1(json.dumps(defining, sort_keys=True).encode())
     for model in object_set.split(split):  # the instances themselves: a changed mesh file is a new cache
         digest.update(model.name.encode())
@@ -223,7 +235,8 @@ def _cache_key(object_set: ObjectSet, split: str, config: CloudConfig, object_se
 
 
 def load_clouds(object_set: ObjectSet, split: Literal["train", "test"], config: CloudConfig,
-                object_set_config: ObjectSetConfig, seed: int = 0, show_progress: bool = True) -> CloudSet:
+                object_set_config: ObjectSetConfig, seed: int = 0, show_progress: bool = True,
+                perception: PerceptionConfig | None = None) -> CloudSet:
     """All clouds of a split's instances, generated once and cached per instance under ``cache_dir``.
 
     The cache folder is named by a hash of everything that defines the clouds (config, class list, the
@@ -234,7 +247,8 @@ def load_clouds(object_set: ObjectSet, split: Literal["train", "test"], config: 
     if not models:
         hint = "; hold some out with objects.test_fraction" if split == "test" else ""
         raise ValueError(f"clouds: object set '{object_set.name}' has no '{split}' instances{hint}")
-    key = _cache_key(object_set, split, config, object_set_config, seed)
+    perception = perception or PerceptionConfig()
+    key = _cache_key(object_set, split, config, object_set_config, seed, perception)
     folder = Path(config.cache_dir) / f"{object_set.name}_{split}_{key}"
     folder.mkdir(parents=True, exist_ok=True)
     parts = []
@@ -243,12 +257,11 @@ def load_clouds(object_set: ObjectSet, split: Literal["train", "test"], config: 
         if not path.is_file():
             seq = np.random.SeedSequence([seed, 0 if split == "train" else 1, i])
             part = instance_clouds(model, models, object_set.class_index(model.class_name), object_set_config,
-                                   config, int(seq.generate_state(1)[0]))
-            tmp = path.with_suffix(".tmp.npz")
-            np.savez_compressed(tmp, points16=part.points.astype(np.float16),
-                                **{f.name: getattr(part, f.name) for f in dataclasses.fields(CloudSet)
-                                   if f.name != "points"})
-            tmp.rename(path)
+                                   config, int(seq.generate_state(1)[0]), perception)
+            with io.atomic_write(path) as out:
+                np.savez_compressed(out, points16=part.points.astype(np.float16),
+                                    **{f.name: getattr(part, f.name) for f in dataclasses.fields(CloudSet)
+                                       if f.name != "points"})
         with np.load(path) as data:
             part = CloudSet(points=data["points16"].astype(np.float32),
                             **{f.name: data[f.name] for f in dataclasses.fields(CloudSet) if f.name != "points"})

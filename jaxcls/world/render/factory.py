@@ -2,15 +2,32 @@
 
 from __future__ import annotations
 
-import mujoco
+from typing import TYPE_CHECKING
+
+import jax
 
 from jaxcls.geometry import Intrinsics
-from jaxcls.render.types import BACKENDS, Backend, Renderer
+from jaxcls.world.render.types import BACKENDS, Backend, Renderer
+
+if TYPE_CHECKING:
+    import mujoco
+
+
+def _has_cuda() -> bool:
+    try:
+        return bool(jax.devices("cuda"))
+    except RuntimeError:
+        return False
 
 
 def default_backend() -> str:
-    """``"warp"`` where a CUDA GPU and warp-lang are present (MJX's batch renderer), else ``"mujoco"``."""
-    from jaxcls.render.warp import warp_unavailable_reason
+    """``"warp"`` where a CUDA GPU and warp-lang are present (MJX's batch renderer), else ``"mujoco"``.
+
+    MJX (and warp-lang, which prints when it is missing) is imported only where a CUDA GPU is present.
+    """
+    if not _has_cuda():
+        return "mujoco"
+    from jaxcls.world.render.warp import warp_unavailable_reason
 
     return "warp" if warp_unavailable_reason() is None else "mujoco"
 
@@ -36,13 +53,13 @@ def make_renderer(model: mujoco.MjModel, intrinsics: Intrinsics, backend: Backen
     if backend not in BACKENDS:
         raise ValueError(f"unknown render backend {backend!r}; choose one of {BACKENDS}")
     if backend == "mujoco":
-        from jaxcls.render.native import NativeRenderer
+        from jaxcls.world.render.native import NativeRenderer
 
         return NativeRenderer(model, intrinsics, **options)
     if backend == "mjx":
-        from jaxcls.render.mjx_ray import MJXRenderer
+        from jaxcls.world.render.mjx_ray import MJXRenderer
 
         return MJXRenderer(model, intrinsics, **options)
-    from jaxcls.render.warp import WarpRenderer
+    from jaxcls.world.render.warp import WarpRenderer
 
     return WarpRenderer(model, intrinsics, **options)

@@ -1,0 +1,84 @@
+"""``jaxcls show``: draw (or load) a scene, render a few viewpoints, save a figure, the scene and the config."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from pathlib import Path
+
+from jaxcls.commands import Argument, Command
+from jaxcls.world.dataset import DatasetConfig
+from jaxcls.world.setup import WorldConfig
+
+
+@dataclasses.dataclass(frozen=True)
+class ShowConfig(WorldConfig):
+    """``jaxcls show``: one scene, a few of its views (through the sensor model), the viewpoint hemisphere."""
+
+    out_dir: str = "runs/show"
+    seed: int = 0
+    scene_file: str = ""  # a scene JSON to show instead of drawing one (seed, scene.*, objects.* then unused)
+    views: tuple[int, ...] = (0, 33, 66, 99)
+
+
+def _check_scene_file_alone(config: ShowConfig) -> None:
+    """With ``scene_file``, the settings that draw a scene would be ignored: refuse them, naming each."""
+    default = ShowConfig()
+    unused = [name for name in ("seed", "scene", "objects") if getattr(config, name) != getattr(default, name)]
+    if unused:
+        raise ValueError(f"show: scene_file={config.scene_file} gives the scene, so {', '.join(unused)} would be "
+                         "ignored; drop those settings or the scene file")
+
+
+def free_folder(out_dir: str | Path, overwrite: bool) -> Path:
+    """``out_dir``, or with ``overwrite`` off and ``out_dir`` not empty, the first free ``out_dir-2``,
+    ``out_dir-3``, ... (a new run never replaces an old one unless asked)."""
+    out = Path(out_dir)
+    if overwrite or not out.exists() or not any(out.iterdir()):
+        return out
+    k = 2
+    while (candidate := out.with_name(f"{out.name}-{k}")).exists() and any(candidate.iterdir()):
+        k += 1
+    return candidate
+
+
+def show(config: ShowConfig, overwrite: bool = False) -> Path:
+    """Render the scene and save ``scene.png`` (depth after the sensor model, object ids, hemisphere),
+    ``scene.json`` and ``config.yaml`` in ``out_dir`` (or a numbered sibling, see ``free_folder``)."""
+    import jax
+    import numpy as np
+
+    from jaxcls import viz
+    from jaxcls.config import save_config
+    from jaxcls.world import scenes
+    from jaxcls.world.setup import make_world
+
+    scene = None
+    if config.scene_file:
+        _check_scene_file_alone(config)
+        scene = scenes.Scene.load(config.scene_file)
+        config = dataclasses.replace(config, objects=scene.object_set)
+    world = make_world(config.world_config(), config.seed, scene=scene)
+    views = list(config.views)
+    depth, _, object_id, _ = world.measure(jax.random.key(config.seed), views)
+    out = free_folder(config.out_dir, overwrite)
+    figure = viz.plot_scene(world.scene, world.viewpoints, views, np.asarray(depth), np.asarray(object_id),
+                            noisy=config.sensor != WorldConfig().sensor)
+    viz.save(figure, out / "scene.png")
+    world.scene.save(out / "scene.json")
+    save_config(config, out / "config.yaml")
+    return out / "scene.png"
+
+
+def _run(config: ShowConfig, args: argparse.Namespace) -> str:
+    return f"wrote {show(config, overwrite=args.overwrite)}"
+
+
+COMMAND = Command(
+    description="Draw (or load) a scene, render a few viewpoints (through the sensor model: a dataset config "
+                "such as real_like previews its noisy depth) and save <out_dir>/scene.png, scene.json and "
+                "config.yaml. An existing out_dir is kept: the run goes to out_dir-2, -3, ... unless --overwrite.",
+    schema=ShowConfig, run=_run, example="seed=3 scene.num_objects=6 views=[0,50]",
+    arguments=(Argument(("--overwrite",), {"action": "store_true", "help": "write into out_dir even if not empty"}),),
+    borrow_from=(DatasetConfig,),
+)

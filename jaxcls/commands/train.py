@@ -1,0 +1,23 @@
+"""``jaxcls train``: train the PointNet classifier (resumes an interrupted run). Needs no MuJoCo once the
+training clouds are cached."""
+
+from __future__ import annotations
+
+import argparse
+
+from jaxcls.commands import Command
+from jaxcls.learn.train import TrainConfig
+
+
+def _run(config: TrainConfig, args: argparse.Namespace) -> str:
+    from jaxcls.learn.train import train
+
+    return f"run in {train(config)}"
+
+
+COMMAND = Command(
+    description="Train PointNet on an object set's clouds (complete and partial views); writes checkpoints, "
+                "metrics.json, curve.png, confusion.png and pointnet.msgpack into out_dir (shipped configs: "
+                "pointnet, pointnet_folder). Run the same command again to resume.",
+    schema=TrainConfig, run=_run, default_config="pointnet", example="epochs=10 batch_size=64",
+)

@@ -1,0 +1,81 @@
+"""The one way files and folders are written: atomically, so that an interrupted run never leaves a
+half-written result (a reader sees the old content or the new one, never a mix).
+
+- ``atomic_write(path)``: a file written to a hidden temporary sibling, flushed to disk and renamed into
+  place (``os.replace`` is atomic on POSIX); ``write_text``/``write_bytes``/``write_json`` wrap it.
+- ``atomic_folder(folder)``: a folder built in a hidden temporary sibling and swapped into place.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+from typing import IO, Any
+
+
+@contextlib.contextmanager
+def atomic_write(path: str | os.PathLike, binary: bool = True) -> Iterator[IO]:
+    """Open a temporary sibling of ``path`` for writing; on success it is fsync'ed and renamed to ``path``.
+
+    On an exception the temporary file is removed and ``path`` is untouched. Parent folders are created.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{uuid.uuid4().hex[:8]}")
+    try:
+        with open(tmp, "wb" if binary else "w") as f:
+            yield f
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def write_bytes(path: str | os.PathLike, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically."""
+    with atomic_write(path) as f:
+        f.write(data)
+    return Path(path)
+
+
+def write_text(path: str | os.PathLike, text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically."""
+    return write_bytes(path, text.encode())
+
+
+def write_json(path: str | os.PathLike, data: Any, indent: int | None = 1) -> Path:
+    """Write ``data`` as strict JSON (no NaN) to ``path`` atomically."""
+    return write_text(path, json.dumps(data, indent=indent, allow_nan=False) + "\n")
+
+
+@contextlib.contextmanager
+def atomic_folder(folder: str | os.PathLike) -> Iterator[Path]:
+    """Yield an empty temporary sibling of ``folder`` to fill; on success it replaces ``folder``.
+
+    An existing ``folder`` (or a link) is moved aside first and removed after the swap; callers decide
+    whether replacing it is allowed. On an exception the temporary folder is removed, ``folder`` untouched.
+    """
+    folder = Path(folder)
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    tmp = folder.parent / f".{folder.name}.tmp-{uuid.uuid4().hex[:12]}"
+    tmp.mkdir()  # plain mkdir: the final folder gets the usual umask permissions (mkdtemp gives 0700)
+    try:
+        yield tmp
+        if folder.exists() or folder.is_symlink():
+            old = folder.parent / f".{folder.name}.old-{uuid.uuid4().hex[:12]}"
+            folder.rename(old)
+            tmp.rename(folder)
+            if old.is_dir() and not old.is_symlink():
+                shutil.rmtree(old)
+            else:
+                old.unlink()
+        else:
+            tmp.rename(folder)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)

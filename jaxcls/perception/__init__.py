@@ -1,0 +1,27 @@
+"""A move's perception (paper Sec. 3.1-3.2), one module per stage, composed by ``observe``.
+
+- ``settings``: the config blocks (foreground, volume, segmentation, shapes) and the static ``Spec``;
+- ``foreground``: drop background and table pixels and points;
+- ``tsdf``: fuse posed depth frames into a TSDF; extract surface points with normals;
+- ``segment``: split the surface into N object segments (reference path and its JAX twin);
+- ``pointnet``: PointNet class scores of segments and top-k candidates (weights shipped in ``weights/``);
+- ``observation``: the chain above as one pure function, ``observe``, over an ``Observation`` state.
+
+Perception imports the top-level helpers (``geometry``, ``math``, ``config``, ``io``), never the world,
+training, the episode or the commands.
+"""
+
+from jaxcls.perception import foreground, observation, pointnet, segment, settings, tsdf
+from jaxcls.perception.observation import Observation, empty_volume, init_state, observe
+from jaxcls.perception.settings import (
+    ForegroundConfig,
+    PerceptionConfig,
+    SegmentConfig,
+    ShapeConfig,
+    Spec,
+    VolumeConfig,
+)
+
+__all__ = ["ForegroundConfig", "Observation", "PerceptionConfig", "SegmentConfig", "ShapeConfig", "Spec",
+           "VolumeConfig", "empty_volume", "foreground", "init_state", "observation", "observe", "pointnet",
+           "segment", "settings", "tsdf"]

@@ -1,0 +1,124 @@
+"""One move's perception, composed in one place: foreground -> integrate -> extract -> segment -> classify.
+
+``observe(spec, state, depth, T_wc) -> state`` is the owner of the chain; every stage stays its own pure
+function in its module (``foreground``, ``tsdf``, ``segment``, ``pointnet``) and ``observe`` only composes
+them, so that the episode can extend a move with refinement and view selection without rewiring it.
+
+With the JAX segmentation (``spec.config.segmenter == "jax"``, the default) ``observe`` is pure JAX: jit
+it, ``vmap`` it over episodes (``in_axes=(None, 0, 0, 0)``), scan it over frames. With ``"reference"``
+(scikit-learn on the host) it runs stage by stage, each stage jitted, the segmentation on the host.
+
+    spec = Spec.create(PerceptionConfig(), intrinsics, table_height, pointnet.load_classifier())
+    state = init_state(spec)
+    for depth, T_wc in frames:
+        state = observe(spec, state, depth, T_wc)
+    state.segments.points, state.probs          # [N, Ps, 3], [N, M]
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from jaxcls.perception import foreground, pointnet, tsdf
+from jaxcls.perception.segment import Segments, segment, segment_jax
+from jaxcls.perception.settings import Spec
+
+
+@struct.dataclass
+class Observation:
+    """What perception knows after the frames fused so far.
+
+    volume: the TSDF (``tsdf.TSDFVolume``) of the cube of interest.
+    surface: the volume's zero crossings (``tsdf.Surface``): points, normals [P, 3], mask [P].
+    segments: N segments of the surface (``Segments``): points, normals [N, Ps, 3], mask [N, Ps], labels [P].
+    probs: [N, M] f32 class probabilities of each segment (paper Eq. 1's softmax); M = 0 without a classifier.
+    frames: [] i32 number of frames fused.
+    """
+
+    volume: tsdf.TSDFVolume
+    surface: tsdf.Surface
+    segments: Segments
+    probs: jax.Array
+    frames: jax.Array
+
+
+def empty_volume(spec: Spec) -> tsdf.TSDFVolume:
+    """An unobserved TSDF cube as ``spec.config.volume`` places and sizes it (centre above the table)."""
+    v = spec.config.volume
+    return tsdf.create_volume(np.asarray(spec.roi_center), size=v.size, resolution=v.resolution,
+                              truncation=v.truncation_voxels * v.voxel_size)
+
+
+def init_state(spec: Spec) -> Observation:
+    """The state before the first frame: an empty volume, empty surface and segments, uniform scores."""
+    P, N, Ps = spec.config.shapes.surface_points, spec.num_segments, spec.points_per_segment
+    M = len(spec.classifier.classes) if spec.classifier is not None else 0
+    surface = tsdf.Surface(points=jnp.zeros((P, 3)), normals=jnp.zeros((P, 3)), mask=jnp.zeros(P, bool))
+    segments = Segments(points=jnp.zeros((N, Ps, 3)), normals=jnp.zeros((N, Ps, 3)), mask=jnp.zeros((N, Ps), bool),
+                        labels=jnp.full(P, -1, jnp.int32))
+    return Observation(volume=empty_volume(spec), surface=surface, segments=segments,
+                       probs=jnp.full((N, M), 1.0 / max(M, 1), jnp.float32), frames=jnp.zeros((), jnp.int32))
+
+
+def fuse(spec: Spec, volume: tsdf.TSDFVolume, depth: jax.Array, T_wc: jax.Array) -> tsdf.TSDFVolume:
+    """The frame's foreground integrated into ``volume`` (depth: [H, W] m, 0 = no return; T_wc: [4, 4])."""
+    T_wc = jnp.asarray(T_wc, jnp.float32)
+    return tsdf.integrate(volume, foreground.foreground_depth(spec, jnp.asarray(depth), T_wc), spec.intrinsics,
+                          T_wc)
+
+
+def classify_segments(spec: Spec, segments: Segments) -> jax.Array:
+    """[N, M] class probabilities of the segments; [N, 0] when the spec has no classifier."""
+    if spec.classifier is None:
+        return jnp.zeros((spec.num_segments, 0), jnp.float32)
+    return pointnet.classify(spec.classifier, segments.points, segments.mask)
+
+
+def _perceive_jax(spec: Spec, state: Observation, depth: jax.Array, T_wc: jax.Array) -> Observation:
+    volume = fuse(spec, state.volume, depth, T_wc)
+    surface = tsdf.extract_surface(volume, spec.config.shapes.surface_points)
+    segments = segment_jax(spec, surface.points, surface.normals, surface.mask)
+    return Observation(volume=volume, surface=surface, segments=segments, probs=classify_segments(spec, segments),
+                       frames=state.frames + 1)
+
+
+def _fuse_extract(spec: Spec, volume: tsdf.TSDFVolume, depth: jax.Array, T_wc: jax.Array
+                  ) -> tuple[tsdf.TSDFVolume, tsdf.Surface]:
+    volume = fuse(spec, volume, depth, T_wc)
+    return volume, tsdf.extract_surface(volume, spec.config.shapes.surface_points)
+
+
+# Module-level jits: each compiles once per spec (its static settings) and shapes.
+_perceive_jit = jax.jit(_perceive_jax)
+_fuse_extract_jit = jax.jit(_fuse_extract)
+_classify_jit = jax.jit(classify_segments)
+
+
+def check_observation_inputs(spec: Spec, depth: np.ndarray | jax.Array, T_wc: np.ndarray | jax.Array) -> None:
+    """Host-side validation of a frame (shapes, a rigid finite pose), with errors naming what is wrong."""
+    foreground.check_depth_shape(spec, depth, T_wc, "observe")
+    tsdf.check_frame(depth, spec.intrinsics, T_wc)
+
+
+def observe(spec: Spec, state: Observation, depth: jax.Array, T_wc: jax.Array) -> Observation:
+    """One move's perception: fuse the frame's foreground, extract the surface, segment it, classify.
+
+    depth: [H, W] z-depth, m (0 = no return); T_wc: [4, 4] camera-to-world pose of the frame.
+    Pure: returns a new state. Called with concrete arrays, the frame is validated first; under jit or
+    vmap (JAX segmentation only) the composed stages are traced into the caller's program.
+    """
+    traced = any(isinstance(a, jax.core.Tracer) for a in jax.tree.leaves((state, depth, T_wc)))
+    if not traced:
+        check_observation_inputs(spec, depth, T_wc)
+    if spec.config.segmenter == "jax":
+        return _perceive_jax(spec, state, depth, T_wc) if traced else _perceive_jit(spec, state, depth, T_wc)
+    if traced:
+        raise ValueError("observe: segmenter 'reference' runs scikit-learn on the host and cannot be traced "
+                         "(jit/vmap); use perception.segmenter=jax")
+    volume, surface = _fuse_extract_jit(spec, state.volume, jnp.asarray(depth), jnp.asarray(T_wc, jnp.float32))
+    segments = segment(spec, surface.points, surface.normals, surface.mask)
+    return Observation(volume=volume, surface=surface, segments=segments, probs=_classify_jit(spec, segments),
+                       frames=state.frames + 1)

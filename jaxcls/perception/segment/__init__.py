@@ -1,0 +1,38 @@
+"""Foreground extraction and segmentation into exactly N object candidates (paper Sec. 3.1).
+
+The paper isolates the foreground by truncating depth and removing the table plane, fuses it, cuts the
+reconstruction to a cube of interest, clusters it with DBSCAN and forces N clusters with K-means on the
+cluster centres. DBSCAN merges objects that touch, so regrouping clusters cannot recover them; the step
+after DBSCAN here splits them with a watershed on the table plane. Objects stand upright with disjoint
+footprints, so the points' footprint (their xy occupancy, closed, holes filled) is a union of convex-ish
+blobs joined by narrow necks where objects touch. The watershed runs on a field that peaks at object
+centres: the footprint's distance to empty space times Hough votes for the vertical axis each side-wall
+point faces (a point with outward normal n votes for p - r n_xy over a range of radii r). Its basins are
+merged by persistence (peak minus saddle, lowest first) until N remain; a basin with no saddle to a higher
+one (a separate DBSCAN cluster) has the empty space around it as its saddle (field 0) and joins the nearest
+centre: the paper's merge of cluster centres, which takes small fragments early and separate objects last.
+With fewer than N basins the part with the largest sum of squares is split by 2-means (K-means).
+
+Two implementations of the same algorithm:
+- ``segment``: the reference path, scikit-learn DBSCAN + SciPy grid operations on the host (one episode).
+- ``segment_jax``: the scale path's twin, jittable with static shapes and vmappable over episodes: DBSCAN's
+  noise rule on a grid, hole filling by connected components (label propagation with hooking), an exact
+  separable distance transform, at most ``max_basins`` basins, fixed-length merge and K-means loops.
+
+Conventions (docs/ARCHITECTURE.md): metres, world z up, table top at z = ``spec.table_height``; OpenCV camera, ``T_wc``
+camera-to-world; depth z-depth with 0 = no return. Point sets are padded: ``points [P, 3]`` + ``mask [P]``;
+segments ``[N, Ps, 3]`` + ``[N, Ps]``. Labels ``[P]`` i32 give each point's segment, -1 = not
+foreground or noise.
+
+Files: ``common`` (shared by both paths), ``reference`` (scikit-learn), ``grid`` (JAX grid operations),
+``twin`` (the JAX path). Settings: ``perception.settings.SegmentConfig`` (the algorithm) and ``ShapeConfig``
+(N, Ps), read through the ``Spec``.
+"""
+
+from jaxcls.perception.segment.common import Segments, pack_segments
+from jaxcls.perception.segment.reference import cluster_reference, footprint_field_reference, segment
+from jaxcls.perception.segment.twin import cluster_jax, segment_jax
+from jaxcls.perception.settings import SegmentConfig
+
+__all__ = ["SegmentConfig", "Segments", "cluster_jax", "cluster_reference", "footprint_field_reference",
+           "pack_segments", "segment", "segment_jax"]

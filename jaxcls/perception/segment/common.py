@@ -1,0 +1,152 @@
+"""What both segmentation paths share: the footprint grid, centre votes, the persistence merge step,
+segment ordering and packing (``xp`` = numpy or jax.numpy where a function serves both)."""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from jaxcls.perception.foreground import strided_slots
+from jaxcls.perception.settings import Spec
+
+
+@struct.dataclass
+class Segments:
+    """N segments padded to Ps points each.
+
+    points: [N, Ps, 3] f32 world positions, m (0 where ``mask`` is False).
+    normals: [N, Ps, 3] f32 unit normals (0 where ``mask`` is False).
+    mask: [N, Ps] bool, True for real points.
+    labels: [P] i32 segment of each input point, -1 = not foreground / noise.
+    """
+
+    points: jax.Array
+    normals: jax.Array
+    mask: jax.Array
+    labels: jax.Array
+
+
+def _grid_size(spec: Spec) -> int:
+    return int(np.ceil(spec.roi_size / spec.segmentation.footprint_cell))
+
+
+def _cell_of(x: np.ndarray | jax.Array, spec: Spec, xp=np) -> np.ndarray | jax.Array:
+    """[M, 2] i32 footprint cell (i along x, j along y) of world points ``x: [M, 3]``, clipped to the grid."""
+    origin = xp.asarray(spec.roi_center[:2], x.dtype) - 0.5 * spec.roi_size
+    ij = xp.floor((x[:, :2] - origin) / spec.segmentation.footprint_cell).astype(xp.int32)
+    return xp.clip(ij, 0, _grid_size(spec) - 1)
+
+
+def _gaussian_kernel(sigma: float) -> np.ndarray:
+    """SciPy's ``gaussian_filter`` kernel (truncated at 4 sigma)."""
+    radius = int(4.0 * sigma + 0.5)
+    k = np.exp(-0.5 * (np.arange(-radius, radius + 1) / sigma) ** 2)
+    return k / k.sum()
+
+
+def _vote_targets(x: np.ndarray | jax.Array, normals: np.ndarray | jax.Array, spec: Spec, xp=np):
+    """Where side-wall points vote for their object's axis: ([M, R, 3] points, [M] weights |n_xy|, 0 = no vote)."""
+    nxy = normals[:, :2]
+    h = xp.sqrt(xp.sum(nxy**2, axis=1))
+    weight = xp.where(h > spec.segmentation.vote_min_horizontal, h, 0.0)
+    u = nxy / xp.maximum(h, 1e-12)[:, None]
+    cfg = spec.segmentation
+    radii = xp.asarray(np.linspace(cfg.footprint_cell, cfg.vote_max_radius, cfg.vote_radii), x.dtype)
+    xy = x[:, None, :2] - radii[None, :, None] * u[:, None, :]
+    return xp.concatenate([xy, xp.zeros_like(xy[..., :1])], axis=-1), weight
+
+
+_POINTER_JUMPS = 14  # 2^14 > 120^2: every steepest-ascent chain of the footprint grid reaches its peak
+
+
+_PAIR_SHIFTS = ((0, 1), (1, 0), (1, 1), (1, -1))  # each 8-neighbour pair once
+
+
+def _merge_step(xp, alive, peak, saddle, centre, size, group):
+    """One persistence merge: the live basin with the lowest peak - saddle (to a higher live basin) joins
+    that basin. A basin with no saddle to a higher one (a separate DBSCAN cluster) is separated from it by
+    empty space, where the field is 0: its cost is its peak, and it joins the nearest higher basin (the
+    paper's merge of cluster centres), so fragments go early and separate objects last.
+    Shared by both paths (``xp`` = numpy or jax.numpy)."""
+    K = peak.shape[0]
+    ar = xp.arange(K)
+    higher = alive[None, :] & (ar[None, :] != ar[:, None]) & (
+        (peak[None, :] > peak[:, None]) | ((peak[None, :] == peak[:, None]) & (ar[None, :] < ar[:, None])))
+    s = xp.where(higher, saddle, -xp.inf)
+    up = xp.argmax(s, axis=1)
+    top = xp.take_along_axis(s, up[:, None], axis=1)[:, 0]
+    d2 = xp.where(higher, xp.sum((centre[:, None] - centre[None]) ** 2, axis=-1), xp.inf)
+    near = xp.argmin(d2, axis=1)
+    linked = top > -xp.inf
+    cost = xp.where(linked, peak - top, peak)  # no saddle: the empty space between, where the field is 0
+    cost = xp.where(alive & xp.any(higher, axis=1), cost, xp.inf)
+    i = xp.argmin(cost)
+    t = xp.where(linked[i], up[i], near[i])
+    row = xp.maximum(saddle[t], saddle[i])
+    row = xp.where(ar == t, -xp.inf, row)
+    if xp is np:
+        saddle = saddle.copy()
+        saddle[t], saddle[:, t] = row, row
+        centre, size, alive = centre.copy(), size.copy(), alive.copy()
+        centre[t] = (centre[t] * size[t] + centre[i] * size[i]) / (size[t] + size[i])
+        size[t] += size[i]
+        alive[i] = False
+    else:
+        saddle = saddle.at[t].set(row).at[:, t].set(row)
+        centre = centre.at[t].set((centre[t] * size[t] + centre[i] * size[i]) / (size[t] + size[i]))
+        size = size.at[t].add(size[i])
+        alive = alive.at[i].set(False)
+    return alive, saddle, centre, size, xp.where(group == i, t, group)
+
+
+def _basin_centres(basin: np.ndarray | jax.Array, K: int, xp=np):
+    """([K, 2] mean cell coordinates, [K] cell counts) of the basins of ``basin: [G, G]`` (-1 = none)."""
+    G = basin.shape[0]
+    ii, jj = xp.meshgrid(xp.arange(G), xp.arange(G), indexing="ij")
+    coords = xp.stack([ii.reshape(-1), jj.reshape(-1)], axis=-1)
+    flat = basin.reshape(-1)
+    valid = flat >= 0
+    if xp is np:
+        size = np.bincount(flat[valid], minlength=K).astype(float)
+        total = np.stack([np.bincount(flat[valid], coords[valid, a], minlength=K) for a in range(2)], axis=-1)
+    else:
+        idx = jnp.where(valid, flat, K)  # an extra segment for the empty cells
+        size = jax.ops.segment_sum(valid.astype(jnp.float32), idx, num_segments=K + 1)[:K]
+        total = jax.ops.segment_sum(coords.astype(jnp.float32), idx, num_segments=K + 1)[:K]
+    return total / xp.maximum(size, 1)[:, None], size
+
+
+def _order_segments(labels: jax.Array, x: jax.Array, n: int) -> jax.Array:
+    """Relabel segments by centroid x then y, empty ones last, so that the order is deterministic (both
+    paths)."""
+    onehot = jax.nn.one_hot(labels, n, dtype=x.dtype)
+    count = onehot.sum(0)
+    mean = (onehot.T @ x[:, :2]) / jnp.maximum(count, 1)[:, None]
+    order = jnp.lexsort((mean[:, 1], mean[:, 0], count == 0))
+    remap = jnp.zeros(n, jnp.int32).at[order].set(jnp.arange(n, dtype=jnp.int32))
+    return jnp.where(labels >= 0, remap[jnp.maximum(labels, 0)], -1)
+
+
+@functools.partial(jax.jit, static_argnames=("n", "size"))
+def pack_segments(points: jax.Array, normals: jax.Array, labels: jax.Array, n: int, size: int) -> Segments:
+    """Gather each segment's points into a static ``[n, size]`` block (both paths share it).
+
+    points, normals: [P, 3]; labels: [P] i32 in [-1, n). A segment with more than ``size`` points keeps
+    ``size`` of them evenly strided in input order (surface points come in voxel order, so the subset is
+    spread over the whole segment); deterministic, so both paths give the same blocks for the same labels.
+    """
+    labels = jnp.asarray(labels, jnp.int32)
+    member = labels[:, None] == jnp.arange(n)  # [P, n]
+    count = member.sum(0)
+    rank = jnp.take_along_axis(jnp.cumsum(member, axis=0) - 1, jnp.clip(labels, 0, n - 1)[:, None], axis=1)[:, 0]
+    slot, keep = strided_slots(rank, count[jnp.clip(labels, 0, n - 1)], size)
+    keep &= labels >= 0
+    row, col = jnp.where(keep, labels, n), jnp.where(keep, slot, 0)
+    pts = jnp.zeros((n, size, 3), jnp.float32).at[row, col].set(jnp.asarray(points, jnp.float32), mode="drop")
+    nrm = jnp.zeros((n, size, 3), jnp.float32).at[row, col].set(jnp.asarray(normals, jnp.float32), mode="drop")
+    msk = jnp.zeros((n, size), bool).at[row, col].set(True, mode="drop")
+    return Segments(points=pts, normals=nrm, mask=msk, labels=labels)

@@ -1,0 +1,170 @@
+"""The reference path: scikit-learn DBSCAN and K-means, SciPy grid labelling, on the host (one episode)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxcls.perception.foreground import check_cloud_shape, foreground_mask
+from jaxcls.perception.segment.common import (
+    _PAIR_SHIFTS,
+    _POINTER_JUMPS,
+    Segments,
+    _basin_centres,
+    _cell_of,
+    _gaussian_kernel,
+    _grid_size,
+    _merge_step,
+    _order_segments,
+    _vote_targets,
+    pack_segments,
+)
+from jaxcls.perception.settings import Spec
+
+
+def _morph_np(m: np.ndarray, op) -> np.ndarray:
+    """3x3 square erosion (op = np.minimum) or dilation (np.maximum) of ``m: [G, G]`` bool, outside = False."""
+    G = m.shape[0]
+    p = np.pad(m, 1)
+    out = p[1:-1, 1:-1].copy()
+    for di in (0, 1, 2):
+        for dj in (0, 1, 2):
+            out = op(out, p[di:di + G, dj:dj + G])
+    return out
+
+
+def footprint_field_reference(spec: Spec, y: np.ndarray, normals: np.ndarray
+                              ) -> tuple[np.ndarray, np.ndarray]:
+    """(occupancy [G, G] bool, field [G, G] f64) of points ``y: [M, 3]`` with unit ``normals: [M, 3]``.
+
+    Occupancy: the points' cells, closed by ``closing_steps`` 3x3 steps, holes filled. Field: distance to
+    empty space (cells) times the normalised, blurred centre votes to the power ``vote_exponent``.
+    """
+    from scipy import ndimage
+
+    G = _grid_size(spec)
+    ij = _cell_of(y, spec)
+    raw = np.zeros((G, G), bool)
+    raw[ij[:, 0], ij[:, 1]] = True
+    occ = raw
+    for _ in range(spec.segmentation.closing_steps):
+        occ = _morph_np(occ, np.maximum)
+    for _ in range(spec.segmentation.closing_steps):
+        occ = _morph_np(occ, np.minimum)
+    occ = ndimage.binary_fill_holes(occ | raw)
+    distance = ndimage.distance_transform_edt(occ)
+    targets, weight = _vote_targets(y, normals, spec)
+    tij = _cell_of(targets.reshape(-1, 3), spec)
+    votes = np.zeros((G, G))
+    np.add.at(votes, (tij[:, 0], tij[:, 1]), np.repeat(weight, spec.segmentation.vote_radii))
+    kernel = _gaussian_kernel(spec.segmentation.vote_sigma)
+    votes = ndimage.convolve1d(ndimage.convolve1d(votes * occ, kernel, axis=0, mode="reflect"), kernel, axis=1,
+                               mode="reflect")
+    votes = votes / max(votes.max(), 1e-12)
+    return occ, distance * np.maximum(votes, 0.0) ** spec.segmentation.vote_exponent
+
+
+def _basins_np(field: np.ndarray, occ: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Steepest-ascent basins of ``field`` over the occupied cells (8-neighbours, ties to the larger index).
+
+    Returns ([G, G] i64 basin per cell, -1 off; [K] peak heights), basins numbered by their peak's index.
+    """
+    G = field.shape[0]
+    index = np.arange(G * G).reshape(G, G)
+    f = np.where(occ, field, -np.inf)
+    fp, ip = np.pad(f, 1, constant_values=-np.inf), np.pad(index, 1, constant_values=-1)
+    best, up = f.copy(), index.copy()
+    for di in (0, 1, 2):
+        for dj in (0, 1, 2):
+            v, vi = fp[di:di + G, dj:dj + G], ip[di:di + G, dj:dj + G]
+            better = (v > best) | ((v == best) & (vi > up))
+            best, up = np.where(better, v, best), np.where(better, vi, up)
+    up = up.ravel()
+    for _ in range(_POINTER_JUMPS):
+        up = up[up]
+    root = np.where(occ.ravel(), up, -1)
+    peaks, basin = np.unique(root[root >= 0], return_inverse=True)
+    out = np.full(G * G, -1)
+    out[root >= 0] = basin
+    return out.reshape(G, G), field.ravel()[peaks]
+
+
+def _saddles_np(basin: np.ndarray, field: np.ndarray, K: int) -> np.ndarray:
+    """[K, K] highest min(field) over adjacent cell pairs of two basins; -inf where they do not touch."""
+    G = basin.shape[0]
+    saddle = np.full((K, K), -np.inf)
+    bp, fp = np.pad(basin, 1, constant_values=-1), np.pad(field, 1)
+    for di, dj in _PAIR_SHIFTS:
+        lb, fb = bp[1 + di:1 + di + G, 1 + dj:1 + dj + G], fp[1 + di:1 + di + G, 1 + dj:1 + dj + G]
+        sel = (basin >= 0) & (lb >= 0) & (basin != lb)
+        value = np.minimum(field, fb)[sel]
+        np.maximum.at(saddle, (basin[sel], lb[sel]), value)
+        np.maximum.at(saddle, (lb[sel], basin[sel]), value)
+    return saddle
+
+
+def _principal_split(x: np.ndarray) -> np.ndarray:
+    """[2, 3] initial centres for splitting ``x: [M, 3]``: its mean -/+ one std along its main axis."""
+    centre = x.mean(0)
+    w, v = np.linalg.eigh(np.cov((x - centre).T, bias=True))
+    step = np.sqrt(max(w[-1], 0.0)) * v[:, -1]
+    return np.stack([centre - step, centre + step])
+
+
+def cluster_reference(spec: Spec, x: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """[M] i64 partition of foreground points ``x: [M, 3]`` (unit ``normals``) into N segments, -1 = noise.
+
+    DBSCAN drops noise; the footprint field's watershed basins are merged by persistence to N; every point
+    takes its cell's basin; while there are fewer than N parts, the one with the largest sum of squares is
+    split by 2-means.
+    """
+    from sklearn.cluster import DBSCAN, KMeans
+
+    N, M = spec.num_segments, len(x)
+    labels = np.full(M, -1, np.int64)
+    if M < N:
+        return labels
+    cfg = spec.segmentation
+    good = DBSCAN(eps=cfg.dbscan_eps, min_samples=cfg.dbscan_min_samples).fit_predict(x) >= 0
+    y = x[good]
+    if len(y) < N:
+        return labels
+    occ, field = footprint_field_reference(spec, y, normals[good])
+    basin, peak = _basins_np(field, occ)
+    K = len(peak)
+    state = (np.ones(K, bool), _saddles_np(basin, field, K), *_basin_centres(basin, K), np.arange(K))
+    for _ in range(K - N):
+        state = _merge_step(np, state[0], peak, *state[1:])
+    group = state[-1]
+    ij = _cell_of(y, spec)
+    _, part = np.unique(group[basin[ij[:, 0], ij[:, 1]]], return_inverse=True)
+    ys = y * np.array([1.0, 1.0, cfg.kmeans_z_weight])
+    while part.max() + 1 < N:
+        sse = [((ys[part == j] - ys[part == j].mean(0)) ** 2).sum() for j in range(part.max() + 1)]
+        sel = np.flatnonzero(part == int(np.argmax(sse)))
+        if len(sel) < 2:
+            break
+        km = KMeans(n_clusters=2, init=_principal_split(ys[sel]), n_init=1, max_iter=cfg.kmeans_iters, tol=0.0)
+        part[sel[km.fit(ys[sel]).labels_ == 1]] = part.max() + 1
+    labels[good] = part
+    return labels
+
+
+def segment(spec: Spec, points: np.ndarray | jax.Array, normals: np.ndarray | jax.Array,
+            mask: np.ndarray | jax.Array) -> Segments:
+    """Reference segmentation (host, scikit-learn) of a padded cloud into exactly N segments.
+
+    points, normals: [P, 3] (m, unit); mask: [P] bool. Foreground is ``foreground_mask``; segments are
+    ordered by centroid x then y and packed by ``pack_segments``. Fewer foreground points than N, or
+    none: all masks empty, labels -1.
+    """
+    check_cloud_shape(points, mask, "segment", normals)
+    points = np.asarray(points, np.float32)
+    fg = np.asarray(foreground_mask(spec, points, mask))
+    points = np.where(fg[:, None], points, 0.0).astype(np.float32)
+    normals = np.where(fg[:, None], np.nan_to_num(np.asarray(normals, np.float32)), 0.0).astype(np.float32)
+    labels = np.full(len(points), -1, np.int64)
+    labels[fg] = cluster_reference(spec, points[fg].astype(np.float64), normals[fg].astype(np.float64))
+    labels = _order_segments(jnp.asarray(labels, jnp.int32), jnp.asarray(points), spec.num_segments)
+    return pack_segments(points, normals, labels, spec.num_segments, spec.points_per_segment)

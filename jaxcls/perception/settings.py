@@ -1,0 +1,164 @@
+"""A move's perception settings, one block per concern, and the static ``Spec`` the stages read.
+
+YAML (the ``perception:`` block of a command's config)::
+
+    perception:
+      foreground: {table_eps: 0.01, max_depth: 1.5}        # which pixels are objects
+      volume: {center: [0, 0, 0.25], size: 0.6, resolution: 128, truncation_voxels: 4}   # the TSDF cube
+      segmentation: {dbscan_eps: 0.01, ...}                # DBSCAN, footprint votes, K-means, twin bounds
+      shapes: {num_segments: 5, points_per_segment: 1024, surface_points: 16384}        # static shapes
+      segmenter: jax                                       # or reference (scikit-learn, host)
+
+The table height is not here: it belongs to the world (``SceneConfig.table_height``, a dataset's scene, a
+recording's ``meta.json``) and reaches perception through ``Spec.create(..., table_height=...)``. The
+volume's centre is given relative to the table top's centre, so it follows the table too.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import TYPE_CHECKING, Literal
+
+import numpy as np
+from flax import struct
+
+from jaxcls.config import bounded, check_bounds
+from jaxcls.geometry import Intrinsics
+
+if TYPE_CHECKING:
+    from jaxcls.perception.pointnet import Classifier
+
+Segmenter = Literal["jax", "reference"]
+
+
+@dataclasses.dataclass(frozen=True)
+class ForegroundConfig:
+    """Which depth pixels and surface points are objects: above the table band, nearer than ``max_depth``."""
+
+    table_eps: float = bounded(0.01, ge=0.0)  # points with z <= table height + table_eps are table (2 voxels)
+    max_depth: float = bounded(1.5, gt=0.0)  # depth beyond this is background, m (views are 1 m away)
+
+    def __post_init__(self) -> None:
+        check_bounds(self, "foreground.")
+
+
+@dataclasses.dataclass(frozen=True)
+class VolumeConfig:
+    """The TSDF cube: the paper's space of interest around the objects. Lengths in metres."""
+
+    center: tuple[float, float, float] = (0.0, 0.0, 0.25)  # relative to the table top's centre
+    size: float = bounded(0.6, gt=0.0)  # edge of the cube
+    resolution: int = bounded(128, ge=2)  # voxels per edge (0.6 m / 128 = 4.7 mm)
+    truncation_voxels: float = bounded(4.0, gt=0.0)  # half-width of the TSDF band, in voxels
+
+    def __post_init__(self) -> None:
+        check_bounds(self, "volume.")
+
+    @property
+    def voxel_size(self) -> float:
+        return self.size / self.resolution
+
+
+@dataclasses.dataclass(frozen=True)
+class SegmentConfig:
+    """The segmentation algorithm's settings (both paths; the last two bound the JAX twin only)."""
+
+    # DBSCAN (3D) drops noise; surface points are ~ one 4.7 mm voxel apart, 2 voxels bridge a missed one.
+    dbscan_eps: float = bounded(0.01, gt=0.0)
+    dbscan_min_samples: int = bounded(5, ge=1)
+    # Footprint grid on the table plane (objects stand upright with disjoint footprints).
+    footprint_cell: float = bounded(0.005, gt=0.0)
+    closing_steps: int = bounded(1, ge=0)  # fills gaps between surface points ~ one voxel apart
+    # Centre votes: side-wall points (|n_xy| > vote_min_horizontal) vote along -n_xy at vote_radii radii
+    # up to vote_max_radius (the largest object radius); votes are blurred by vote_sigma cells.
+    vote_min_horizontal: float = bounded(0.5, ge=0.0, lt=1.0)
+    vote_max_radius: float = bounded(0.10, gt=0.0)
+    vote_radii: int = bounded(20, ge=1)
+    vote_sigma: float = bounded(1.0, gt=0.0)
+    vote_exponent: float = bounded(0.5, ge=0.0)  # field = distance to empty * (votes / max) ** exponent
+    # K-means splits (fewer basins than N): points enter as (x, y, w z), so tall objects are not cut at
+    # mid-height; at most kmeans_iters Lloyd rounds.
+    kmeans_iters: int = bounded(20, ge=1)
+    kmeans_z_weight: float = bounded(0.25, ge=0.0)
+    # JAX twin only: static bounds.
+    max_basins: int = bounded(64, ge=1)  # basins kept (highest peaks); the others join the nearest kept one
+    max_cc_iters: int = bounded(64, ge=1)  # label-propagation rounds (about log of the diameter suffice)
+
+    def __post_init__(self) -> None:
+        check_bounds(self, "segmentation.")
+
+
+@dataclasses.dataclass(frozen=True)
+class ShapeConfig:
+    """The static shapes of a move: what crosses a jitted boundary has these sizes."""
+
+    num_segments: int = bounded(5, ge=1)  # N, the paper's number of objects on the table
+    points_per_segment: int = bounded(1024, ge=1)  # Ps, a segment's padded size (PointNet's input size)
+    surface_points: int = bounded(16384, ge=1)  # P, the padded size of the surface extracted from the TSDF
+
+    def __post_init__(self) -> None:
+        check_bounds(self, "shapes.")
+
+
+@dataclasses.dataclass(frozen=True)
+class PerceptionConfig:
+    """The ``perception:`` block: everything a move's perception needs besides the camera and the table."""
+
+    foreground: ForegroundConfig = dataclasses.field(default_factory=ForegroundConfig)
+    volume: VolumeConfig = dataclasses.field(default_factory=VolumeConfig)
+    segmentation: SegmentConfig = dataclasses.field(default_factory=SegmentConfig)
+    shapes: ShapeConfig = dataclasses.field(default_factory=ShapeConfig)
+    segmenter: Segmenter = "jax"  # "reference": scikit-learn DBSCAN + K-means on the host
+
+
+@struct.dataclass
+class Spec:
+    """What the perception stages read: static settings (hashed: a change recompiles) and the classifier's
+    weights (traced leaves), in the manner of MJX's ``Model``. Build it with ``Spec.create``.
+
+    intrinsics: the depth camera; table_height: world z of the table top, m; config: the settings;
+    classifier: PointNet weights and class list, or None for a perception without classification.
+    """
+
+    intrinsics: Intrinsics = struct.field(pytree_node=False, default=Intrinsics.kinect_v1())
+    table_height: float = struct.field(pytree_node=False, default=0.0)
+    config: PerceptionConfig = struct.field(pytree_node=False, default=PerceptionConfig())
+    classifier: Classifier | None = None
+
+    @classmethod
+    def create(cls, config: PerceptionConfig | None = None, intrinsics: Intrinsics | None = None,
+               table_height: float = 0.0, classifier: Classifier | None = None) -> Spec:
+        """A spec; the classifier's class list is the one its scores are in."""
+        if not np.isfinite(table_height):
+            raise ValueError(f"Spec: table_height must be finite, got {table_height}")
+        return cls(intrinsics=intrinsics or Intrinsics.kinect_v1(), table_height=float(table_height),
+                   config=config or PerceptionConfig(), classifier=classifier)
+
+    # Derived geometry, one definition each.
+    @property
+    def floor(self) -> float:
+        """World z at and below which points are table: table height + ``foreground.table_eps``."""
+        return self.table_height + self.config.foreground.table_eps
+
+    @property
+    def roi_center(self) -> tuple[float, float, float]:
+        """World centre of the cube of interest (the TSDF volume), m."""
+        x, y, z = self.config.volume.center
+        return (float(x), float(y), float(z) + self.table_height)
+
+    @property
+    def roi_size(self) -> float:
+        """Edge of the cube of interest, m."""
+        return self.config.volume.size
+
+    @property
+    def num_segments(self) -> int:
+        return self.config.shapes.num_segments
+
+    @property
+    def points_per_segment(self) -> int:
+        return self.config.shapes.points_per_segment
+
+    @property
+    def segmentation(self) -> SegmentConfig:
+        return self.config.segmentation

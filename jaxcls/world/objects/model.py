@@ -1,0 +1,103 @@
+"""The model types: one object instance in its canonical frame, and a set of them split into classes and
+train/test instances (see the package docstring for the conventions)."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Literal
+
+import numpy as np
+import trimesh
+from scipy.spatial import ConvexHull
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class ObjectModel:
+    """One object instance in its canonical model frame.
+
+    ``eq=False``: models compare and hash by identity, so they can key dicts and caches.
+
+    mesh: metres, z up, min z = 0, xy bounding-box centre at the origin.
+    surface_points: [S, 3] f32, metres, area-uniform samples of the visible surface (model frame).
+    surface_normals: [S, 3] f32, unit outward normals of those samples.
+    """
+
+    name: str
+    class_name: str
+    mesh: trimesh.Trimesh
+    surface_points: np.ndarray
+    surface_normals: np.ndarray
+
+    def __post_init__(self) -> None:
+        for field in ("surface_points", "surface_normals"):
+            value = np.array(getattr(self, field), dtype=np.float32)
+            if value.ndim != 2 or value.shape[1] != 3:
+                raise ValueError(f"{self.name}: {field} must be [S, 3], got {value.shape}")
+            value.setflags(write=False)
+            object.__setattr__(self, field, value)
+        if self.surface_points.shape != self.surface_normals.shape:
+            raise ValueError(f"{self.name}: surface_points and surface_normals differ in shape")
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """[2, 3] f64, metres: min and max corners of the axis-aligned bounding cuboid (model frame)."""
+        return np.array(self.mesh.bounds, dtype=np.float64)
+
+    @property
+    def cuboid_corners(self) -> np.ndarray:
+        """[8, 3] f64, metres: corner k takes x, y, z from ``bounds[k >> 2 & 1, 0]``, ``[k >> 1 & 1, 1]``,
+        ``[k & 1, 2]`` (itertools.product order), so corners k and k ^ 1 share an edge along z."""
+        b = self.bounds
+        bits = (np.arange(8)[:, None] >> np.array([2, 1, 0])) & 1
+        return b[bits, np.arange(3)]
+
+    def footprint(self) -> np.ndarray:
+        """[K, 2] f64, metres: counter-clockwise convex hull of the vertices projected on xy.
+
+        Scenes keep footprints of neighbouring objects disjoint.
+        """
+        xy = np.asarray(self.mesh.vertices)[:, :2]
+        hull = ConvexHull(xy)
+        return xy[hull.vertices].astype(np.float64)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class ObjectSet:
+    """Models grouped into classes and a train/test split of instances.
+
+    classes: sorted class names; a class's index everywhere (labels, logits) is its position here.
+    """
+
+    name: str
+    classes: tuple[str, ...]
+    train: tuple[ObjectModel, ...]
+    test: tuple[ObjectModel, ...]
+
+    def __post_init__(self) -> None:
+        if list(self.classes) != sorted(set(self.classes)):
+            raise ValueError(f"{self.name}: classes must be sorted and unique, got {self.classes}")
+        known = set(self.classes)
+        names: set[str] = set()
+        for model in self.train + self.test:
+            if model.class_name not in known:
+                raise ValueError(f"{self.name}: model {model.name} has unknown class {model.class_name!r}")
+            if model.name in names:
+                raise ValueError(f"{self.name}: duplicate model name {model.name!r}")
+            names.add(model.name)
+
+    def class_index(self, class_name: str) -> int:
+        """Position of ``class_name`` in ``classes``: the label used by every module."""
+        try:
+            return self.classes.index(class_name)
+        except ValueError:
+            raise KeyError(f"{self.name}: unknown class {class_name!r}; classes are {self.classes}") from None
+
+    def split(self, split: Literal["train", "test", "all"]) -> tuple[ObjectModel, ...]:
+        """The models of one split; ``"all"`` is train followed by test."""
+        if split == "train":
+            return self.train
+        if split == "test":
+            return self.test
+        if split == "all":
+            return self.train + self.test
+        raise ValueError(f"split must be 'train', 'test' or 'all', got {split!r}")
