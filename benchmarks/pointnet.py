@@ -4,7 +4,8 @@
     python benchmarks/pointnet.py --runs paper=runs/paper partial=runs/pointnet_builtin --out BENCHMARKS.md
 
 Training throughput is one jitted epoch (``train.make_train_epoch``: sampling, augmentation, forward,
-backward, Adam) over the clouds of ``configs/pointnet.yaml`` (generated and cached on first use).
+backward, Adam) over the clouds of the shipped ``pointnet`` config (``jaxcls/configs/pointnet.yaml``;
+generated and cached on first use; ``--batch`` with no sizes skips training).
 Inference is ``pointnet.classify`` on 5 segments of 1024 points, on the CPU. ``--runs`` reads the
 ``metrics.json`` of finished ``jaxcls train`` runs and tabulates their held-out accuracies.
 """
@@ -24,12 +25,12 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from jaxcls.perception import pointnet
 from jaxcls import report
-from jaxcls.world.objects import object_set_from_config
-from jaxcls.learn.clouds import SOURCES, load_clouds
 from jaxcls.config import load_config
+from jaxcls.learn.clouds import SOURCES, load_clouds
 from jaxcls.learn.train import TrainConfig, create_state, make_bank, make_train_epoch
+from jaxcls.perception import pointnet
+from jaxcls.world.objects import object_set_from_config
 
 
 def device_name() -> str:
@@ -41,7 +42,7 @@ def device_name() -> str:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--config", default="configs/pointnet.yaml")
+    parser.add_argument("--config", default="pointnet", help="a path or a shipped config name")
     parser.add_argument("--batch", type=int, nargs="*", default=[32, 128])
     parser.add_argument("--steps", type=int, default=20, help="training steps timed per batch size")
     parser.add_argument("--repeats", type=int, default=5)

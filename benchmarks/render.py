@@ -7,6 +7,8 @@ Rows: ``mujoco`` (C ray casting) with 1 worker and with every core over the scen
 (target: 100 views in <= 5 s on 2 cores); ``mjx`` on the CPU (a few frames: O(rays x triangles));
 on a GPU ``warp`` (MJX's batch renderer) and ``mjx`` batched. Agreement is against ``mujoco`` on the
 same views: the fraction of pixels within 1 mm where both hit, and of object ids equal there.
+Scenes: ``--scene trimesh`` (stand-in meshes from ``jaxcls.world.render.testing``) or ``builtin`` (the
+world of ``make_world``: a builtin-set scene and its hemisphere views).
 """
 
 from __future__ import annotations
@@ -22,25 +24,27 @@ import jax
 import numpy as np
 
 from jaxcls import report
-from jaxcls.geometry import Intrinsics, hemisphere_viewpoints
+from jaxcls.geometry import CameraConfig, Intrinsics, ViewpointConfig, hemisphere_viewpoints
+from jaxcls.world import WorldConfig, make_world
 from jaxcls.world.render import DepthFrames, make_renderer
-from jaxcls.world.render import testing as scenes
+from jaxcls.world.render import testing as primitives
 from jaxcls.world.render.native import available_cores
 from jaxcls.world.render.warp import warp_unavailable_reason
+from jaxcls.world.scenes import SceneConfig
 
 
-def build_scene(kind: str, intrinsics: Intrinsics, num_objects: int, seed: int):
-    """(model, scene centre [3]) of a ``kind`` scene: ``trimesh`` (stand-in meshes, ``render.testing``)
-    or ``builtin`` (``jaxcls.world.scenes`` with the builtin object set)."""
+def build_scene(kind: str, scale: float, num_objects: int, seed: int, count: int):
+    """(model, intrinsics, views [count, 4, 4] ``T_wc`` on the hemisphere of radius 1 m) of a ``kind`` scene:
+    ``trimesh`` (stand-in meshes, ``render.testing``) or ``builtin`` (``make_world``: the builtin object set)."""
+    intrinsics = Intrinsics.kinect_v1(scale)
     if kind == "trimesh":
-        return scenes.mesh_scene(intrinsics, num_objects=num_objects, seed=seed), np.array([0.0, 0.0, 0.05])
-    from jaxcls.world import scenes as builtin
-    from jaxcls.world.objects import ObjectSetConfig, object_set_from_config
-
-    object_set = object_set_from_config(ObjectSetConfig())
-    scene = builtin.sample_scene(object_set, builtin.SceneConfig(num_objects=num_objects), seed)
-    models = builtin.scene_models(scene, object_set)
-    return builtin.build_model(scene, models, intrinsics), builtin.scene_centroid(scene, models)
+        model = primitives.mesh_scene(intrinsics, num_objects=num_objects, seed=seed)
+        return model, intrinsics, hemisphere_viewpoints(np.array([0.0, 0.0, 0.05]), count, radius=1.0)
+    camera = CameraConfig(width=intrinsics.width, height=intrinsics.height, fx=intrinsics.fx, fy=intrinsics.fy,
+                          cx=intrinsics.cx, cy=intrinsics.cy)
+    world = make_world(WorldConfig(scene=SceneConfig(num_objects=num_objects), camera=camera,
+                                   viewpoints=ViewpointConfig(count=count, radius=1.0), backend="mujoco"), seed)
+    return world.model, world.intrinsics, world.viewpoints
 
 
 def agreement(ref: DepthFrames, other: DepthFrames) -> str:
@@ -79,9 +83,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", help="append the table to this Markdown file")
     args = parser.parse_args(argv)
 
-    intr = Intrinsics.kinect_v1(args.scale)
-    model, centre = build_scene(args.scene, intr, args.objects, args.seed)
-    views = hemisphere_viewpoints(centre, args.views, radius=1.0)
+    model, intr, views = build_scene(args.scene, args.scale, args.objects, args.seed, args.views)
     cpu = f"{platform.processor() or platform.machine()}, {available_cores()} cores"
     gpu_reason = warp_unavailable_reason()
     has_gpu = jax.default_backend() == "gpu"

@@ -6,8 +6,9 @@
 The frame is a builtin 5-object scene (``make_world``) rendered by the ``mujoco`` backend from one
 hemisphere view; the volume is centred on the scene's centroid and fuses the raw frame (the stage alone,
 not ``perception.observe``'s move). Times are medians over ``--repeats`` calls after a warm-up call
-(compile included in "first call"), waiting for JAX's asynchronous results. Open3D's legacy ``UniformTSDFVolume`` runs on the same frame in the same
-process. "agreement" is the symmetric chamfer distance between the two extracted surfaces, in voxels.
+(compile included in "first call"), waiting for JAX's asynchronous results. Open3D's legacy
+``UniformTSDFVolume`` runs on the same frame in the same process. "agreement" is the symmetric chamfer
+distance between the two extracted surfaces, in voxels.
 On a GPU: ``integrate`` vmapped over a batch of episodes' volumes, in integrations/s.
 """
 
@@ -25,7 +26,7 @@ import numpy as np
 
 from jaxcls import report
 from jaxcls.perception import tsdf
-from jaxcls.world import WorldConfig, make_world, scenes
+from jaxcls.world import WorldConfig, make_world
 
 
 def chamfer(a: np.ndarray, b: np.ndarray) -> float:
@@ -48,7 +49,7 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
 
     world = make_world(WorldConfig(backend="mujoco"), args.seed)  # Kinect v1, 100 views at 1 m
-    centre = scenes.scene_centroid(world.scene, world.models)
+    centre = world.centroid
     intr = world.intrinsics
     T_wc = world.poses([args.view])[0]
     depth = np.asarray(world.render([args.view]).depth[0])
@@ -59,6 +60,7 @@ def main(argv: list[str] | None = None) -> None:
     cpu = f"CPU ({platform.processor() or platform.machine()}, {os.cpu_count()} cores)"
     rows: list[tuple[str, ...]] = []
     notes: list[str] = []
+    extraction = f"jaxcls.perception.tsdf `extract_surface` (max_points={args.max_points})"
 
     with jax.default_device(cpu_device):
         d, T = jnp.asarray(depth), jnp.asarray(T_wc, jnp.float32)
@@ -67,8 +69,7 @@ def main(argv: list[str] | None = None) -> None:
         print(rows[-1], file=sys.stderr)
         first, med, surface = report.timed(lambda: tsdf.extract_surface(fused, args.max_points), args.repeats)
         ours = np.asarray(surface.points)[np.asarray(surface.mask)]
-        rows.append((f"jaxcls.perception.tsdf `extract_surface` (max_points={args.max_points})", cpu, f"{med * 1e3:.1f}",
-                     f"{first * 1e3:.0f}", f"{len(ours)} points"))
+        rows.append((extraction, cpu, f"{med * 1e3:.1f}", f"{first * 1e3:.0f}", f"{len(ours)} points"))
         print(rows[-1], file=sys.stderr)
 
     try:
@@ -111,11 +112,10 @@ def main(argv: list[str] | None = None) -> None:
             print(rows[-1], file=sys.stderr)
         vol_gpu = jax.device_put(volume)
         first, med, fused = report.timed(lambda: tsdf.integrate(vol_gpu, jnp.asarray(depth), intr,
-                                                          jnp.asarray(T_wc, jnp.float32)), args.repeats)
+                                                                jnp.asarray(T_wc, jnp.float32)), args.repeats)
         rows.append(("jaxcls.perception.tsdf `integrate`", gpu, f"{med * 1e3:.2f}", f"{first * 1e3:.0f}", ""))
         first, med, _ = report.timed(lambda: tsdf.extract_surface(fused, args.max_points), args.repeats)
-        rows.append((f"jaxcls.perception.tsdf `extract_surface` (max_points={args.max_points})", gpu, f"{med * 1e3:.2f}",
-                     f"{first * 1e3:.0f}", ""))
+        rows.append((extraction, gpu, f"{med * 1e3:.2f}", f"{first * 1e3:.0f}", ""))
     else:
         notes.append("GPU rows skipped: JAX sees no GPU")
 

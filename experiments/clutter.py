@@ -2,10 +2,12 @@
 
     python experiments/clutter.py --config configs/synthetic.yaml [key=value ...] [--out RESULTS.md]
 
-For each scene of a dataset config: render every viewpoint with all objects and with each object alone,
+For each scene of a dataset config (the world ``jaxcls dataset`` renders: ``make_world`` with the config's
+world block and the scene's seed): render every viewpoint with all objects and with each object alone,
 and report the visible fraction (seen / alone pixels) of (object, view) pairs where the object is in
 view. The paper's premise is "severe inter-object occlusion" (Fig. 3): a scene set where every object is
-always fully visible would make the choice of view pointless.
+always fully visible would make the choice of view pointless. ``--config`` takes a path or a shipped
+config name (``synthetic``, ``real_like``).
 """
 
 from __future__ import annotations
@@ -16,10 +18,10 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from jaxcls import report
-from jaxcls.world import scenes
-from jaxcls.world.objects import object_set_from_config
 from jaxcls.config import load_config
+from jaxcls.world import make_world, scenes
 from jaxcls.world.dataset import DatasetConfig, scene_seeds
+from jaxcls.world.objects import object_set_from_config
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -33,10 +35,9 @@ def main(argv: list[str] | None = None) -> None:
     intrinsics = cfg.camera.intrinsics()
     rows, fractions = [], []
     for i, seed in enumerate(tqdm(scene_seeds(cfg.seed, cfg.num_scenes), desc="scenes")):
-        scene = scenes.sample_scene(object_set, cfg.scene, seed, cfg.objects)
-        models = scenes.scene_models(scene, object_set)
-        T_wc = scenes.viewpoints(scene, models, cfg.viewpoints)
-        seen, alone = scenes.occlusion_counts(scene, models, intrinsics, T_wc)
+        world = make_world(cfg.world_config(), seed, object_set=object_set)
+        scene = world.scene
+        seen, alone = scenes.occlusion_counts(scene, world.models, world.intrinsics, world.viewpoints)
         in_view = alone > 0
         fraction = seen[in_view] / alone[in_view]
         fractions.append(fraction)

@@ -2,12 +2,15 @@
 
     python experiments/reconstruction.py --config configs/synthetic.yaml [key=value ...] [--out RESULTS.md]
 
-For each scene of a dataset config: render ``--views`` viewpoints spread over the hemisphere (through the
-config's sensor model, so the real-like config fuses noisy depth from noisy poses), fuse them into the
-default 0.6 m / 128^3 volume, extract the surface, and measure the exact point-to-triangle distance of the
-object points to the posed meshes (Open3D's raycasting scene, a test dependency). Object points are those
+For each scene of a dataset config (its world from ``make_world``): measure every viewpoint through the
+config's sensor model (``world.measure``, as ``jaxcls dataset`` does, so the real-like config fuses noisy
+depth from noisy poses), fuse ``--views`` of them spread over the hemisphere into a 0.6 m / 128^3 volume
+centred on the scene, extract the surface, and measure the exact point-to-triangle distance of the
+object points to the posed meshes (Open3D's raycasting scene, a test dependency). The whole frame is
+fused, table included (the TSDF stage alone, not ``perception.observe``'s move): object points are those
 closer to an object mesh than to the table plane, so that noisy table points are not counted as object
-error. Reports the median and 90th percentile per scene and over all.
+error. Reports the median and 90th percentile per scene and over all. ``--config`` takes a path or a
+shipped config name (``synthetic``, ``real_like``).
 """
 
 from __future__ import annotations
@@ -21,11 +24,11 @@ import open3d as o3d
 from tqdm.auto import tqdm
 
 from jaxcls import report
-from jaxcls.world import scenes
-from jaxcls.perception import tsdf
-from jaxcls.world.objects import object_set_from_config
 from jaxcls.config import load_config
-from jaxcls.world.dataset import DatasetConfig, render_scene_views, scene_seeds
+from jaxcls.perception import tsdf
+from jaxcls.world import make_world, scenes
+from jaxcls.world.dataset import DatasetConfig, scene_seeds
+from jaxcls.world.objects import object_set_from_config
 
 
 def distances_to_meshes(points: np.ndarray, scene: scenes.Scene, models) -> np.ndarray:
@@ -51,12 +54,15 @@ def main(argv: list[str] | None = None) -> None:
     chosen = np.linspace(0, cfg.viewpoints.count - 1, args.views).round().astype(int)
     rows, every = [], []
     for i, seed in enumerate(tqdm(scene_seeds(cfg.seed, cfg.num_scenes), desc="scenes")):
-        scene = scenes.sample_scene(object_set, cfg.scene, seed, cfg.objects)
-        models = scenes.scene_models(scene, object_set)
-        views = render_scene_views(cfg, scene, jax.random.fold_in(jax.random.PRNGKey(cfg.seed), i), object_set)
-        volume = tsdf.create_volume(scenes.scene_centroid(scene, models))
-        volume = tsdf.integrate_frames(volume, jnp.asarray(views.depth[chosen]), intrinsics,
-                                       jnp.asarray(views.T_wc[chosen], jnp.float32))
+        world = make_world(cfg.world_config(), seed, object_set=object_set)
+        scene, models = world.scene, world.models
+        # Every view through the sensor model, as ``jaxcls dataset`` writes them (the same noise draw), then
+        # the chosen ones: depth after the sensor model, the poses the pipeline is told.
+        depth, T_wc, _, _ = world.measure(jax.random.fold_in(jax.random.PRNGKey(cfg.seed), i),
+                                          np.arange(len(world.viewpoints)), cfg.batch_size)
+        volume = tsdf.create_volume(world.centroid)
+        volume = tsdf.integrate_frames(volume, jnp.asarray(depth[chosen]), intrinsics,
+                                       jnp.asarray(T_wc[chosen], jnp.float32))
         surface = tsdf.extract_surface(volume, max_points=200_000)
         points = np.asarray(surface.points)[np.asarray(surface.mask)]
         to_objects = distances_to_meshes(points, scene, models)

@@ -91,7 +91,8 @@ def _run(name: str, argv: Sequence[str]) -> str:
     args = command_parser(name, command).parse_args(argv)
     config = None
     if command.schema is not None:
-        config = load_config(command.schema, args.config or None, args.overrides, borrow_from=command.borrow_from)
+        config = load_config(command.schema, args.config or None, args.overrides, borrow_from=command.borrow_from,
+                             borrow_keys=command.borrow_keys)
         if args.print_config:
             return to_yaml(config)
     return command.run(config, args)

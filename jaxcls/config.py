@@ -65,7 +65,7 @@ class Bounds:
         if isinstance(value, list | tuple | ListConfig):
             for v in value:
                 if (why := self.violation(v)) is not None:
-                    return f"{why} (each element), got {list(value)}"
+                    return f"{why.split(', got')[0]} for each element, got {list(value)}"
             return None
         if isinstance(value, bool) or not isinstance(value, int | float):
             return None  # wrong types are the schema's business
@@ -130,11 +130,12 @@ def _merge(base: DictConfig, layer: DictConfig, source: str) -> DictConfig:
 
 
 def load_config(schema: type[T], path: str | Path | None = None, overrides: Sequence[str] = (),
-                borrow_from: Sequence[type] = ()) -> T:
+                borrow_from: Sequence[type] = (), borrow_keys: type | None = None) -> T:
     """The schema's defaults, then the YAML file at ``path`` (if any), then dotted ``overrides``.
 
-    borrow_from: other schemas whose files this one may read: their top-level keys that ``schema`` lacks
-    are dropped from the file (``jaxcls show`` previews the world of a dataset config).
+    borrow_from, borrow_keys: a file of one of the ``borrow_from`` schemas (it has top-level keys only they
+    have) is read for the top-level keys of ``borrow_keys`` alone, its other keys (where its own command
+    writes, its seed) dropped: ``jaxcls show --config real_like`` previews that dataset's world.
     """
     cfg = _schema(schema)
     if path is not None:
@@ -149,8 +150,10 @@ def load_config(schema: type[T], path: str | Path | None = None, overrides: Sequ
             raise ConfigError(f"{path}: expected a mapping at the top level")
         own = {f.name for f in dataclasses.fields(schema)}
         borrowed = {f.name for other in borrow_from for f in dataclasses.fields(other)} - own
-        for key in [k for k in layer if k in borrowed]:
-            del layer[key]
+        if borrow_keys is not None and any(k in borrowed for k in layer):
+            keep = {f.name for f in dataclasses.fields(borrow_keys)}
+            for key in [k for k in layer if k not in keep]:
+                del layer[key]
         cfg = _merge(cfg, layer, str(path))
         _check_tree(cfg, str(path))
     if overrides:

@@ -1,6 +1,6 @@
 """Camera model, poses and the viewpoint hemisphere.
 
-Conventions (DESIGN.md): metres; world z up; OpenCV camera (x right, y down, z forward); a camera pose is
+Conventions (docs/ARCHITECTURE.md): metres; world z up; OpenCV camera (x right, y down, z forward); a camera pose is
 the 4x4 camera-to-world transform ``T_wc``. Functions take ``...`` leading batch axes.
 
 Poses have one representation, ``jaxlie`` (``SE3``/``SO3`` below, with ``...`` batch axes):
@@ -21,12 +21,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 
 import jax
 import jax.numpy as jnp
 import jaxlie
 import numpy as np
 from flax import struct
+
+from jaxcls.config import bounded, check_bounds
 
 # MuJoCo cameras look along their -z with y up; OpenCV cameras look along +z with y down. The same
 # matrix maps back (it is its own inverse).
@@ -46,6 +49,18 @@ class Intrinsics:
     fy: float = struct.field(pytree_node=False)
     cx: float = struct.field(pytree_node=False)
     cy: float = struct.field(pytree_node=False)
+
+    def __post_init__(self) -> None:
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
+                raise ValueError(f"Intrinsics: {name} must be an integer >= 1 (pixels), got {value!r}")
+        for name in ("fx", "fy", "cx", "cy"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value):
+                raise ValueError(f"Intrinsics: {name} must be a finite number (pixels), got {value!r}")
+            if name in ("fx", "fy") and value <= 0:
+                raise ValueError(f"Intrinsics: {name} must be > 0 (pixels), got {value!r}")
 
     @classmethod
     def kinect_v1(cls, scale: float = 1.0) -> Intrinsics:
@@ -79,16 +94,17 @@ class Intrinsics:
 class CameraConfig:
     """A pinhole sensor; the default is the paper's Kinect v1 (640x480, f = 525 px)."""
 
-    width: int = 640
-    height: int = 480
-    fx: float = 525.0
-    fy: float = 525.0
-    cx: float = 319.5
-    cy: float = 239.5
+    width: int = bounded(640, ge=1)
+    height: int = bounded(480, ge=1)
+    fx: float = bounded(525.0, gt=0.0)
+    fy: float = bounded(525.0, gt=0.0)
+    cx: float = bounded(319.5)  # finite
+    cy: float = bounded(239.5)
+
+    def __post_init__(self) -> None:
+        check_bounds(self, "camera.")
 
     def intrinsics(self) -> Intrinsics:
-        if min(self.width, self.height) < 1 or min(self.fx, self.fy) <= 0:
-            raise ValueError(f"camera: need positive size and focal lengths, got {self}")
         return Intrinsics(width=self.width, height=self.height, fx=self.fx, fy=self.fy, cx=self.cx, cy=self.cy)
 
 
@@ -96,10 +112,14 @@ class CameraConfig:
 class ViewpointConfig:
     """The view hemisphere around the scene centroid (paper Sec. 4: 100 views, r = 1 m, z >= 0)."""
 
-    count: int = 100
-    radius: float = 1.0
-    min_elevation_deg: float = 0.0
-    candidate_radius: float = 0.5  # views within this of the current one are a move's candidates (Sec. 3.3)
+    count: int = bounded(100, ge=1)
+    radius: float = bounded(1.0, gt=0.0)
+    min_elevation_deg: float = bounded(0.0, ge=0.0, lt=90.0)
+    # Views within this of the current one are a move's candidates (Sec. 3.3).
+    candidate_radius: float = bounded(0.5, gt=0.0)
+
+    def __post_init__(self) -> None:
+        check_bounds(self, "viewpoints.")
 
 
 def fovy_deg(fy: float, height: int) -> float:

@@ -1,10 +1,10 @@
 import numpy as np
 import pytest
 
-from jaxcls.world import dataset, recording, scenes
 from jaxcls import geometry
 from jaxcls.cli import main
 from jaxcls.config import load_config
+from jaxcls.world import dataset, recording, scenes
 from jaxcls.world.render import SensorConfig, make_renderer
 
 SMALL = ["camera.width=64", "camera.height=48", "camera.fx=52.5", "camera.fy=52.5", "camera.cx=31.5",

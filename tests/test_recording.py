@@ -12,8 +12,8 @@ import pytest
 from PIL import Image
 from scipy.spatial.transform import Rotation
 
-from jaxcls.world import recording as rec
 from jaxcls.geometry import Intrinsics
+from jaxcls.world import recording as rec
 from jaxcls.world.recording import (
     Recording,
     RecordingError,

@@ -9,11 +9,9 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from jaxcls.world import scenes
-from jaxcls.perception import tsdf
-from jaxcls.world.objects import builtin_object_set
 from jaxcls.geometry import Intrinsics, hemisphere_viewpoints, look_at
-from jaxcls.world.render import make_renderer
+from jaxcls.perception import tsdf
+from jaxcls.world.setup import WorldConfig, make_world
 
 SMALL = Intrinsics.kinect_v1(0.25)  # 160 x 120, the Kinect's field of view
 # f32 arithmetic on values of order 1: only rounding separates the TSDF from the analytic signed distance.
@@ -120,14 +118,10 @@ def test_scan_equals_one_by_one_and_vmap_over_volumes():
 @pytest.fixture(scope="module")
 def scene_frames():
     """A builtin 5-object scene and its depth at 10 hemisphere views, 640x480 (ideal sensor)."""
-    object_set = builtin_object_set()
-    scene = scenes.sample_scene(object_set, scenes.SceneConfig(), seed=0)
-    models = scenes.scene_models(scene, object_set)
-    centre = scenes.scene_centroid(scene, models)
-    intr = Intrinsics.kinect_v1()
-    views = hemisphere_viewpoints(centre, count=100)[::10]
-    frames = make_renderer(scenes.build_model(scene, models, intr), intr, "mujoco").render(views)
-    return scene, models, centre, intr, views, np.asarray(frames.depth)
+    world = make_world(WorldConfig(backend="mujoco"), seed=0)
+    views = world.viewpoints[::10]
+    frames = world.render(np.arange(0, 100, 10))
+    return world.scene, world.models, world.centroid, world.intrinsics, views, np.asarray(frames.depth)
 
 
 @pytest.fixture(scope="module")

@@ -34,4 +34,5 @@ class Command:
     default_config: str | None = None
     example: str = ""
     arguments: tuple[Argument, ...] = ()
-    borrow_from: tuple[type, ...] = ()  # other schemas whose config files this command may read
+    borrow_from: tuple[type, ...] = ()  # other schemas whose config files this command may read ...
+    borrow_keys: type | None = None  # ... for these keys only (see ``config.load_config``)

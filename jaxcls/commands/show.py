@@ -21,10 +21,11 @@ class ShowConfig(WorldConfig):
     views: tuple[int, ...] = (0, 33, 66, 99)
 
 
-def _check_scene_file_alone(config: ShowConfig) -> None:
-    """With ``scene_file``, the settings that draw a scene would be ignored: refuse them, naming each."""
-    default = ShowConfig()
-    unused = [name for name in ("seed", "scene", "objects") if getattr(config, name) != getattr(default, name)]
+def _check_scene_file_alone(config: ShowConfig, overrides: list[str]) -> None:
+    """With ``scene_file``, the settings that draw a scene would be ignored: refuse them when given on the
+    command line, naming each (a config file's values are the file's business: a dataset config's scene)."""
+    unused = sorted({o.split("=", 1)[0] for o in overrides
+                     if o.split("=", 1)[0] == "seed" or o.startswith(("scene.", "objects."))})
     if unused:
         raise ValueError(f"show: scene_file={config.scene_file} gives the scene, so {', '.join(unused)} would be "
                          "ignored; drop those settings or the scene file")
@@ -42,9 +43,10 @@ def free_folder(out_dir: str | Path, overwrite: bool) -> Path:
     return candidate
 
 
-def show(config: ShowConfig, overwrite: bool = False) -> Path:
+def show(config: ShowConfig, overwrite: bool = False, overrides: list[str] | tuple[str, ...] = ()) -> Path:
     """Render the scene and save ``scene.png`` (depth after the sensor model, object ids, hemisphere),
-    ``scene.json`` and ``config.yaml`` in ``out_dir`` (or a numbered sibling, see ``free_folder``)."""
+    ``scene.json`` and ``config.yaml`` in ``out_dir`` (or a numbered sibling, see ``free_folder``).
+    ``overrides``: the command line's, checked against ``scene_file``."""
     import jax
     import numpy as np
 
@@ -55,7 +57,7 @@ def show(config: ShowConfig, overwrite: bool = False) -> Path:
 
     scene = None
     if config.scene_file:
-        _check_scene_file_alone(config)
+        _check_scene_file_alone(config, list(overrides))
         scene = scenes.Scene.load(config.scene_file)
         config = dataclasses.replace(config, objects=scene.object_set)
     world = make_world(config.world_config(), config.seed, scene=scene)
@@ -71,7 +73,11 @@ def show(config: ShowConfig, overwrite: bool = False) -> Path:
 
 
 def _run(config: ShowConfig, args: argparse.Namespace) -> str:
-    return f"wrote {show(config, overwrite=args.overwrite)}"
+    path = show(config, overwrite=args.overwrite, overrides=args.overrides)
+    if path.parent != Path(config.out_dir):
+        return (f"wrote {path} (out_dir {config.out_dir} is not empty: a new run goes beside it; --overwrite "
+                "writes into it)")
+    return f"wrote {path}"
 
 
 COMMAND = Command(
@@ -80,5 +86,5 @@ COMMAND = Command(
                 "config.yaml. An existing out_dir is kept: the run goes to out_dir-2, -3, ... unless --overwrite.",
     schema=ShowConfig, run=_run, example="seed=3 scene.num_objects=6 views=[0,50]",
     arguments=(Argument(("--overwrite",), {"action": "store_true", "help": "write into out_dir even if not empty"}),),
-    borrow_from=(DatasetConfig,),
+    borrow_from=(DatasetConfig,), borrow_keys=WorldConfig,
 )

@@ -31,6 +31,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from jaxcls import geometry, io
+from jaxcls.config import bounded, check_bounds
 from jaxcls.perception import foreground, observation, tsdf
 from jaxcls.perception.settings import PerceptionConfig, Spec
 from jaxcls.world.objects import ObjectModel, ObjectSet, ObjectSetConfig
@@ -51,18 +52,31 @@ def scenes_config():
 class CloudConfig:
     """How many clouds of each source an instance gets, and how they are made (``data:`` in the config)."""
 
-    full_points: int = 2500  # the paper's 2500 surface samples per instance
-    full_per_instance: int = 1
-    views_per_instance: int = 16
-    occluded_per_instance: int = 8
-    fused_per_instance: int = 4
-    max_points: int = 1024  # points kept per partial cloud (a random subset of larger clouds)
-    min_points: int = 64  # a view showing fewer points of the instance is drawn again
-    image_scale: float = 0.5  # of the Kinect v1 (0.5 = 320x240)
-    radius: tuple[float, float] = (0.7, 1.2)  # camera distance, m
-    elevation_deg: tuple[float, float] = (10.0, 80.0)
+    full_points: int = bounded(2500, ge=1)  # the paper's 2500 surface samples per instance
+    full_per_instance: int = bounded(1, ge=0)
+    views_per_instance: int = bounded(16, ge=0)
+    occluded_per_instance: int = bounded(8, ge=0)
+    fused_per_instance: int = bounded(4, ge=0)
+    max_points: int = bounded(1024, ge=1)  # points kept per partial cloud (a random subset of larger clouds)
+    min_points: int = bounded(64, ge=1)  # a view showing fewer points of the instance is drawn again
+    image_scale: float = bounded(0.5, gt=0.0, le=4.0)  # of the Kinect v1 (0.5 = 320x240)
+    radius: tuple[float, float] = bounded((0.7, 1.2), gt=0.0)  # camera distance [low, high], m
+    elevation_deg: tuple[float, float] = bounded((10.0, 80.0), ge=0.0, le=90.0)  # [low, high]
     backend: Literal["auto", "mujoco", "mjx", "warp"] = "auto"
     cache_dir: str = "data/clouds"
+
+    def __post_init__(self) -> None:
+        check_bounds(self, "data.")
+        if (self.full_per_instance + self.views_per_instance + self.occluded_per_instance
+                + self.fused_per_instance) == 0:
+            raise ValueError("data: full_per_instance, views_per_instance, occluded_per_instance and "
+                             "fused_per_instance are all 0: no clouds would be made")
+        for name in ("radius", "elevation_deg"):
+            low, high = getattr(self, name)
+            if low > high:
+                raise ValueError(f"data.{name} must be [low, high] with low <= high, got {[low, high]}")
+        if round(480 * self.image_scale) < 1:
+            raise ValueError(f"data.image_scale = {self.image_scale} makes images under one pixel high")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import time
 from pathlib import Path
 from typing import Any
@@ -33,7 +32,7 @@ from sklearn.metrics import confusion_matrix
 from tqdm.auto import tqdm
 
 from jaxcls import geometry, io, viz
-from jaxcls.config import load_config, save_config
+from jaxcls.config import bounded, check_bounds, load_config, save_config
 from jaxcls.learn.clouds import SOURCES, CloudConfig, CloudSet, load_clouds, sample_batch
 from jaxcls.perception import pointnet
 from jaxcls.perception.settings import PerceptionConfig
@@ -44,10 +43,15 @@ from jaxcls.world.objects import ObjectSetConfig, object_set_from_config
 class Mix:
     """Relative frequency of each cloud source in training batches (0 = unused)."""
 
-    full: float = 1.0
-    view: float = 0.0
-    occluded: float = 0.0
-    fused: float = 0.0
+    full: float = bounded(1.0, ge=0.0)
+    view: float = bounded(0.0, ge=0.0)
+    occluded: float = bounded(0.0, ge=0.0)
+    fused: float = bounded(0.0, ge=0.0)
+
+    def __post_init__(self) -> None:
+        check_bounds(self, "mix.")
+        if sum(getattr(self, s) for s in SOURCES) <= 0:
+            raise ValueError(f"train: mix weights must be >= 0 and not all 0, got {self} (set e.g. mix.full=1)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,30 +67,18 @@ class TrainConfig:
     model: pointnet.ModelConfig = dataclasses.field(default_factory=pointnet.ModelConfig)
     # The loop the classifier trains for: its foreground and TSDF volume make the partial clouds.
     perception: PerceptionConfig = dataclasses.field(default_factory=PerceptionConfig)
-    epochs: int = 250
-    steps_per_epoch: int = 0  # 0: one pass over the training clouds the mix draws from
-    batch_size: int = 32
-    learning_rate: float = 1e-3
-    lr_halving_epochs: int = 20
-    jitter: float = 0.01  # std of Gaussian noise on normalised points (clipped at 5 sigma)
-    eval_rotations: int = 8  # each held-out complete cloud is evaluated at this many yaws
-    eval_batch: int = 256
-    keep_checkpoints: int = 2
+    epochs: int = bounded(250, ge=1)
+    steps_per_epoch: int = bounded(0, ge=0)  # 0: one pass over the training clouds the mix draws from
+    batch_size: int = bounded(32, ge=1)
+    learning_rate: float = bounded(1e-3, gt=0.0)
+    lr_halving_epochs: int = bounded(20, ge=1)
+    jitter: float = bounded(0.01, ge=0.0)  # std of Gaussian noise on normalised points (clipped at 5 sigma)
+    eval_rotations: int = bounded(8, ge=1)  # each held-out complete cloud is evaluated at this many yaws
+    eval_batch: int = bounded(256, ge=1)
+    keep_checkpoints: int = bounded(2, ge=1)
 
     def __post_init__(self) -> None:
-        weights = [getattr(self.mix, s) for s in SOURCES]
-        if min(weights) < 0 or sum(weights) <= 0:
-            raise ValueError(f"train: mix weights must be >= 0 and not all 0, got {self.mix}")
-        if not all(math.isfinite(w) for w in weights):
-            raise ValueError(f"train: mix weights must be finite, got {self.mix}")
-        if min(self.epochs, self.batch_size, self.lr_halving_epochs, self.eval_rotations, self.eval_batch,
-               self.keep_checkpoints) < 1 or self.steps_per_epoch < 0:
-            raise ValueError("train: epochs, batch_size, lr_halving_epochs, eval_rotations, eval_batch and "
-                             "keep_checkpoints must be >= 1, steps_per_epoch >= 0")
-        if not (math.isfinite(self.learning_rate) and self.learning_rate > 0 and math.isfinite(self.jitter)
-                and self.jitter >= 0):
-            raise ValueError(f"train: need a finite learning_rate > 0 and jitter >= 0, got {self.learning_rate}, "
-                             f"{self.jitter}")
+        check_bounds(self, "")
 
 
 class TrainState(train_state.TrainState):

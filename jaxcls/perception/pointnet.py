@@ -27,6 +27,7 @@ import numpy as np
 from flax import linen as nn
 from flax import serialization, struct
 
+from jaxcls.config import bounded, check_bounds
 from jaxcls.math import safe_norm
 
 WEIGHTS_DIR = Path(__file__).parent / "weights"
@@ -37,10 +38,13 @@ BUILTIN_WEIGHTS = WEIGHTS_DIR / "pointnet_builtin.msgpack"
 class ModelConfig:
     """The network's hyper-parameters (the ``model:`` section of ``configs/pointnet.yaml``)."""
 
-    num_points: int = 1024  # points per cloud the network is trained on (segments are padded to this)
-    dropout: float = 0.3  # before the last layer (PointNet's keep probability 0.7)
-    bn_momentum: float = 0.9
-    feature_transform_weight: float = 0.001  # weight of ``orthogonality_loss``
+    num_points: int = bounded(1024, ge=1)  # points per cloud the network is trained on (segments are padded to this)
+    dropout: float = bounded(0.3, ge=0.0, lt=1.0)  # before the last layer (PointNet's keep probability 0.7)
+    bn_momentum: float = bounded(0.9, ge=0.0, lt=1.0)
+    feature_transform_weight: float = bounded(0.001, ge=0.0)  # weight of ``orthogonality_loss``
+
+    def __post_init__(self) -> None:
+        check_bounds(self, "model.")
 
 
 def normalise(points: jax.Array, mask: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -182,8 +186,15 @@ def classify(classifier: Classifier, points: jax.Array, mask: jax.Array) -> jax.
     """Class probabilities of segments (paper Eq. 1's softmax).
 
     points: [N, P, 3] m (any frame with z up); mask: [N, P] bool; NaN or inf points count as padding.
-    Returns probs [N, M]; a segment with no real point gets the uniform distribution 1/M.
+    Returns probs [N, M]; a segment with no real point gets the uniform distribution 1/M. Other shapes
+    are a ValueError naming them (checked while tracing: shapes are static).
     """
+    points_shape, mask_shape = tuple(np.shape(points)), tuple(np.shape(mask))
+    if len(points_shape) != 3 or points_shape[-1] != 3:
+        raise ValueError(f"classify: points must be [N, P, 3] (N segments of P points), got shape {points_shape}")
+    if mask_shape != points_shape[:2]:
+        raise ValueError(f"classify: mask must be [N, P] = {list(points_shape[:2])} like the points, got shape "
+                         f"{mask_shape}")
     points, mask = normalise(jnp.asarray(points, jnp.float32), jnp.asarray(mask, bool))
     model = make_model(len(classifier.classes), classifier.config)
     logits, _ = model.apply(classifier.variables, points, mask, train=False)
@@ -228,12 +239,28 @@ def load_classifier(path: str | Path | None = None, classes: Sequence[str] | Non
     for p in (path, info_path):
         if not p.is_file():
             raise FileNotFoundError(f"classifier: {p} not found (weights come as a .msgpack and a .json)")
-    info = json.loads(info_path.read_text())
     try:
-        config = ModelConfig(**info["model"])
-        names = tuple(info["classes"])
-    except (KeyError, TypeError) as e:
-        raise ValueError(f"classifier: {info_path} lacks a valid 'classes' or 'model' entry: {e}") from None
+        info = json.loads(info_path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ValueError(f"{info_path}: not valid JSON ({e}); it is written by save_classifier beside the "
+                         ".msgpack weights") from None
+    if not isinstance(info, dict):
+        raise ValueError(f"{info_path}: expected a JSON object with 'classes' and 'model', got "
+                         f"{type(info).__name__}")
+    names = info.get("classes")
+    if not isinstance(names, list) or not names or not all(isinstance(c, str) for c in names):
+        raise ValueError(f"{info_path}: 'classes' must be a non-empty list of class names (strings), got "
+                         f"{names!r}")
+    names = tuple(names)
+    if len(set(names)) != len(names):
+        raise ValueError(f"{info_path}: 'classes' names a class twice: {list(names)}")
+    model = info.get("model")
+    if not isinstance(model, dict):
+        raise ValueError(f"{info_path}: 'model' must be a JSON object of ModelConfig fields, got {model!r}")
+    try:
+        config = ModelConfig(**model)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{info_path}: 'model' is not a valid ModelConfig: {e}") from None
     template = jax.tree.map(np.asarray, init_variables(jax.random.key(0), len(names), config))
     try:
         state = serialization.msgpack_restore(path.read_bytes())

@@ -6,7 +6,7 @@ gives the signed distance along the camera's z axis, truncated and averaged with
 weight. One integration is a single vectorised pass over the voxels (no scatter over pixels), with static
 shapes, so it jits, scans over frames and vmaps over episodes.
 
-Conventions (DESIGN.md): metres; world z up; OpenCV camera, pose ``T_wc`` camera-to-world; depth is z-depth,
+Conventions (docs/ARCHITECTURE.md): metres; world z up; OpenCV camera, pose ``T_wc`` camera-to-world; depth is z-depth,
 0 = no return. Voxel ``(i, j, k)`` has its centre at ``origin + voxel_size * (i, j, k)``. Stored TSDF
 values are signed distance / truncation in [-1, 1], positive in front of the surface (free space), 1 where
 unobserved; ``weight`` 0 marks unobserved voxels.

@@ -33,10 +33,11 @@ Meaning of each piece:
 - ``depth/NNNNNN.png``: z-depth (not ray length), six-digit zero-padded frame index, exactly one PNG per
   frame. Values are quantised by :func:`quantise_depth`, the one definition of what the PNG can hold.
 
-Writing is atomic: everything goes into a hidden sibling folder (``.<name>.tmp-<random>``), ``meta.json``
-last, which is renamed onto ``<folder>`` only when complete, so an interrupted export leaves either no
-folder or the previous one. Files are not fsync'ed; after a power loss the reader's full validation (every
-file parsed, every PNG decoded) still refuses a damaged folder rather than reading it as complete.
+Writing is atomic (``jaxcls.io.atomic_folder``): everything goes into a hidden sibling folder
+(``.<name>.tmp-<random>``), ``meta.json`` last, which is renamed onto ``<folder>`` only when complete, so
+an interrupted export leaves either no folder or the previous one. Files are not fsync'ed; after a power
+loss the reader's full validation (every file parsed, every PNG decoded) still refuses a damaged folder
+rather than reading it as complete.
 """
 
 from __future__ import annotations
@@ -44,8 +45,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import shutil
-import uuid
 import warnings
 from pathlib import Path
 from typing import Any
@@ -53,6 +52,7 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
+from jaxcls import io
 from jaxcls.geometry import Intrinsics, is_rigid
 
 FORMAT = "jaxcls-recording"
@@ -211,7 +211,7 @@ def _format_pose_line(index: int, T: np.ndarray) -> str:
 
 
 def write_recording(folder: str | Path, recording: Recording, overwrite: bool = False) -> Path:
-    """Write ``recording`` to ``folder`` atomically (temp sibling folder, then rename); returns the path.
+    """Write ``recording`` to ``folder`` atomically (``jaxcls.io.atomic_folder``); returns the path.
 
     ``overwrite`` replaces an existing recording (or empty folder) and refuses anything else, so a wrong
     path cannot delete unrelated data. Depth is quantised by :func:`quantise_depth` (warning about
@@ -221,7 +221,8 @@ def write_recording(folder: str | Path, recording: Recording, overwrite: bool = 
     folder = Path(folder)
     if folder.exists() or folder.is_symlink():
         if not overwrite:
-            raise FileExistsError(f"{folder}: already exists (pass overwrite=True to replace it)")
+            raise FileExistsError(f"{folder}: already exists (pass overwrite=True, or --overwrite to jaxcls "
+                                  "export, to replace it)")
         if not _is_recording_or_empty(folder):
             raise FileExistsError(f"{folder}: exists and is not a {FORMAT} folder; refusing to overwrite")
     meta: dict[str, Any] = {"format": FORMAT, "version": VERSION, "table_height": recording.table_height,
@@ -237,10 +238,7 @@ def write_recording(folder: str | Path, recording: Recording, overwrite: bool = 
                                   "fy": float(k.fy), "cx": float(k.cx), "cy": float(k.cy)}, indent=2) + "\n"
     raw = depth_to_raw(recording.depth)  # warns once for the whole sequence
 
-    folder.parent.mkdir(parents=True, exist_ok=True)
-    tmp = folder.parent / f".{folder.name}.tmp-{uuid.uuid4().hex[:12]}"
-    tmp.mkdir()  # plain mkdir, so the final folder gets the usual umask permissions (mkdtemp gives 0700)
-    try:
+    with io.atomic_folder(folder) as tmp:  # swapped onto folder only when complete
         (tmp / "intrinsics.json").write_text(intrinsics_text)
         with open(tmp / "poses.txt", "w") as f:
             f.write(_POSES_HEADER)
@@ -249,19 +247,6 @@ def write_recording(folder: str | Path, recording: Recording, overwrite: bool = 
         for i in range(recording.num_frames):
             _write_png16(tmp / "depth" / f"{i:06d}.png", raw[i])
         (tmp / "meta.json").write_text(meta_text)  # last: a folder without it never reads as complete
-        if folder.exists() or folder.is_symlink():
-            old = folder.parent / f".{folder.name}.old-{uuid.uuid4().hex[:12]}"
-            folder.rename(old)
-            tmp.rename(folder)
-            if old.is_dir() and not old.is_symlink():
-                shutil.rmtree(old)
-            else:
-                old.unlink()
-        else:
-            tmp.rename(folder)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return folder
 
 

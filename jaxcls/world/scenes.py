@@ -22,7 +22,8 @@ from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
-from jaxcls import geometry
+from jaxcls import geometry, io
+from jaxcls.config import bounded, check_bounds
 from jaxcls.world.objects import ObjectModel, ObjectSet, ObjectSetConfig, object_set_from_config
 
 if TYPE_CHECKING:
@@ -36,14 +37,24 @@ SCENE_VERSION = 1
 class SceneConfig:
     """How scenes are drawn. Gaps are between footprint hulls, metres."""
 
-    num_objects: int = 5
-    num_clutter: int = 0  # of which non-target clutter (the paper's real scenes: 3 targets + 2 clutter)
+    num_objects: int = bounded(5, ge=1)
+    num_clutter: int = bounded(0, ge=0)  # of which non-target clutter (the paper's real scenes: 3 targets + 2)
     split: Literal["train", "test", "all"] = "test"
-    distinct_classes: bool = True  # no class twice in a scene while there are enough classes
-    min_gap: float = 0.003
-    max_gap: float = 0.03
-    table_height: float = 0.0
-    table_half_size: float = 0.75
+    # True: no instance twice, and no class twice while there are enough classes; False: instances are
+    # drawn with replacement (an instance may stand on the table twice).
+    distinct_classes: bool = True
+    min_gap: float = bounded(0.003, gt=0.0)
+    max_gap: float = bounded(0.03, gt=0.0)
+    table_height: float = bounded(0.0)  # finite
+    table_half_size: float = bounded(0.75, gt=0.0)
+
+    def __post_init__(self) -> None:
+        check_bounds(self, "scene.")
+        if self.num_clutter > self.num_objects:
+            raise ValueError(f"scene.num_clutter ({self.num_clutter}) must be <= scene.num_objects "
+                             f"({self.num_objects}): clutter objects are counted among the objects")
+        if self.min_gap > self.max_gap:
+            raise ValueError(f"scene.min_gap ({self.min_gap}) must be <= scene.max_gap ({self.max_gap})")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -129,9 +140,8 @@ class Scene:
                    table_half_size=number(data.get("table_half_size", 0.75), "table_half_size"), seed=seed)
 
     def save(self, path: str | Path) -> Path:
-        path = Path(path)
-        path.write_text(json.dumps(self.to_dict(), indent=2))
-        return path
+        """Write the scene's JSON to ``path`` atomically (``Scene.load`` reads it back)."""
+        return io.write_text(path, json.dumps(self.to_dict(), indent=2, allow_nan=False) + "\n")
 
     @classmethod
     def load(cls, path: str | Path) -> Scene:
@@ -175,16 +185,27 @@ def footprint_separation(a: np.ndarray, b: np.ndarray) -> float:
 
 def sample_scene(object_set: ObjectSet, config: SceneConfig, seed: int,
                  object_set_config: ObjectSetConfig | None = None) -> Scene:
-    """Draw a cluttered scene from ``object_set`` (same seed, same scene)."""
-    if not 0 <= config.num_clutter <= config.num_objects or config.num_objects < 1:
-        raise ValueError(f"scene: need 1 <= num_objects and 0 <= num_clutter <= num_objects, got {config}")
-    if not 0 < config.min_gap <= config.max_gap:
-        raise ValueError(f"scene: need 0 < min_gap <= max_gap, got {config.min_gap}, {config.max_gap}")
+    """Draw a cluttered scene from ``object_set`` (same seed, same scene).
+
+    With ``config.distinct_classes`` (the default) no instance appears twice, so ``num_objects`` may not
+    exceed the instances of ``config.split``: that is an error naming the fixes, never a silent repeat.
+    """
     rng = np.random.default_rng(seed)
     pool = object_set.split(config.split)
     if not pool:
         raise ValueError(f"scene: object set '{object_set.name}' has no '{config.split}' instances; set "
                          "scene.split=all, or hold some out with objects.test_fraction")
+    if config.distinct_classes and config.num_objects > len(pool):
+        more = {"test": "more held-out instances per class (objects.test_per_class for the builtin set, "
+                        "objects.test_fraction for your own models)",
+                "train": "more training instances per class (objects.train_per_class for the builtin set)",
+                "all": "more instances per class"}[config.split]
+        fixes = ["lower scene.num_objects", *(["draw from every instance with scene.split=all"]
+                                              if config.split != "all" else []), more,
+                 "or set scene.distinct_classes=false if repeated instances are wanted"]
+        raise ValueError(f"scene.num_objects = {config.num_objects}, but object set '{object_set.name}' has "
+                         f"{len(pool)} instances in split '{config.split}' and scene.distinct_classes=true never "
+                         f"draws an instance twice: {', '.join(fixes)}")
     models = _draw_instances(rng, pool, config.num_objects, config.distinct_classes)
     return _arrange(models, config, rng, object_set_config, seed)
 
@@ -230,12 +251,24 @@ def _arrange(models: list[ObjectModel], config: SceneConfig, rng: np.random.Gene
 
 
 def _draw_instances(rng: np.random.Generator, pool, count: int, distinct: bool) -> list[ObjectModel]:
+    """``count`` instances of ``pool``.
+
+    distinct: no instance twice; classes are distinct while ``count`` <= the number of classes, beyond
+    that every class comes once and the rest are other instances (needs ``count <= len(pool)``). Not
+    distinct: instances drawn with replacement.
+    """
+    if not distinct:
+        return [pool[k] for k in rng.integers(len(pool), size=count)]
+    if count > len(pool):
+        raise ValueError(f"scene: {count} distinct instances asked of a pool of {len(pool)}")
     classes = sorted({m.class_name for m in pool})
-    if distinct and count <= len(classes):
-        chosen = rng.choice(len(classes), size=count, replace=False)
-        by_class = {c: [m for m in pool if m.class_name == c] for c in classes}
-        return [by_class[classes[k]][rng.integers(len(by_class[classes[k]]))] for k in chosen]
-    return [pool[k] for k in rng.integers(len(pool), size=count)]
+    by_class = {c: [m for m in pool if m.class_name == c] for c in classes}
+    chosen = rng.choice(len(classes), size=min(count, len(classes)), replace=False)
+    picked = [by_class[classes[k]][rng.integers(len(by_class[classes[k]]))] for k in chosen]
+    if count > len(picked):  # more objects than classes: fill with other instances, none twice
+        rest = [m for m in pool if all(m is not p for p in picked)]
+        picked += [rest[k] for k in rng.choice(len(rest), size=count - len(picked), replace=False)]
+    return picked
 
 
 def _slide_in(hull: np.ndarray, yaw: float, placed: list[np.ndarray], anchor: np.ndarray,

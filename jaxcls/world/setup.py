@@ -69,6 +69,11 @@ class World:
     def table_height(self) -> float:
         return self.scene.table_height
 
+    @property
+    def centroid(self) -> np.ndarray:
+        """[3] m: the scene's centre, where the view hemisphere is centred (``scenes.scene_centroid``)."""
+        return scenes.scene_centroid(self.scene, self.models)
+
     @functools.cached_property
     def model(self) -> mujoco.MjModel:
         """The scene's MuJoCo model (the render contract: ``world.render.contract``)."""

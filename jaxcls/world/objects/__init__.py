@@ -1,6 +1,6 @@
 """Object sets: the CAD models that scenes are built from and that classification and ICP compare against.
 
-Every model follows the conventions of DESIGN.md: metres, z up, resting on the table (min z = 0), with the
+Every model follows the conventions of docs/ARCHITECTURE.md: metres, z up, resting on the table (min z = 0), with the
 centre of its xy bounding box at x = y = 0, so that a scene places a model by a yaw and a table position.
 
 Sources:

@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import jaxlie
 from flax import struct
 
+from jaxcls.config import Bounds, check_bounds
 from jaxcls.geometry import Intrinsics, pixel_rays
 from jaxcls.math import safe_div, safe_norm
 
@@ -30,44 +31,56 @@ from jaxcls.math import safe_div, safe_norm
 _TINY = 1e-12
 
 
+def _static(default, *, ge: float | None = None, gt: float | None = None, le: float | None = None,
+            lt: float | None = None):
+    """A static (hashed) field with a range, seen by ``check_bounds`` and ``load_config`` like ``bounded``."""
+    return struct.field(pytree_node=False, default=default, metadata={"bounds": Bounds(ge, gt, le, lt)})
+
+
 @struct.dataclass
 class SensorConfig:
     """Which sensor effects apply and their parameters (metres, pixels, degrees); every field static,
-    so the config is a hashable jit constant and a change of it recompiles."""
+    so the config is a hashable jit constant and a change of it recompiles. Ranges are checked when it is
+    built (``sensor.<field>`` in errors): probabilities in [0, 1], sigmas >= 0, min_depth < max_depth."""
 
     # Axial noise sigma_z(z) = sigma_base + sigma_quad (z - sigma_z0)^2 (+ the incidence-angle term).
     axial_noise: bool = struct.field(pytree_node=False, default=True)
-    sigma_base: float = struct.field(pytree_node=False, default=0.0012)
-    sigma_quad: float = struct.field(pytree_node=False, default=0.0019)
-    sigma_z0: float = struct.field(pytree_node=False, default=0.4)
+    sigma_base: float = _static(0.0012, ge=0.0)
+    sigma_quad: float = _static(0.0019, ge=0.0)
+    sigma_z0: float = _static(0.4, ge=0.0)
     angle_noise: bool = struct.field(pytree_node=False, default=True)
-    sigma_angle: float = struct.field(pytree_node=False, default=0.0001)
+    sigma_angle: float = _static(0.0001, ge=0.0)
     # Disparity quantisation: depth = focal * baseline / disparity, disparity in 1/subpixel px steps.
     quantize: bool = struct.field(pytree_node=False, default=True)
-    focal_px: float = struct.field(pytree_node=False, default=580.0)
-    baseline: float = struct.field(pytree_node=False, default=0.075)
-    subpixel: int = struct.field(pytree_node=False, default=8)
+    focal_px: float = _static(580.0, gt=0.0)
+    baseline: float = _static(0.075, gt=0.0)
+    subpixel: int = _static(8, ge=1)
     # Dropout at discontinuities: a 4-neighbour differs by more than edge_jump * z (or has no return);
     # the band is edge_width px wide and each pixel in it is lost with probability edge_prob.
     edge_dropout: bool = struct.field(pytree_node=False, default=True)
-    edge_jump: float = struct.field(pytree_node=False, default=0.03)
-    edge_width: int = struct.field(pytree_node=False, default=1)
-    edge_prob: float = struct.field(pytree_node=False, default=1.0)
+    edge_jump: float = _static(0.03, gt=0.0)
+    edge_width: int = _static(1, ge=1)
+    edge_prob: float = _static(1.0, ge=0.0, le=1.0)
     # Dropout at grazing incidence: the angle between the surface normal (from depth gradients) and the
     # viewing ray exceeds max_incidence_deg.
     grazing_dropout: bool = struct.field(pytree_node=False, default=True)
-    max_incidence_deg: float = struct.field(pytree_node=False, default=78.0)
+    max_incidence_deg: float = _static(78.0, gt=0.0, le=90.0)
     # Range limits (no return outside) and uniform random dropout.
     range_limits: bool = struct.field(pytree_node=False, default=True)
-    min_depth: float = struct.field(pytree_node=False, default=0.4)
-    max_depth: float = struct.field(pytree_node=False, default=4.5)
-    random_dropout: float = struct.field(pytree_node=False, default=0.0)
+    min_depth: float = _static(0.4, gt=0.0)
+    max_depth: float = _static(4.5, gt=0.0)
+    random_dropout: float = _static(0.0, ge=0.0, le=1.0)
     # Camera-pose error (hand-eye calibration): rotation sigma per axis (deg), translation sigma per axis
     # (m), in the camera frame; shared = one error for the whole batch (a fixed calibration offset).
     pose_noise: bool = struct.field(pytree_node=False, default=False)
-    pose_rot_sigma_deg: float = struct.field(pytree_node=False, default=0.3)
-    pose_trans_sigma: float = struct.field(pytree_node=False, default=0.003)
+    pose_rot_sigma_deg: float = _static(0.3, ge=0.0)
+    pose_trans_sigma: float = _static(0.003, ge=0.0)
     pose_noise_shared: bool = struct.field(pytree_node=False, default=False)
+
+    def __post_init__(self) -> None:
+        check_bounds(self, "sensor.")
+        if not self.min_depth < self.max_depth:
+            raise ValueError(f"sensor.min_depth ({self.min_depth}) must be < sensor.max_depth ({self.max_depth})")
 
     @classmethod
     def ideal(cls) -> SensorConfig:

@@ -12,6 +12,7 @@ import mujoco
 import numpy as np
 import trimesh
 
+from jaxcls import geometry
 from jaxcls.geometry import Intrinsics
 from jaxcls.world.render import contract
 
@@ -40,7 +41,7 @@ def add_object(spec: mujoco.MjSpec, index: int, pos: Sequence[float], yaw: float
     """Body ``object_<index>`` at ``pos`` (m) turned by ``yaw`` (rad) about z, with one geom (``add_geom``
     keyword arguments; the material defaults to the object material)."""
     body = spec.worldbody.add_body(name=f"object_{index}", pos=list(pos),
-                                   quat=[np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+                                   quat=geometry.rotation_to_quat(geometry.yaw_matrix_np(yaw)).tolist())
     geom.setdefault("material", "object_mat")
     body.add_geom(**geom)
 

@@ -13,7 +13,7 @@ from jaxcls.geometry import Intrinsics
 Backend = Literal["mujoco", "mjx", "warp"]
 BACKENDS: tuple[Backend, ...] = ("mujoco", "mjx", "warp")
 
-# Sentinels of the return contract (DESIGN.md): no return has depth 0; the table and misses have id -1.
+# Sentinels of the return contract (docs/ARCHITECTURE.md): no return has depth 0; the table and misses have id -1.
 NO_DEPTH = 0.0
 NO_OBJECT = -1
 
