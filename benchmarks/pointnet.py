@@ -7,7 +7,12 @@ Training throughput is one jitted epoch (``train.make_train_epoch``: sampling, a
 backward, Adam) over the clouds of the shipped ``pointnet`` config (``jaxcls/configs/pointnet.yaml``;
 generated and cached on first use; ``--batch`` with no sizes skips training).
 Inference is ``pointnet.classify`` on 5 segments of 1024 points, on the CPU. ``--runs`` reads the
-``metrics.json`` of finished ``jaxcls train`` runs and tabulates their held-out accuracies.
+``metrics.json`` of finished ``jaxcls train`` runs and tabulates their held-out accuracies;
+``--evaluate`` measures weights anew on the held-out clouds of ``--config`` (rendered and cached by this
+tree's ``learn.clouds``), e.g. the shipped weights after a refactor:
+
+    python benchmarks/pointnet.py --batch --repeats 1 \
+        --evaluate shipped=jaxcls/perception/weights/pointnet_builtin.msgpack
 """
 
 from __future__ import annotations
@@ -28,7 +33,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxcls import report
 from jaxcls.config import load_config
 from jaxcls.learn.clouds import SOURCES, load_clouds
-from jaxcls.learn.train import TrainConfig, create_state, make_bank, make_train_epoch
+from jaxcls.learn.train import TrainConfig, create_state, evaluation_sets, make_bank, make_train_epoch, predict_all
 from jaxcls.perception import pointnet
 from jaxcls.world.objects import object_set_from_config
 
@@ -47,6 +52,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--steps", type=int, default=20, help="training steps timed per batch size")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--runs", nargs="*", default=[], metavar="NAME=RUN_DIR")
+    parser.add_argument("--evaluate", nargs="*", default=[], metavar="NAME=WEIGHTS",
+                        help="held-out accuracy of weight files (.msgpack + .json), measured now")
     parser.add_argument("--out", help="append the sections to this Markdown file")
     args = parser.parse_args(argv)
     config = load_config(TrainConfig, args.config)
@@ -100,6 +107,28 @@ def main(argv: list[str] | None = None) -> None:
         report.publish(report.section(
             f"PointNet per-class accuracy, held-out instances, {datetime.date.today()}", argv,
             ("class", *(f"{n}, {s}" for n, s in columns)), per_class), args.out)
+
+    if args.evaluate:
+        test = load_clouds(object_set, "test", config.data, config.objects, config.seed,
+                           perception=config.perception)
+        sets = evaluation_sets(test, config)
+        table = []
+        for item in args.evaluate:
+            name, _, path = item.partition("=")
+            weights = pointnet.load_classifier(path, classes=object_set.classes)
+
+            def accuracy(source: str, weights=weights) -> str:
+                points, mask, label = sets[source]
+                return f"{np.mean(predict_all(weights, points, mask, config.eval_batch) == label):.3f}"
+
+            table.append((name, *(accuracy(s) if s in sets else "" for s in SOURCES),
+                          " ".join(f"{s}: {len(sets[s][2])}" for s in SOURCES if s in sets)))
+            print(table[-1])
+        report.publish(report.section(
+            f"PointNet weights evaluated on the held-out instances, {datetime.date.today()}", argv,
+            ("weights", *(f"accuracy, {s}" for s in SOURCES), "clouds"), table,
+            intro=f"Held-out clouds of `{args.config}` (complete clouds at {config.eval_rotations} yaws), made "
+                  "and classified by this tree."), args.out)
 
 
 if __name__ == "__main__":
