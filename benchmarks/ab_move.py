@@ -1,7 +1,8 @@
-"""A/B of one CPU move before and after a refactor, interleaved in one process: this tree's
+"""A/B of one CPU move before and after a refactor, interleaved in one process: this tree's stages and
 ``perception.observe`` (no classifier: foreground + integration + extraction + ``segment_jax``) against the
-same chain wired by hand in an earlier revision of the package (default: 06eb8e1, the last revision before
-the layout issue), on the same frames.
+stages and the chain wired by hand in an earlier revision of the package (default: 06eb8e1, the last
+revision before the layout issue), on the same frames. ``observe`` is timed as called from Python (it runs
+its stages' jits one by one) and inside one ``jax.jit``.
 
     python benchmarks/ab_move.py --rev 06eb8e1 --rounds 15 --repeats 10 --out BENCHMARKS.md
 
@@ -31,6 +32,7 @@ import numpy as np
 
 from jaxcls import perception, report
 from jaxcls.geometry import CameraConfig
+from jaxcls.perception import foreground, segment, tsdf
 from jaxcls.world.setup import WorldConfig, make_world
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -69,53 +71,76 @@ def main(argv: list[str] | None = None) -> None:
         depth, Ts = np.asarray(frames.depth), np.asarray(world.poses(list(VIEWS)), np.float32)
         intr = world.intrinsics
 
-        # B: this tree, one owner.
+        # B: this tree: the stages, and the move as its one owner composes it (jitted whole).
         spec = perception.Spec.create(intrinsics=intr, table_height=world.table_height)
         observe = jax.jit(perception.observe)
         state = perception.init_state(spec)
         for v in range(len(VIEWS) - 1):
             state = observe(spec, state, depth[v], Ts[v])
         d, T = jnp.asarray(depth[-1]), jnp.asarray(Ts[-1])
+        fg_new = jax.jit(foreground.foreground_depth)
+        integrate_new = jax.jit(lambda vol, d, T: tsdf.integrate(vol, d, intr, T))
+        extract_new = jax.jit(lambda vol: tsdf.extract_surface(vol, 16384))
+        segment_new = jax.jit(segment.segment_jax)
+        surface_new = extract_new(state.volume)
 
-        def new_move():
-            return observe(spec, state, d, T).segments
-
-        # A: the earlier revision's chain, wired as its benchmark wired it.
+        # A: the earlier revision's stages, and its chain wired as its benchmark wired it.
         cfg = old_segment.SegmentConfig()
-        fg_fn = jax.jit(lambda d, T: old_segment.foreground_depth(d, intr_old, T, cfg))
         intr_old = old.geometry.Intrinsics(width=intr.width, height=intr.height, fx=intr.fx, fy=intr.fy, cx=intr.cx,
                                            cy=intr.cy)
-        integrate = jax.jit(lambda vol, d, T: old_tsdf.integrate(vol, d, intr_old, T))
-        extract = jax.jit(lambda vol: old_tsdf.extract_surface(vol, 16384))
+        fg_old = jax.jit(lambda d, T: old_segment.foreground_depth(d, intr_old, T, cfg))
+        integrate_old = jax.jit(lambda vol, d, T: old_tsdf.integrate(vol, d, intr_old, T))
+        extract_old = jax.jit(lambda vol: old_tsdf.extract_surface(vol, 16384))
         volume = old_tsdf.create_volume(np.asarray(cfg.roi_center), cfg.roi_size, 128)
         for v in range(len(VIEWS) - 1):
-            volume = integrate(volume, fg_fn(jnp.asarray(depth[v]), jnp.asarray(Ts[v])), jnp.asarray(Ts[v]))
+            volume = integrate_old(volume, fg_old(jnp.asarray(depth[v]), jnp.asarray(Ts[v])), jnp.asarray(Ts[v]))
+        surface_old = extract_old(volume)
 
         def old_move():
-            s = extract(integrate(volume, fg_fn(d, T), T))
+            s = extract_old(integrate_old(volume, fg_old(d, T), T))
             return old_segment.segment_jax(s.points, s.normals, s.mask, cfg)
 
-        a, b = jax.block_until_ready(old_move()), jax.block_until_ready(new_move())
+        def new_stages():
+            s = extract_new(integrate_new(state.volume, fg_new(spec, d, T), T))
+            return segment_new(spec, s.points, s.normals, s.mask)
+
+        pairs = {
+            "foreground": (lambda: fg_old(d, T), lambda: fg_new(spec, d, T)),
+            "integration": (lambda: integrate_old(volume, fg_old(d, T), T),
+                            lambda: integrate_new(state.volume, fg_new(spec, d, T), T)),
+            "extraction (16384 points)": (lambda: extract_old(volume), lambda: extract_new(state.volume)),
+            "segmentation (`segment_jax`)": (
+                lambda: old_segment.segment_jax(surface_old.points, surface_old.normals, surface_old.mask, cfg),
+                lambda: segment_new(spec, surface_new.points, surface_new.normals, surface_new.mask)),
+            "one move, stage by stage": (old_move, new_stages),
+            "one move: A stage by stage, B `perception.observe` from Python (no classifier)": (
+                old_move, lambda: perception.observe(spec, state, d, T).segments),
+            "one move: A stage by stage, B `jax.jit(perception.observe)` (no classifier)": (
+                old_move, lambda: observe(spec, state, d, T).segments),
+        }
+        a, b = jax.block_until_ready(old_move()), jax.block_until_ready(observe(spec, state, d, T).segments)
         same = all(np.array_equal(np.asarray(getattr(a, f)), np.asarray(getattr(b, f)))
                    for f in ("labels", "points", "normals", "mask"))
-        samples: dict[str, list[float]] = {"A": [], "B": []}
+        samples = {name: ([], []) for name in pairs}
         for _ in range(args.rounds):
-            for name, fn in (("A", old_move), ("B", new_move)):
-                samples[name].append(report.timed(fn, args.repeats)[1] * 1e3)
+            for name, fns in pairs.items():
+                for side, fn in zip(samples[name], fns, strict=True):
+                    side.append(report.timed(fn, args.repeats)[1] * 1e3)
         print(samples, file=sys.stderr)
 
     cpu = f"CPU ({platform.processor() or platform.machine()}, {os.cpu_count()} cores)"
-    rows = [(f"A: revision {args.rev}, chain wired by hand", cpu, f"{statistics.median(samples['A']):.1f}",
-             f"{min(samples['A']):.1f} - {max(samples['A']):.1f}"),
-            ("B: this tree, `perception.observe` (no classifier)", cpu, f"{statistics.median(samples['B']):.1f}",
-             f"{min(samples['B']):.1f} - {max(samples['B']):.1f}")]
-    ratio = [x / y for x, y in zip(samples["B"], samples["A"], strict=True)]
+    rows = []
+    for name, (a_ms, b_ms) in samples.items():
+        ratio = [y / x for x, y in zip(a_ms, b_ms, strict=True)]
+        rows.append((name, f"{statistics.median(a_ms):.2f}", f"{statistics.median(b_ms):.2f}",
+                     f"{statistics.median(ratio):.3f}", f"{min(ratio):.2f} - {max(ratio):.2f}"))
     report.publish(report.section(
         f"One CPU move before and after the layout change, A/B interleaved, {datetime.date.today()}", argv,
-        ("move (640x480, 128^3, 16384 surface points, N = 5)", "device",
-         f"median ms ({args.rounds} rounds x median of {args.repeats})", "range over rounds"), rows,
-        notes=[f"B / A per round: median {statistics.median(ratio):.3f}, range {min(ratio):.3f} - {max(ratio):.3f}",
-               f"same segments (labels, points, normals, masks): {same}"]), args.out)
+        ("640x480 frame, 128^3 volume, N = 5", f"A: {args.rev}, median ms", "B: this tree, median ms",
+         "B / A, median of rounds", "B / A, range"), rows,
+        intro=f"{cpu}; {args.rounds} alternating rounds, each the median of {args.repeats} calls.",
+        notes=[f"A's hand-wired chain and B's `observe` give the same segments (labels, points, normals, "
+               f"masks): {same}"]), args.out)
 
 
 if __name__ == "__main__":

@@ -77,24 +77,25 @@ def classify_segments(spec: Spec, segments: Segments) -> jax.Array:
     return pointnet.classify(spec.classifier, segments.points, segments.mask)
 
 
-def _perceive_jax(spec: Spec, state: Observation, depth: jax.Array, T_wc: jax.Array) -> Observation:
-    volume = fuse(spec, state.volume, depth, T_wc)
-    surface = tsdf.extract_surface(volume, spec.config.shapes.surface_points)
-    segments = segment_jax(spec, surface.points, surface.normals, surface.mask)
-    return Observation(volume=volume, surface=surface, segments=segments, probs=classify_segments(spec, segments),
-                       frames=state.frames + 1)
+def _perceive(spec: Spec, state: Observation, depth: jax.Array, T_wc: jax.Array, fuse_fn=None, extract_fn=None,
+              segment_fn=None, classify_fn=None) -> Observation:
+    """The composition itself; the ``*_fn`` arguments swap in jitted (or host) versions of the stages."""
+    volume = (fuse_fn or fuse)(spec, state.volume, depth, T_wc)
+    surface = (extract_fn or _extract)(spec, volume)
+    segments = (segment_fn or segment_jax)(spec, surface.points, surface.normals, surface.mask)
+    return Observation(volume=volume, surface=surface, segments=segments,
+                       probs=(classify_fn or classify_segments)(spec, segments), frames=state.frames + 1)
 
 
-def _fuse_extract(spec: Spec, volume: tsdf.TSDFVolume, depth: jax.Array, T_wc: jax.Array
-                  ) -> tuple[tsdf.TSDFVolume, tsdf.Surface]:
-    volume = fuse(spec, volume, depth, T_wc)
-    return volume, tsdf.extract_surface(volume, spec.config.shapes.surface_points)
+def _extract(spec: Spec, volume: tsdf.TSDFVolume) -> tsdf.Surface:
+    return tsdf.extract_surface(volume, spec.config.shapes.surface_points)
 
 
-# Module-level jits: each compiles once per spec (its static settings) and shapes.
-_perceive_jit = jax.jit(_perceive_jax)
-_fuse_extract_jit = jax.jit(_fuse_extract)
-_classify_jit = jax.jit(classify_segments)
+# Called from Python, a move runs stage by stage, each stage its own module-level jit (compiled once per
+# spec and shapes; ``fuse`` calls the jitted foreground and integration in turn): on the CPU that is as fast
+# as the hand-wired chain was, while XLA makes foreground + integration in one program ~1.8 ms slower
+# (benchmarks/ab_move.py). Under the caller's jit/vmap the stages trace into one program (the GPU's shape).
+_STAGES = {"extract_fn": jax.jit(_extract), "classify_fn": jax.jit(classify_segments)}
 
 
 def check_observation_inputs(spec: Spec, depth: np.ndarray | jax.Array, T_wc: np.ndarray | jax.Array) -> None:
@@ -111,14 +112,12 @@ def observe(spec: Spec, state: Observation, depth: jax.Array, T_wc: jax.Array) -
     vmap (JAX segmentation only) the composed stages are traced into the caller's program.
     """
     traced = any(isinstance(a, jax.core.Tracer) for a in jax.tree.leaves((state, depth, T_wc)))
-    if not traced:
-        check_observation_inputs(spec, depth, T_wc)
-    if spec.config.segmenter == "jax":
-        return _perceive_jax(spec, state, depth, T_wc) if traced else _perceive_jit(spec, state, depth, T_wc)
+    reference = spec.config.segmenter == "reference"
     if traced:
-        raise ValueError("observe: segmenter 'reference' runs scikit-learn on the host and cannot be traced "
-                         "(jit/vmap); use perception.segmenter=jax")
-    volume, surface = _fuse_extract_jit(spec, state.volume, jnp.asarray(depth), jnp.asarray(T_wc, jnp.float32))
-    segments = segment(spec, surface.points, surface.normals, surface.mask)
-    return Observation(volume=volume, surface=surface, segments=segments, probs=_classify_jit(spec, segments),
-                       frames=state.frames + 1)
+        if reference:
+            raise ValueError("observe: segmenter 'reference' runs scikit-learn on the host and cannot be traced "
+                             "(jit/vmap); use perception.segmenter=jax")
+        return _perceive(spec, state, depth, T_wc)
+    check_observation_inputs(spec, depth, T_wc)
+    return _perceive(spec, state, jnp.asarray(depth), jnp.asarray(T_wc, jnp.float32), **_STAGES,
+                     segment_fn=segment if reference else segment_jax)
