@@ -82,6 +82,7 @@ _SETUP_OWNERS = {"jaxcls/world/setup.py", "jaxcls/world/scenes.py", "tests/test_
 _WIRING = re.compile(r"foreground_depth\(")
 _WIRING_OWNERS = {"jaxcls/perception/foreground.py", "jaxcls/perception/observation.py", "tests/test_segment.py",
                   "tests/test_inputs.py", "benchmarks/segment.py",
+                  "tests/test_observe.py",  # checks observe against its stages composed by hand
                   "benchmarks/ab_move.py"}  # its A side is the old revision's hand-wired chain, on purpose
 
 
