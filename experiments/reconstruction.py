@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import open3d as o3d
@@ -27,7 +26,7 @@ from jaxcls import report
 from jaxcls.config import load_config
 from jaxcls.perception import tsdf
 from jaxcls.world import make_world, scenes
-from jaxcls.world.dataset import DatasetConfig, scene_seeds
+from jaxcls.world.dataset import DatasetConfig, scene_key, scene_seeds
 from jaxcls.world.objects import object_set_from_config
 
 
@@ -58,8 +57,7 @@ def main(argv: list[str] | None = None) -> None:
         scene, models = world.scene, world.models
         # Every view through the sensor model, as ``jaxcls dataset`` writes them (the same noise draw), then
         # the chosen ones: depth after the sensor model, the poses the pipeline is told.
-        depth, T_wc, _, _ = world.measure(jax.random.fold_in(jax.random.PRNGKey(cfg.seed), i),
-                                          np.arange(len(world.viewpoints)), cfg.batch_size)
+        depth, T_wc, _, _ = world.measure(scene_key(cfg.seed, i), np.arange(len(world.viewpoints)), cfg.batch_size)
         volume = tsdf.create_volume(world.centroid)
         volume = tsdf.integrate_frames(volume, jnp.asarray(depth[chosen]), intrinsics,
                                        jnp.asarray(T_wc[chosen], jnp.float32))

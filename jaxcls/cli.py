@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import sys
 from collections.abc import Callable, Sequence
 
@@ -84,15 +85,34 @@ def command_parser(name: str, command: Command) -> argparse.ArgumentParser:
     return parser
 
 
+def load_command_config(name: str, command: Command, path: str | None, overrides: Sequence[str]):
+    """The command's config from ``path`` and ``overrides``; a file of one of ``command.reads_world_of``
+    (and not of the command's own schema) lends its world only, said on stderr."""
+    from jaxcls.config import load_config
+
+    try:
+        return load_config(command.schema, path, overrides)
+    except ConfigError:
+        for other in command.reads_world_of if path else ():
+            try:
+                load_config(other, path)
+            except ConfigError:
+                continue
+            keys = ", ".join(f.name for f in dataclasses.fields(command.world_schema))
+            print(f"jaxcls {name}: {path} is a {other.__name__} file: reading its world only ({keys})",
+                  file=sys.stderr)
+            return load_config(command.schema, path, overrides, keep_only=command.world_schema)
+        raise
+
+
 def _run(name: str, argv: Sequence[str]) -> str:
-    from jaxcls.config import load_config, to_yaml
+    from jaxcls.config import to_yaml
 
     command = COMMANDS[name].load()
     args = command_parser(name, command).parse_args(argv)
     config = None
     if command.schema is not None:
-        config = load_config(command.schema, args.config or None, args.overrides, borrow_from=command.borrow_from,
-                             borrow_keys=command.borrow_keys)
+        config = load_command_config(name, command, args.config or None, args.overrides)
         if args.print_config:
             return to_yaml(config)
     return command.run(config, args)
@@ -110,10 +130,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         print(_run(name, argv[1:]))
     except KeyboardInterrupt:
-        print(f"jaxcls {name}: interrupted: run the same command again to resume", file=sys.stderr)
+        resumable = COMMANDS[name].load().resumable
+        print(f"jaxcls {name}: interrupted" + (": run the same command again to resume" if resumable else ""),
+              file=sys.stderr)
         return 130
     except (ConfigError, ValueError, OSError, RuntimeError) as e:  # bad input, files, missing GPU
-        print(f"jaxcls {name}: error: {e}", file=sys.stderr)
+        if os.environ.get("JAXCLS_DEBUG"):
+            raise
+        print(f"jaxcls {name}: error: {e}", file=sys.stderr)  # JAXCLS_DEBUG=1: the traceback
         return 2
     return 0
 

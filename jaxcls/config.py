@@ -130,12 +130,11 @@ def _merge(base: DictConfig, layer: DictConfig, source: str) -> DictConfig:
 
 
 def load_config(schema: type[T], path: str | Path | None = None, overrides: Sequence[str] = (),
-                borrow_from: Sequence[type] = (), borrow_keys: type | None = None) -> T:
+                keep_only: type | None = None) -> T:
     """The schema's defaults, then the YAML file at ``path`` (if any), then dotted ``overrides``.
 
-    borrow_from, borrow_keys: a file of one of the ``borrow_from`` schemas (it has top-level keys only they
-    have) is read for the top-level keys of ``borrow_keys`` alone, its other keys (where its own command
-    writes, its seed) dropped: ``jaxcls show --config real_like`` previews that dataset's world.
+    keep_only: read only the file's top-level keys that are fields of this schema (``jaxcls show`` reads
+    the world of a dataset config: ``WorldConfig``'s keys, not where the dataset goes or its seed).
     """
     cfg = _schema(schema)
     if path is not None:
@@ -148,10 +147,8 @@ def load_config(schema: type[T], path: str | Path | None = None, overrides: Sequ
             raise ConfigError(f"{path}: the config file is empty (write at least one key, or leave out --config)")
         if not isinstance(layer, DictConfig):
             raise ConfigError(f"{path}: expected a mapping at the top level")
-        own = {f.name for f in dataclasses.fields(schema)}
-        borrowed = {f.name for other in borrow_from for f in dataclasses.fields(other)} - own
-        if borrow_keys is not None and any(k in borrowed for k in layer):
-            keep = {f.name for f in dataclasses.fields(borrow_keys)}
+        if keep_only is not None:
+            keep = {f.name for f in dataclasses.fields(keep_only)}
             for key in [k for k in layer if k not in keep]:
                 del layer[key]
         cfg = _merge(cfg, layer, str(path))

@@ -107,6 +107,17 @@ class CameraConfig:
     def intrinsics(self) -> Intrinsics:
         return Intrinsics(width=self.width, height=self.height, fx=self.fx, fy=self.fy, cx=self.cx, cy=self.cy)
 
+    @classmethod
+    def from_intrinsics(cls, intrinsics: Intrinsics) -> CameraConfig:
+        """The config block of ``intrinsics``."""
+        k = intrinsics
+        return cls(width=k.width, height=k.height, fx=k.fx, fy=k.fy, cx=k.cx, cy=k.cy)
+
+    @classmethod
+    def kinect_v1(cls, scale: float = 1.0) -> CameraConfig:
+        """The Kinect v1 (``Intrinsics.kinect_v1``); ``scale`` < 1: the same field of view, fewer pixels."""
+        return cls.from_intrinsics(Intrinsics.kinect_v1(scale))
+
 
 @dataclasses.dataclass(frozen=True)
 class ViewpointConfig:

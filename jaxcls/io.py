@@ -25,6 +25,8 @@ def atomic_write(path: str | os.PathLike, binary: bool = True) -> Iterator[IO]:
     On an exception the temporary file is removed and ``path`` is untouched. Parent folders are created.
     """
     path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(f"{path}: is a folder, cannot write a file there")
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp-{uuid.uuid4().hex[:8]}")
     try:
@@ -58,8 +60,9 @@ def write_json(path: str | os.PathLike, data: Any, indent: int | None = 1) -> Pa
 def atomic_folder(folder: str | os.PathLike) -> Iterator[Path]:
     """Yield an empty temporary sibling of ``folder`` to fill; on success it replaces ``folder``.
 
-    An existing ``folder`` (or a link) is moved aside first and removed after the swap; callers decide
-    whether replacing it is allowed. On an exception the temporary folder is removed, ``folder`` untouched.
+    An existing ``folder`` (or a link) is moved aside first and removed after the swap (best effort: a
+    leftover ``.<name>.old-*`` is harmless); callers decide whether replacing it is allowed. On an exception
+    the temporary folder is removed and ``folder`` is as it was (moved back if the swap itself failed).
     """
     folder = Path(folder)
     folder.parent.mkdir(parents=True, exist_ok=True)
@@ -70,11 +73,15 @@ def atomic_folder(folder: str | os.PathLike) -> Iterator[Path]:
         if folder.exists() or folder.is_symlink():
             old = folder.parent / f".{folder.name}.old-{uuid.uuid4().hex[:12]}"
             folder.rename(old)
-            tmp.rename(folder)
+            try:
+                tmp.rename(folder)
+            except OSError:
+                old.rename(folder)
+                raise
             if old.is_dir() and not old.is_symlink():
-                shutil.rmtree(old)
+                shutil.rmtree(old, ignore_errors=True)
             else:
-                old.unlink()
+                old.unlink(missing_ok=True)
         else:
             tmp.rename(folder)
     finally:

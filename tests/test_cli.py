@@ -12,7 +12,7 @@ import pytest
 
 import jaxcls
 from jaxcls import cli, viz
-from jaxcls.config import load_config
+from jaxcls.config import ConfigError, load_config
 from jaxcls.world import scenes
 from jaxcls.world.dataset import DatasetConfig
 from jaxcls.world.objects import ObjectSetConfig
@@ -85,8 +85,8 @@ def test_command_help_is_plain_and_its_example_is_valid(name, capsys):
         assert "scene." not in out  # train has no scene key
     assert command.example and command.example in " ".join(out.split())
     load_config(command.schema, overrides=command.example.split())
-    load_config(command.schema, command.default_config, overrides=command.example.split(),
-                borrow_from=command.borrow_from)
+    if command.default_config:
+        load_config(command.schema, command.default_config, overrides=command.example.split())
 
 
 # ---------------------------------------------------------------------------------------------- jaxcls show
@@ -206,3 +206,24 @@ def test_training_curve_ticks_are_whole_epochs():
         lo, hi = ax.get_xlim()
         ticks = [t for t in ax.get_xticks() if lo <= t <= hi]
         assert ticks and np.allclose(ticks, np.round(ticks)), ticks
+
+
+def test_show_reads_only_the_world_of_a_dataset_config_and_its_own_configs_whole(tmp_path, monkeypatch, capsys):
+    """A dataset config lends show its world (said on stderr), never its out_dir or seed; a show config
+    with a dataset-only key is an error naming it, not silently a dataset config."""
+    monkeypatch.chdir(tmp_path)
+    from jaxcls.commands import show
+
+    command = show.COMMAND
+    config = cli.load_command_config("show", command, "real_like", [])
+    assert config.out_dir == "runs/show" and config.seed == 0 and config.sensor.axial_noise
+    assert "reading its world only" in capsys.readouterr().err
+    own = tmp_path / "mine.yaml"
+    own.write_text("out_dir: here\nviews: [1]\nnum_scenes: 3\n")
+    with pytest.raises(ConfigError, match="num_scenes"):
+        cli.load_command_config("show", command, str(own), [])
+
+
+def test_show_refuses_an_out_dir_without_a_name_before_rendering(capsys):
+    assert cli.main(["show", "out_dir=/", *SMALL_SHOW]) == 2
+    assert "out_dir" in capsys.readouterr().err

@@ -34,5 +34,8 @@ class Command:
     default_config: str | None = None
     example: str = ""
     arguments: tuple[Argument, ...] = ()
-    borrow_from: tuple[type, ...] = ()  # other schemas whose config files this command may read ...
-    borrow_keys: type | None = None  # ... for these keys only (see ``config.load_config``)
+    # A config file that is not this command's but one of ``reads_world_of`` (a dataset config given to
+    # ``show``) is read for the keys of ``world_schema`` only.
+    reads_world_of: tuple[type, ...] = ()
+    world_schema: type | None = None
+    resumable: bool = False  # an interrupted run picks up where it stopped when run again

@@ -17,6 +17,7 @@ def _run(config: DatasetConfig, args: argparse.Namespace) -> str:
 COMMAND = Command(
     description="Render num_scenes scenes from every hemisphere viewpoint into out_dir/scene_XXX.npz "
                 "(shipped configs: synthetic, real_like). An interrupted run resumes: run the same command again.",
-    schema=DatasetConfig, run=_run, default_config="synthetic", example="num_scenes=3 scene.num_objects=4",
+    resumable=True, schema=DatasetConfig, run=_run, default_config="synthetic",
+    example="num_scenes=3 scene.num_objects=4",
     arguments=(Argument(("--overwrite",), {"action": "store_true", "help": "discard what out_dir holds"}),),
 )

@@ -32,15 +32,25 @@ def _check_scene_file_alone(config: ShowConfig, overrides: list[str]) -> None:
 
 
 def free_folder(out_dir: str | Path, overwrite: bool) -> Path:
-    """``out_dir``, or with ``overwrite`` off and ``out_dir`` not empty, the first free ``out_dir-2``,
-    ``out_dir-3``, ... (a new run never replaces an old one unless asked)."""
-    out = Path(out_dir)
-    if overwrite or not out.exists() or not any(out.iterdir()):
+    """``out_dir`` (created), or with ``overwrite`` off and ``out_dir`` not empty, the first of
+    ``out_dir-2``, ``out_dir-3``, ... that can be created empty (a new run never replaces an old one unless
+    asked; a file of that name is skipped; creation is exclusive, so two runs never share one)."""
+    out = Path(out_dir).resolve()
+    if not out.name:
+        raise ValueError(f"show: out_dir must name a folder below the root, got {out_dir!r}")
+    if overwrite or not out.exists() or (out.is_dir() and not any(out.iterdir())):
+        out.mkdir(parents=True, exist_ok=True)
         return out
     k = 2
-    while (candidate := out.with_name(f"{out.name}-{k}")).exists() and any(candidate.iterdir()):
-        k += 1
-    return candidate
+    while True:
+        candidate = out.with_name(f"{out.name}-{k}")
+        try:
+            candidate.mkdir(parents=True)
+            return candidate
+        except FileExistsError:
+            if candidate.is_dir() and not any(candidate.iterdir()):
+                return candidate
+            k += 1
 
 
 def show(config: ShowConfig, overwrite: bool = False, overrides: list[str] | tuple[str, ...] = ()) -> Path:
@@ -61,9 +71,10 @@ def show(config: ShowConfig, overwrite: bool = False, overrides: list[str] | tup
         scene = scenes.Scene.load(config.scene_file)
         config = dataclasses.replace(config, objects=scene.object_set)
     world = make_world(config.world_config(), config.seed, scene=scene)
+    config = dataclasses.replace(config, scene=world.config.scene)  # what was shown, for config.yaml
+    out = free_folder(config.out_dir, overwrite)  # before rendering: a bad out_dir costs no render
     views = list(config.views)
     depth, _, object_id, _ = world.measure(jax.random.key(config.seed), views)
-    out = free_folder(config.out_dir, overwrite)
     figure = viz.plot_scene(world.scene, world.viewpoints, views, np.asarray(depth), np.asarray(object_id),
                             noisy=config.sensor != WorldConfig().sensor)
     viz.save(figure, out / "scene.png")
@@ -74,7 +85,7 @@ def show(config: ShowConfig, overwrite: bool = False, overrides: list[str] | tup
 
 def _run(config: ShowConfig, args: argparse.Namespace) -> str:
     path = show(config, overwrite=args.overwrite, overrides=args.overrides)
-    if path.parent != Path(config.out_dir):
+    if path.parent != Path(config.out_dir).resolve():
         return (f"wrote {path} (out_dir {config.out_dir} is not empty: a new run goes beside it; --overwrite "
                 "writes into it)")
     return f"wrote {path}"
@@ -86,5 +97,5 @@ COMMAND = Command(
                 "config.yaml. An existing out_dir is kept: the run goes to out_dir-2, -3, ... unless --overwrite.",
     schema=ShowConfig, run=_run, example="seed=3 scene.num_objects=6 views=[0,50]",
     arguments=(Argument(("--overwrite",), {"action": "store_true", "help": "write into out_dir even if not empty"}),),
-    borrow_from=(DatasetConfig,), borrow_keys=WorldConfig,
+    reads_world_of=(DatasetConfig,), world_schema=WorldConfig,
 )

@@ -19,5 +19,5 @@ COMMAND = Command(
     description="Train PointNet on an object set's clouds (complete and partial views); writes checkpoints, "
                 "metrics.json, curve.png, confusion.png and pointnet.msgpack into out_dir (shipped configs: "
                 "pointnet, pointnet_folder). Run the same command again to resume.",
-    schema=TrainConfig, run=_run, default_config="pointnet", example="epochs=10 batch_size=64",
+    resumable=True, schema=TrainConfig, run=_run, default_config="pointnet", example="epochs=10 batch_size=64",
 )

@@ -35,17 +35,14 @@ from jaxcls.config import bounded, check_bounds
 from jaxcls.perception import foreground, observation, tsdf
 from jaxcls.perception.settings import PerceptionConfig, Spec
 from jaxcls.world.objects import ObjectModel, ObjectSet, ObjectSetConfig
+from jaxcls.world.render.types import BackendChoice
+from jaxcls.world.scenes import SceneConfig
 
 SOURCES = ("full", "view", "occluded", "fused")
 _CACHE_VERSION = 1  # bump when the way clouds are made changes (scene layout, volume, intrinsics)
 _FUSED_SURFACE_POINTS = 8192  # surface points extracted for a fused cloud of one instance
-
-
-def scenes_config():
-    """The scene layout clouds are rendered in: the default table (the world's one owner of its height)."""
-    from jaxcls.world import scenes
-
-    return scenes.SceneConfig()
+# The table and spacing clouds are rendered with: the world's default (its height is the scenes' own).
+_SCENE = SceneConfig()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -62,7 +59,7 @@ class CloudConfig:
     image_scale: float = bounded(0.5, gt=0.0, le=4.0)  # of the Kinect v1 (0.5 = 320x240)
     radius: tuple[float, float] = bounded((0.7, 1.2), gt=0.0)  # camera distance [low, high], m
     elevation_deg: tuple[float, float] = bounded((10.0, 80.0), ge=0.0, le=90.0)  # [low, high]
-    backend: Literal["auto", "mujoco", "mjx", "warp"] = "auto"
+    backend: BackendChoice = "auto"
     cache_dir: str = "data/clouds"
 
     def __post_init__(self) -> None:
@@ -146,7 +143,7 @@ class _InstanceRenderer:
         self.model, self.pool, self.config, self.rng = model, pool, config, rng
         self.object_set_config = object_set_config
         self.intrinsics = geometry.Intrinsics.kinect_v1(config.image_scale)
-        self.scene_config = scenes_config()
+        self.scene_config = _SCENE
         self.spec = Spec.create(perception, self.intrinsics, table_height=self.scene_config.table_height)
         self.table_top = self.spec.floor
         self.backend = resolve_backend(config.backend)
@@ -239,7 +236,7 @@ def _cache_key(object_set: ObjectSet, split: str, config: CloudConfig, object_se
     defining = {**dataclasses.asdict(config), "backend": None, "cache_dir": None, "objects": dataclasses.asdict(
         object_set_config), "object_set": object_set.name, "classes": object_set.classes, "split": split,
         "seed": seed, "foreground": dataclasses.asdict(perception.foreground),
-        "volume": dataclasses.asdict(perception.volume), "table_height": scenes_config().table_height,
+        "volume": dataclasses.asdict(perception.volume), "table_height": _SCENE.table_height,
         "version": _CACHE_VERSION}
     digest = hashlib.sha1(json.dumps(defining, sort_keys=True).encode())
     for model in object_set.split(split):  # the instances themselves: a changed mesh file is a new cache

@@ -1,4 +1,4 @@
-"""Train the PointNet classifier: ``jaxcls train --config configs/pointnet.yaml [key=value ...]``.
+"""Train the PointNet classifier: ``jaxcls train [--config pointnet] [key=value ...]``.
 
 PureJaxRL-style: the training clouds live on the device, and one epoch (sampling, augmentation, forward,
 backward, Adam) is a single jitted ``lax.scan``. With several devices the batch is split over them
@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import time
 from pathlib import Path
 from typing import Any
@@ -56,7 +57,7 @@ class Mix:
 
 @dataclasses.dataclass(frozen=True)
 class TrainConfig:
-    """``jaxcls train``. Defaults are the paper's recipe; ``configs/pointnet.yaml`` adds partial views."""
+    """``jaxcls train``. Defaults are the paper's recipe; the shipped ``pointnet`` config adds partial views."""
 
     name: str = "pointnet"
     out_dir: str = "runs/pointnet"
@@ -273,6 +274,9 @@ def train(config: TrainConfig, show_progress: bool = True) -> Path:
         began = time.perf_counter()
         state, per_step = train_epoch(state, bank, jax.random.fold_in(key, epoch))
         loss, accuracy = float(per_step["loss"].mean()), float(per_step["accuracy"].mean())
+        if not math.isfinite(loss):  # diverged: keep the last good checkpoint, write nothing of this epoch
+            raise RuntimeError(f"train: epoch {epoch + 1}: the loss is {loss}; the run diverged (lower "
+                               f"learning_rate?). {run_dir} keeps epoch {epoch}: run again to resume from it")
         seconds = time.perf_counter() - began
         classifier = _classifier(state, classes, config)
         scores = {s: float(np.mean(predict_all(classifier, p, m, config.eval_batch) == y))

@@ -77,25 +77,14 @@ def classify_segments(spec: Spec, segments: Segments) -> jax.Array:
     return pointnet.classify(spec.classifier, segments.points, segments.mask)
 
 
-def _perceive(spec: Spec, state: Observation, depth: jax.Array, T_wc: jax.Array, fuse_fn=None, extract_fn=None,
-              segment_fn=None, classify_fn=None) -> Observation:
-    """The composition itself; the ``*_fn`` arguments swap in jitted (or host) versions of the stages."""
-    volume = (fuse_fn or fuse)(spec, state.volume, depth, T_wc)
-    surface = (extract_fn or _extract)(spec, volume)
-    segments = (segment_fn or segment_jax)(spec, surface.points, surface.normals, surface.mask)
-    return Observation(volume=volume, surface=surface, segments=segments,
-                       probs=(classify_fn or classify_segments)(spec, segments), frames=state.frames + 1)
-
-
-def _extract(spec: Spec, volume: tsdf.TSDFVolume) -> tsdf.Surface:
-    return tsdf.extract_surface(volume, spec.config.shapes.surface_points)
-
-
-# Called from Python, a move runs stage by stage, each stage its own module-level jit (compiled once per
-# spec and shapes; ``fuse`` calls the jitted foreground and integration in turn): on the CPU that is as fast
-# as the hand-wired chain was, while XLA makes foreground + integration in one program ~1.8 ms slower
-# (benchmarks/ab_move.py). Under the caller's jit/vmap the stages trace into one program (the GPU's shape).
-_STAGES = {"extract_fn": jax.jit(_extract), "classify_fn": jax.jit(classify_segments)}
+def _perceive(spec: Spec, state: Observation, depth: jax.Array, T_wc: jax.Array, segment_fn=segment_jax
+              ) -> Observation:
+    """The composition itself (``segment_fn``: ``segment_jax``, or the host ``segment``)."""
+    volume = fuse(spec, state.volume, depth, T_wc)
+    surface = tsdf.extract_surface(volume, spec.config.shapes.surface_points)
+    segments = segment_fn(spec, surface.points, surface.normals, surface.mask)
+    return Observation(volume=volume, surface=surface, segments=segments, probs=classify_segments(spec, segments),
+                       frames=state.frames + 1)
 
 
 def check_observation_inputs(spec: Spec, depth: np.ndarray | jax.Array, T_wc: np.ndarray | jax.Array) -> None:
@@ -111,13 +100,15 @@ def observe(spec: Spec, state: Observation, depth: jax.Array, T_wc: jax.Array) -
     Pure: returns a new state. Called with concrete arrays, the frame is validated first; under jit or
     vmap (JAX segmentation only) the composed stages are traced into the caller's program.
     """
-    traced = any(isinstance(a, jax.core.Tracer) for a in jax.tree.leaves((state, depth, T_wc)))
+    traced = any(isinstance(a, jax.core.Tracer) for a in jax.tree.leaves((spec, state, depth, T_wc)))
     reference = spec.config.segmenter == "reference"
     if traced:
         if reference:
             raise ValueError("observe: segmenter 'reference' runs scikit-learn on the host and cannot be traced "
                              "(jit/vmap); use perception.segmenter=jax")
         return _perceive(spec, state, depth, T_wc)
+    # From Python the stages run one by one, each its own module-level jit: on the CPU as fast as the
+    # hand-wired chain was, while one XLA program of foreground + integration is ~1.8 ms slower there
+    # (benchmarks/ab_move.py). Under the caller's jit/vmap they trace into one program (the GPU's shape).
     check_observation_inputs(spec, depth, T_wc)
-    return _perceive(spec, state, jnp.asarray(depth), jnp.asarray(T_wc, jnp.float32), **_STAGES,
-                     segment_fn=segment if reference else segment_jax)
+    return _perceive(spec, state, depth, T_wc, segment if reference else segment_jax)

@@ -27,6 +27,7 @@ import numpy as np
 from flax import linen as nn
 from flax import serialization, struct
 
+from jaxcls import io
 from jaxcls.config import bounded, check_bounds
 from jaxcls.math import safe_norm
 
@@ -36,7 +37,7 @@ BUILTIN_WEIGHTS = WEIGHTS_DIR / "pointnet_builtin.msgpack"
 
 @dataclasses.dataclass(frozen=True)
 class ModelConfig:
-    """The network's hyper-parameters (the ``model:`` section of ``configs/pointnet.yaml``)."""
+    """The network's hyper-parameters (the ``model:`` section of ``jaxcls/configs/pointnet.yaml``)."""
 
     num_points: int = bounded(1024, ge=1)  # points per cloud the network is trained on (segments are padded to this)
     dropout: float = bounded(0.3, ge=0.0, lt=1.0)  # before the last layer (PointNet's keep probability 0.7)
@@ -222,10 +223,10 @@ def save_classifier(path: str | Path, classifier: Classifier, metadata: dict | N
     stored = jax.tree.map(lambda a: np.asarray(a, dtype), classifier.variables)
     if not all(np.all(np.isfinite(a)) for a in jax.tree.leaves(stored)):
         raise ValueError(f"save_classifier: weights are not finite in {np.dtype(dtype).name}; save as float32")
-    path.write_bytes(serialization.msgpack_serialize(serialization.to_state_dict(stored)))
+    io.write_bytes(path, serialization.msgpack_serialize(serialization.to_state_dict(stored)))
     info = {"classes": list(classifier.classes), "model": dataclasses.asdict(classifier.config),
             **(metadata or {})}
-    path.with_suffix(".json").write_text(json.dumps(info, indent=2) + "\n")
+    io.write_json(path.with_suffix(".json"), info, indent=2)
     return path
 
 

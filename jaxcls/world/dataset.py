@@ -113,6 +113,11 @@ def scene_seeds(seed: int, count: int) -> list[int]:
     return [int(s.generate_state(1)[0]) for s in np.random.SeedSequence(seed).spawn(count)]
 
 
+def scene_key(seed: int, index: int) -> jax.Array:
+    """The sensor-noise key of scene ``index`` of a dataset with ``seed`` (its frames' noise draw)."""
+    return jax.random.fold_in(jax.random.PRNGKey(seed), index)
+
+
 def scene_file(out_dir: str | Path, index: int) -> Path:
     return Path(out_dir) / f"scene_{index:03d}.npz"
 
@@ -144,13 +149,12 @@ def build_dataset(config: DatasetConfig, overwrite: bool = False, show_progress:
     object_set = object_set_from_config(config.objects)
     todo = [i for i in range(config.num_scenes) if not _finished(scene_file(out, i))]
     seeds = scene_seeds(config.seed, config.num_scenes)
-    root_key = jax.random.PRNGKey(config.seed)
     with tqdm(total=len(todo) * config.viewpoints.count, desc=f"dataset {config.name}", unit="view",
               disable=not show_progress) as bar:
         for i in todo:
             bar.set_postfix(scene=i)
             scene = scenes.sample_scene(object_set, config.scene, seeds[i], config.objects)
-            views = render_scene_views(config, scene, jax.random.fold_in(root_key, i), object_set, bar)
+            views = render_scene_views(config, scene, scene_key(config.seed, i), object_set, bar)
             views.save(scene_file(out, i))
     return out
 

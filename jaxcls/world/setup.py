@@ -16,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING
 
 import jax
 import numpy as np
@@ -25,6 +25,7 @@ from jaxcls import geometry
 from jaxcls.world import scenes
 from jaxcls.world.objects import ObjectModel, ObjectSet, ObjectSetConfig, object_set_from_config
 from jaxcls.world.render.sensor import SensorConfig
+from jaxcls.world.render.types import BackendChoice
 
 if TYPE_CHECKING:
     import mujoco
@@ -41,7 +42,7 @@ class WorldConfig:
     camera: geometry.CameraConfig = dataclasses.field(default_factory=geometry.CameraConfig)
     viewpoints: geometry.ViewpointConfig = dataclasses.field(default_factory=geometry.ViewpointConfig)
     sensor: SensorConfig = dataclasses.field(default_factory=SensorConfig.ideal)
-    backend: Literal["auto", "mujoco", "mjx", "warp"] = "auto"
+    backend: BackendChoice = "auto"
 
     def world_config(self) -> WorldConfig:
         """Just the world part of a command's config (whose schema extends this one)."""
@@ -127,6 +128,9 @@ def make_world(config: WorldConfig | None = None, seed: int = 0, scene: scenes.S
                object_set: ObjectSet | None = None) -> World:
     """The world of ``config``: scene ``seed`` drawn from its object set, or the given ``scene`` (its JSON
     names its object set, which must agree with ``config.objects``). ``object_set`` skips loading it again.
+
+    With a ``scene``, ``seed`` is unused and ``World.config.scene`` takes the scene's own table and object
+    counts (what ``config.scene`` would otherwise have drawn), so that a saved config says what was shown.
     """
     from jaxcls.world.render import resolve_backend
 
@@ -137,6 +141,10 @@ def make_world(config: WorldConfig | None = None, seed: int = 0, scene: scenes.S
     object_set = object_set or object_set_from_config(config.objects)
     if scene is None:
         scene = scenes.sample_scene(object_set, config.scene, seed, config.objects)
+    else:
+        config = dataclasses.replace(config, scene=dataclasses.replace(
+            config.scene, num_objects=scene.num_objects, num_clutter=sum(not o.target for o in scene.objects),
+            table_height=scene.table_height, table_half_size=scene.table_half_size))
     models = scenes.scene_models(scene, object_set)
     return World(config=config, object_set=object_set, scene=scene, models=models,
                  intrinsics=config.camera.intrinsics(), viewpoints=scenes.viewpoints(scene, models, config.viewpoints),

@@ -1,4 +1,5 @@
-"""Foreground extraction and segmentation into exactly N object candidates (paper Sec. 3.1).
+"""Segmentation of the fused surface into exactly N object candidates (paper Sec. 3.1; the foreground
+step before it is ``perception.foreground``).
 
 The paper isolates the foreground by truncating depth and removing the table plane, fuses it, cuts the
 reconstruction to a cube of interest, clusters it with DBSCAN and forces N clusters with K-means on the
@@ -25,8 +26,9 @@ segments ``[N, Ps, 3]`` + ``[N, Ps]``. Labels ``[P]`` i32 give each point's segm
 foreground or noise.
 
 Files: ``common`` (shared by both paths), ``reference`` (scikit-learn), ``grid`` (JAX grid operations),
-``twin`` (the JAX path). Settings: ``perception.settings.SegmentConfig`` (the algorithm) and ``ShapeConfig``
-(N, Ps), read through the ``Spec``.
+``twin`` (the JAX path). Names with a leading underscore are this subpackage's internal API, shared
+between its modules, not the package's. Settings: ``perception.settings.SegmentConfig`` (the algorithm)
+and ``ShapeConfig`` (N, Ps), read through the ``Spec``.
 """
 
 from jaxcls.perception.segment.common import Segments, pack_segments

@@ -60,7 +60,10 @@ def _vote_targets(x: np.ndarray | jax.Array, normals: np.ndarray | jax.Array, sp
     return xp.concatenate([xy, xp.zeros_like(xy[..., :1])], axis=-1), weight
 
 
-_POINTER_JUMPS = 14  # 2^14 > 120^2: every steepest-ascent chain of the footprint grid reaches its peak
+def _pointer_jumps(G: int) -> int:
+    """Pointer-jumping rounds after which every steepest-ascent chain of a [G, G] grid reaches its peak
+    (a chain visits each cell at most once: 2^rounds >= G^2; 14 for the default 120^2 grid)."""
+    return max(1, int(np.ceil(np.log2(G * G))))
 
 
 _PAIR_SHIFTS = ((0, 1), (1, 0), (1, 1), (1, -1))  # each 8-neighbour pair once

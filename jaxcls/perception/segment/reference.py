@@ -9,7 +9,6 @@ import numpy as np
 from jaxcls.perception.foreground import check_cloud_shape, foreground_mask
 from jaxcls.perception.segment.common import (
     _PAIR_SHIFTS,
-    _POINTER_JUMPS,
     Segments,
     _basin_centres,
     _cell_of,
@@ -17,6 +16,7 @@ from jaxcls.perception.segment.common import (
     _grid_size,
     _merge_step,
     _order_segments,
+    _pointer_jumps,
     _vote_targets,
     pack_segments,
 )
@@ -81,7 +81,7 @@ def _basins_np(field: np.ndarray, occ: np.ndarray) -> tuple[np.ndarray, np.ndarr
             better = (v > best) | ((v == best) & (vi > up))
             best, up = np.where(better, v, best), np.where(better, vi, up)
     up = up.ravel()
-    for _ in range(_POINTER_JUMPS):
+    for _ in range(_pointer_jumps(G)):
         up = up[up]
     root = np.where(occ.ravel(), up, -1)
     peaks, basin = np.unique(root[root >= 0], return_inverse=True)

@@ -10,13 +10,13 @@ import numpy as np
 from jaxcls.perception.foreground import check_cloud_shape, compact, foreground_mask
 from jaxcls.perception.segment.common import (
     _PAIR_SHIFTS,
-    _POINTER_JUMPS,
     Segments,
     _basin_centres,
     _cell_of,
     _grid_size,
     _merge_step,
     _order_segments,
+    _pointer_jumps,
     _vote_targets,
     pack_segments,
 )
@@ -90,7 +90,7 @@ def _basins(field: jax.Array, occ: jax.Array, max_basins: int) -> tuple[jax.Arra
         better = (v > best) | ((v == best) & (vi > up))
         best, up = jnp.where(better, v, best), jnp.where(better, vi, up)
     up = up.reshape(-1)
-    for _ in range(_POINTER_JUMPS):
+    for _ in range(_pointer_jumps(G)):
         up = up[up]
     is_peak = occ.reshape(-1) & (up == index.reshape(-1))
     height, peak = jax.lax.top_k(jnp.where(is_peak, field.reshape(-1), -jnp.inf), max_basins)

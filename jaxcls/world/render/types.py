@@ -12,6 +12,7 @@ from jaxcls.geometry import Intrinsics
 
 Backend = Literal["mujoco", "mjx", "warp"]
 BACKENDS: tuple[Backend, ...] = ("mujoco", "mjx", "warp")
+BackendChoice = Literal["auto", "mujoco", "mjx", "warp"]  # a config's choice: "auto" picks warp on a GPU
 
 # Sentinels of the return contract (docs/ARCHITECTURE.md): no return has depth 0; the table and misses have id -1.
 NO_DEPTH = 0.0
