@@ -40,8 +40,7 @@ def build_scene(kind: str, scale: float, num_objects: int, seed: int, count: int
     if kind == "trimesh":
         model = primitives.mesh_scene(intrinsics, num_objects=num_objects, seed=seed)
         return model, intrinsics, hemisphere_viewpoints(np.array([0.0, 0.0, 0.05]), count, radius=1.0)
-    camera = CameraConfig(width=intrinsics.width, height=intrinsics.height, fx=intrinsics.fx, fy=intrinsics.fy,
-                          cx=intrinsics.cx, cy=intrinsics.cy)
+    camera = CameraConfig.from_intrinsics(intrinsics)
     world = make_world(WorldConfig(scene=SceneConfig(num_objects=num_objects), camera=camera,
                                    viewpoints=ViewpointConfig(count=count, radius=1.0), backend="mujoco"), seed)
     return world.model, world.intrinsics, world.viewpoints

@@ -36,15 +36,9 @@ VIEWS = (20, 35, 50, 65, 80)
 KINDS = {"synthetic": scenes.SceneConfig(), "touching": scenes.SceneConfig(min_gap=0.001, max_gap=0.005)}
 
 
-def camera(scale: float) -> CameraConfig:
-    """The Kinect v1 at ``scale`` (same field of view; 1 = 640x480) as a world's camera block."""
-    intr = Intrinsics.kinect_v1(scale)
-    return CameraConfig(width=intr.width, height=intr.height, fx=intr.fx, fy=intr.fy, cx=intr.cx, cy=intr.cy)
-
-
 def render_scene(kind: str, seed: int, scale: float):
     """(world, depth [V, H, W], T_wc [V, 4, 4], ground-truth function of points) of one scene at ``VIEWS``."""
-    world = make_world(WorldConfig(scene=KINDS[kind], camera=camera(scale), backend="mujoco"), seed)
+    world = make_world(WorldConfig(scene=KINDS[kind], camera=CameraConfig.kinect_v1(scale), backend="mujoco"), seed)
     depth = world.render(list(VIEWS)).depth
     samples = [(T[:3, :3] @ m.surface_points.T).T + T[:3, 3]
                for m, T in zip(world.models, world.scene.object_poses(), strict=True)]

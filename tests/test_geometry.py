@@ -209,3 +209,11 @@ def test_safe_math_values_and_finite_gradients_at_zero():
     assert np.all(np.isfinite(jac))
     num, den = jax.grad(lambda n, d: safe_div(n, d), argnums=(0, 1))(1.0, 0.0)
     assert np.isfinite(num) and np.isfinite(den)
+
+
+def test_camera_config_round_trips_intrinsics():
+    from jaxcls.geometry import CameraConfig, Intrinsics
+
+    for scale in (1.0, 0.5, 0.25):
+        assert CameraConfig.kinect_v1(scale).intrinsics() == Intrinsics.kinect_v1(scale)
+    assert CameraConfig().intrinsics() == Intrinsics.kinect_v1()  # the defaults are the Kinect v1

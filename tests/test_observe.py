@@ -15,7 +15,7 @@ from jaxcls.perception.settings import PerceptionConfig, ShapeConfig, Spec
 from jaxcls.world import scenes
 from jaxcls.world.setup import WorldConfig, make_world
 
-CAMERA = CameraConfig(width=320, height=240, fx=262.5, fy=262.5, cx=159.5, cy=119.5)
+CAMERA = CameraConfig.kinect_v1(0.5)
 VIEWS = [20, 50, 80]
 SHAPES = ShapeConfig(surface_points=8192, points_per_segment=512)
 

@@ -21,7 +21,7 @@ from jaxcls.world.setup import WorldConfig, make_world
 SMALL = Intrinsics.kinect_v1(0.5)  # 320 x 240
 VIEWS = (20, 35, 50, 65, 80)  # five hemisphere views from low to high elevation
 SPEC = Spec.create(PerceptionConfig(shapes=ShapeConfig(surface_points=32768)), SMALL)
-CAMERA = CameraConfig(width=SMALL.width, height=SMALL.height, fx=SMALL.fx, fy=SMALL.fy, cx=SMALL.cx, cy=SMALL.cy)
+CAMERA = CameraConfig.from_intrinsics(SMALL)
 # A point farther than this from every posed object surface is table or noise: left out of the ARI.
 _GT_RADIUS = 0.01
 SEEDS = range(12)
