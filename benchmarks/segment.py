@@ -24,10 +24,9 @@ import sys
 import jax
 import jax.numpy as jnp
 import numpy as np
-from scipy.spatial import cKDTree
 from sklearn.metrics import adjusted_rand_score
 
-from jaxcls import perception, report
+from jaxcls import metrics, perception, report
 from jaxcls.geometry import CameraConfig, Intrinsics
 from jaxcls.perception import foreground, segment, tsdf
 from jaxcls.world import WorldConfig, make_world, scenes
@@ -40,15 +39,7 @@ def render_scene(kind: str, seed: int, scale: float):
     """(world, depth [V, H, W], T_wc [V, 4, 4], ground-truth function of points) of one scene at ``VIEWS``."""
     world = make_world(WorldConfig(scene=KINDS[kind], camera=CameraConfig.kinect_v1(scale), backend="mujoco"), seed)
     depth = world.render(list(VIEWS)).depth
-    samples = [(T[:3, :3] @ m.surface_points.T).T + T[:3, 3]
-               for m, T in zip(world.models, world.scene.object_poses(), strict=True)]
-    owner = np.concatenate([np.full(len(s), i) for i, s in enumerate(samples)])
-    tree = cKDTree(np.concatenate(samples))
-
-    def truth(points: np.ndarray, mask: np.ndarray) -> np.ndarray:
-        d, idx = tree.query(points)
-        return np.where(mask & (d < 0.01), owner[idx], -1)
-
+    truth = metrics.PointOwners(world.scene, world.models)  # nearest posed object within 1 cm, else -1
     return world, np.asarray(depth), np.asarray(world.poses(list(VIEWS)), np.float32), truth
 
 

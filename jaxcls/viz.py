@@ -107,6 +107,25 @@ def confusion(confusions: dict[str, np.ndarray], classes: Sequence[str]) -> Figu
     return figure
 
 
+def reliability(calibrations: dict) -> Figure:
+    """Reliability diagrams, one panel per entry of ``calibrations`` (name -> ``metrics.Calibration``): the
+    accuracy of each confidence bin against its mean confidence; the diagonal is perfect calibration."""
+    figure = Figure(figsize=(3.4 * max(len(calibrations), 1), 3.6))
+    for col, (name, cal) in enumerate(calibrations.items()):
+        ax = figure.add_subplot(1, max(len(calibrations), 1), col + 1)
+        bins = len(cal.count)
+        centres = (np.arange(bins) + 0.5) / bins
+        ax.bar(centres, np.nan_to_num(cal.accuracy), width=1 / bins, edgecolor="k", lw=0.5, label="accuracy")
+        ax.plot([0, 1], [0, 1], "k--", lw=1, label="calibrated")
+        shown = cal.count > 0
+        ax.plot(cal.confidence[shown], cal.accuracy[shown], "o", color="tab:red", ms=3, label="bin mean")
+        ax.set(xlim=(0, 1), ylim=(0, 1), xlabel="confidence (top-1 probability)", ylabel="accuracy")
+        ax.set_title(f"{name}\nECE {cal.ece:.3f}, {int(cal.count.sum())} segments", fontsize=8)
+        ax.legend(fontsize=6, loc="upper left")
+    figure.tight_layout()
+    return figure
+
+
 def save(figure: Figure, path: str | Path, dpi: int = 80) -> Path:
     """Write ``figure`` as a PNG atomically."""
     from jaxcls import io

@@ -7,10 +7,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from scipy.spatial import cKDTree
 from sklearn.metrics import adjusted_rand_score
 
-from jaxcls import perception
+from jaxcls import metrics, perception
 from jaxcls.geometry import CameraConfig, Intrinsics
 from jaxcls.perception import foreground, segment
 from jaxcls.perception.segment import grid
@@ -34,27 +33,17 @@ _ARI_FLOOR = 0.75
 def _scene_frames(config: scenes.SceneConfig, seed: int, views=VIEWS):
     world = make_world(WorldConfig(scene=config, camera=CAMERA, backend="mujoco"), seed)
     frames = world.render(list(views))
-    samples = [(T[:3, :3] @ m.surface_points.T).T + T[:3, 3]
-               for m, T in zip(world.models, world.scene.object_poses(), strict=True)]
-    return frames, world.poses(list(views)), samples
-
-
-def _ground_truth(points: np.ndarray, mask: np.ndarray, samples: list[np.ndarray]) -> np.ndarray:
-    """[P] i64 index of the nearest posed object surface, -1 beyond ``_GT_RADIUS`` or masked."""
-    allp = np.concatenate(samples)
-    owner = np.concatenate([np.full(len(s), i) for i, s in enumerate(samples)])
-    d, idx = cKDTree(allp).query(points)
-    return np.where(mask & (d < _GT_RADIUS), owner[idx], -1)
+    return frames, world.poses(list(views)), metrics.PointOwners(world.scene, world.models, _GT_RADIUS)
 
 
 def _fused(config: scenes.SceneConfig, seed: int):
-    frames, Ts, samples = _scene_frames(config, seed)
+    frames, Ts, owners = _scene_frames(config, seed)
     state = perception.init_state(SPEC)
     for d, T in zip(frames.depth, Ts, strict=True):
         state = perception.observe(SPEC, state, d, T)
     surf = state.surface
     points, mask = np.asarray(surf.points), np.asarray(surf.mask)
-    return points, np.asarray(surf.normals), mask, _ground_truth(points, mask, samples)
+    return points, np.asarray(surf.normals), mask, owners(points, mask)
 
 
 def _ari(labels: np.ndarray, gt: np.ndarray) -> float:
@@ -178,12 +167,12 @@ def test_fused_scenes_ari_and_twin_agreement(fused_scenes):
 
 
 def test_single_view_points_static_and_segmented():
-    frames, Ts, samples = _scene_frames(scenes.SceneConfig(), 0, views=(50,))
+    frames, Ts, owners = _scene_frames(scenes.SceneConfig(), 0, views=(50,))
     pts, m = foreground.single_view_points(SPEC, jnp.asarray(frames.depth[0]), jnp.asarray(Ts[0], jnp.float32), 8192)
     assert pts.shape == (8192, 3) and m.shape == (8192,) and int(m.sum()) > 1000
     pts, m = np.asarray(pts), np.asarray(m)
     assert np.all(pts[m, 2] > SPEC.floor) and not np.any(pts[~m])
-    gt = _ground_truth(pts, m, samples)
+    gt = owners(pts, m)
     ari = _ari(segment.segment(SPEC, pts, np.zeros_like(pts), m).labels, gt)
     print(f"single-view ARI {ari:.3f}")
     assert ari >= 0.5
