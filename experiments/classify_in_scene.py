@@ -22,6 +22,7 @@ from pathlib import Path
 
 import jax
 import numpy as np
+from scipy.special import logsumexp
 from tqdm.auto import tqdm
 
 from jaxcls import geometry, io, metrics, perception, report, viz
@@ -53,23 +54,9 @@ class InSceneConfig:
             raise ValueError("worlds: name at least one world (see jaxcls/configs/classify_in_scene.yaml)")
 
 
-def random_path(rng: np.random.Generator, positions: np.ndarray, length: int, radius: float) -> list[int]:
-    """``length`` viewpoint indices: a random start, then each time a random unvisited view within ``radius``
-    of the current one (the nearest unvisited view when there is none). positions: [V, 3] m."""
-    path = [int(rng.integers(len(positions)))]
-    while len(path) < min(length, len(positions)):
-        near = np.flatnonzero(np.asarray(geometry.candidate_views(positions, positions[path[-1]], radius)))
-        fresh = [int(v) for v in near if v not in path]
-        if not fresh:
-            left = np.array([v for v in range(len(positions)) if v not in path])
-            fresh = [int(left[np.argmin(np.linalg.norm(positions[left] - positions[path[-1]], axis=1))])]
-        path.append(int(rng.choice(fresh)))
-    return path
-
-
 def evaluate(config: InSceneConfig, classifier: pointnet.Classifier, show_progress: bool = True) -> list[dict]:
     """One record per segment that belongs to a target object: world, scene, path, views, true and
-    predicted class, confidence, purity, size."""
+    predicted class, confidence (calibrated, if the weights are), purity, size, uncalibrated logits."""
     records = []
     for world_name, world_config in config.worlds.items():
         object_set = object_set_from_config(world_config.objects)
@@ -83,7 +70,7 @@ def evaluate(config: InSceneConfig, classifier: pointnet.Classifier, show_progre
             spec = perception.Spec.create(config.perception, world.intrinsics, world.table_height, classifier)
             rng = np.random.default_rng([config.seed, s])
             for p in range(config.paths):
-                path = random_path(rng, world.viewpoints[:, :3, 3], max(config.views),
+                path = geometry.random_view_path(rng, world.viewpoints[:, :3, 3], max(config.views),
                                    world_config.viewpoints.candidate_radius)
                 depth, T_wc, _, _ = world.measure(jax.random.fold_in(scene_key(config.seed, s), p), path)
                 state = perception.init_state(spec)
@@ -96,6 +83,7 @@ def evaluate(config: InSceneConfig, classifier: pointnet.Classifier, show_progre
                     truth = metrics.segment_truth(owners(pts.reshape(-1, 3), mask.reshape(-1)).reshape(mask.shape),
                                                   mask)
                     probs = np.asarray(state.probs)
+                    scores = np.asarray(pointnet.logits(classifier, seg.points, seg.mask))
                     for n in np.flatnonzero((truth.object >= 0) & (truth.size > 0)):
                         obj = int(truth.object[n])
                         if not target[obj]:
@@ -103,7 +91,7 @@ def evaluate(config: InSceneConfig, classifier: pointnet.Classifier, show_progre
                         records.append({"world": world_name, "scene": s, "path": p, "views": k, "object": obj,
                                         "true": int(label[obj]), "predicted": int(probs[n].argmax()),
                                         "confidence": float(probs[n].max()), "purity": float(truth.purity[n]),
-                                        "size": int(truth.size[n])})
+                                        "size": int(truth.size[n]), "logits": scores[n].round(4).tolist()})
     return records
 
 
@@ -122,7 +110,7 @@ def main(argv: list[str] | None = None) -> None:
     config = load_config(InSceneConfig, args.config, args.overrides)
     out = Path(config.out_dir)
     save_config(config, out / "config.yaml")
-    summary, confusions, reliabilities, per_class = [], {}, {}, []
+    summary, confusions, reliabilities, per_class, pooled = [], {}, {}, [], []
     all_records = {}
     for name, path in config.weights.items():
         classifier = pointnet.load_classifier(path or None)
@@ -137,13 +125,27 @@ def main(argv: list[str] | None = None) -> None:
                 correct = np.array([r["predicted"] == r["true"] for r in pure], bool)
                 conf = np.array([r["confidence"] for r in pure])
                 cal = metrics.calibration(conf, correct)
+                raw = np.array([r["logits"] for r in pure]).reshape(len(pure), -1)
+                raw_conf = np.exp(raw - logsumexp(raw, axis=1, keepdims=True)).max(axis=1) if len(pure) else conf
+                cal_as_trained = metrics.calibration(raw_conf, correct)
                 wrong_conf = f"{conf[~correct].mean():.2f}" if (~correct).any() else ""
                 impure_acc = f"{np.mean([r['predicted'] == r['true'] for r in impure]):.3f}" if impure else ""
                 summary.append((name, world_name, v, f"{correct.mean():.3f}" if len(pure) else "", len(pure),
-                                f"{cal.ece:.3f}", wrong_conf, len(impure), impure_acc))
+                                f"{cal.ece:.3f}", f"{cal_as_trained.ece:.3f}", wrong_conf, len(impure), impure_acc))
                 if v in (1, max(config.views)):
                     confusions[f"{name}, {world_name}, {v} views"] = _confusion(pure, classes)
                     reliabilities[f"{name}, {world_name}, {v} views"] = cal
+        for world_name in [*config.worlds, "all"]:
+            pure = [r for r in records if (world_name == "all" or r["world"] == world_name)
+                    and r["purity"] >= config.purity]
+            raw = np.array([r["logits"] for r in pure]).reshape(len(pure), -1)
+            true = np.array([r["true"] for r in pure], int)
+            row = [name, world_name, len(pure)]
+            for temperature in (classifier.temperature, 1.0):
+                logp = raw / temperature - logsumexp(raw / temperature, axis=1, keepdims=True)
+                cal = metrics.calibration(np.exp(logp).max(axis=1), logp.argmax(axis=1) == true)
+                row += [f"{-logp[np.arange(len(true)), true].mean():.3f}", f"{cal.ece:.3f}"]
+            pooled.append(tuple(row))
         five = [r for r in records if r["views"] == min(config.views, key=lambda v: abs(v - 5))
                 and r["purity"] >= config.purity]
         for c, cls in enumerate(classes):
@@ -159,8 +161,14 @@ def main(argv: list[str] | None = None) -> None:
              f"`{out}/confusion.png`, `{out}/reliability.png`.")
     report.publish(report.section(
         "PointNet in the scene: accuracy and calibration of segments", argv,
-        ("weights", "world", "views", "accuracy", "segments", "ECE", "mean confidence when wrong",
-         "impure segments", "their accuracy"), summary, intro=intro), args.out)
+        ("weights", "world", "views", "accuracy", "segments", f"ECE (T = {classifier.temperature:.2f})",
+         "ECE as trained (T = 1)", "mean confidence when wrong", "impure segments", "their accuracy"), summary,
+        intro=intro), args.out)
+    report.publish(report.section(
+        "PointNet in the scene: calibration, all view counts pooled", argv,
+        ("weights", "world", "segments", f"NLL (T = {classifier.temperature:.2f})",
+         f"ECE (T = {classifier.temperature:.2f})", "NLL as trained (T = 1)", "ECE as trained (T = 1)"), pooled),
+        args.out)
     report.publish(report.section(
         f"PointNet in the scene: per-class accuracy after {min(config.views, key=lambda v: abs(v - 5))} views",
         argv, ("weights", "class", "segments", *config.worlds), per_class), args.out)

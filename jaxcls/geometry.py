@@ -258,6 +258,22 @@ def candidate_views(view_positions: np.ndarray, current: np.ndarray, radius: flo
     return (d <= radius) & (d > 1e-9)
 
 
+def random_view_path(rng: np.random.Generator, positions: np.ndarray, length: int, radius: float) -> list[int]:
+    """``length`` viewpoint indices of a random walk: a random start, then each time a random unvisited view
+    within ``radius`` of the current one (the paper's Random policy over its candidates; the nearest
+    unvisited view when no candidate is left). positions: [V, 3] m. At most V views."""
+    positions = np.asarray(positions, float)
+    path = [int(rng.integers(len(positions)))]
+    while len(path) < min(length, len(positions)):
+        near = np.flatnonzero(np.asarray(candidate_views(positions, positions[path[-1]], radius)))
+        fresh = [int(v) for v in near if v not in path]
+        if not fresh:
+            left = np.array([v for v in range(len(positions)) if v not in path])
+            fresh = [int(left[np.argmin(np.linalg.norm(positions[left] - positions[path[-1]], axis=1))])]
+        path.append(int(rng.choice(fresh)))
+    return path
+
+
 def opencv_to_mujoco_rotation(R_wc: np.ndarray) -> np.ndarray:
     """[..., 3, 3] rotation of the MuJoCo camera frame that sees what the OpenCV frame ``R_wc`` sees."""
     return np.asarray(R_wc) @ CV_TO_MJ

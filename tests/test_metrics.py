@@ -79,17 +79,16 @@ def _experiment():
 
 
 def test_random_paths_visit_distinct_views_near_each_other():
-    from jaxcls.geometry import hemisphere_viewpoints
+    from jaxcls.geometry import hemisphere_viewpoints, random_view_path
 
-    experiment = _experiment()
     positions = hemisphere_viewpoints(np.zeros(3), 100)[:, :3, 3]
     rng = np.random.default_rng(0)
     for _ in range(5):
-        path = experiment.random_path(rng, positions, 10, 0.5)
+        path = random_view_path(rng, positions, 10, 0.5)
         assert len(set(path)) == 10
         steps = np.linalg.norm(np.diff(positions[path], axis=0), axis=1)
         assert np.all(steps <= 0.5 + 1e-9)
-    assert sorted(experiment.random_path(rng, positions[:3], 10, 0.01)) == [0, 1, 2]  # no neighbours: nearest
+    assert sorted(random_view_path(rng, positions[:3], 10, 0.01)) == [0, 1, 2]  # no neighbours: nearest
 
 
 def test_in_scene_evaluation_records_scored_segments():

@@ -173,6 +173,9 @@ class Classifier:
     variables: dict
     classes: tuple[str, ...] = struct.field(pytree_node=False)
     config: ModelConfig = struct.field(pytree_node=False)
+    # Temperature scaling (Guo et al. 2017): probabilities are softmax(logits / temperature); 1 = as trained.
+    # Fitted on held-out training-instance scenes (``fit_temperature``), stored in the weights' .json.
+    temperature: float = struct.field(pytree_node=False, default=1.0)
 
     def check_classes(self, classes: Sequence[str], source: str = "object set") -> None:
         """Raise ValueError unless ``classes`` is exactly the class list these weights were trained on."""
@@ -183,13 +186,8 @@ class Classifier:
 
 
 @jax.jit
-def classify(classifier: Classifier, points: jax.Array, mask: jax.Array) -> jax.Array:
-    """Class probabilities of segments (paper Eq. 1's softmax).
-
-    points: [N, P, 3] m (any frame with z up); mask: [N, P] bool; NaN or inf points count as padding.
-    Returns probs [N, M]; a segment with no real point gets the uniform distribution 1/M. Other shapes
-    are a ValueError naming them (checked while tracing: shapes are static).
-    """
+def logits(classifier: Classifier, points: jax.Array, mask: jax.Array) -> jax.Array:
+    """[N, M] the network's uncalibrated class scores of segments (``classify``'s input; see there)."""
     points_shape, mask_shape = tuple(np.shape(points)), tuple(np.shape(mask))
     if len(points_shape) != 3 or points_shape[-1] != 3:
         raise ValueError(f"classify: points must be [N, P, 3] (N segments of P points), got shape {points_shape}")
@@ -198,9 +196,39 @@ def classify(classifier: Classifier, points: jax.Array, mask: jax.Array) -> jax.
                          f"{mask_shape}")
     points, mask = normalise(jnp.asarray(points, jnp.float32), jnp.asarray(mask, bool))
     model = make_model(len(classifier.classes), classifier.config)
-    logits, _ = model.apply(classifier.variables, points, mask, train=False)
-    probs = jax.nn.softmax(logits, axis=-1)
-    return jnp.where(jnp.any(mask, axis=-1, keepdims=True), probs, 1.0 / len(classifier.classes))
+    scores, _ = model.apply(classifier.variables, points, mask, train=False)
+    return scores
+
+
+@jax.jit
+def classify(classifier: Classifier, points: jax.Array, mask: jax.Array) -> jax.Array:
+    """Class probabilities of segments (paper Eq. 1's softmax), calibrated: softmax(logits / temperature).
+
+    points: [N, P, 3] m (any frame with z up); mask: [N, P] bool; NaN or inf points count as padding.
+    Returns probs [N, M]; a segment with no real point gets the uniform distribution 1/M. Other shapes
+    are a ValueError naming them (checked while tracing: shapes are static). Deterministic: the same
+    input gives the same output. ``logits`` gives the uncalibrated scores.
+    """
+    probs = jax.nn.softmax(logits(classifier, points, mask) / classifier.temperature, axis=-1)
+    has_points = jnp.any(jnp.asarray(mask, bool) & jnp.all(jnp.isfinite(jnp.asarray(points)), axis=-1), axis=-1)
+    return jnp.where(has_points[:, None], probs, 1.0 / len(classifier.classes))
+
+
+def fit_temperature(scores: np.ndarray, labels: np.ndarray) -> float:
+    """The temperature T that minimises the negative log-likelihood of ``labels: [K]`` under
+    softmax(``scores: [K, M]`` / T) (temperature scaling: one scalar, argmax unchanged). T in [0.05, 20]."""
+    from scipy.optimize import minimize_scalar
+    from scipy.special import log_softmax
+
+    scores, labels = np.asarray(scores, np.float64), np.asarray(labels)
+    if scores.ndim != 2 or labels.shape != scores.shape[:1] or len(labels) == 0:
+        raise ValueError(f"fit_temperature: need scores [K, M] and labels [K], got {scores.shape} and {labels.shape}")
+
+    def nll(log_t: float) -> float:
+        return -float(np.mean(log_softmax(scores / np.exp(log_t), axis=1)[np.arange(len(labels)), labels]))
+
+    best = minimize_scalar(nll, bounds=(np.log(0.05), np.log(20.0)), method="bounded", options={"xatol": 1e-4})
+    return float(np.exp(best.x))
 
 
 @functools.partial(jax.jit, static_argnames=("k",))
@@ -225,7 +253,7 @@ def save_classifier(path: str | Path, classifier: Classifier, metadata: dict | N
         raise ValueError(f"save_classifier: weights are not finite in {np.dtype(dtype).name}; save as float32")
     io.write_bytes(path, serialization.msgpack_serialize(serialization.to_state_dict(stored)))
     info = {"classes": list(classifier.classes), "model": dataclasses.asdict(classifier.config),
-            **(metadata or {})}
+            "temperature": classifier.temperature, **(metadata or {})}
     io.write_json(path.with_suffix(".json"), info, indent=2)
     return path
 
@@ -273,7 +301,11 @@ def load_classifier(path: str | Path | None = None, classes: Sequence[str] | Non
         if np.shape(got) != np.shape(want):
             raise ValueError(f"classifier: {path}: {jax.tree_util.keystr(keypath)} has shape {np.shape(got)}, "
                              f"expected {np.shape(want)} for the {len(names)} classes of {info_path.name}")
-    classifier = Classifier(jax.tree.map(lambda a: jnp.asarray(a, jnp.float32), variables), names, config)
+    temperature = info.get("temperature", 1.0)  # weights saved before calibration existed: as trained
+    if isinstance(temperature, bool) or not isinstance(temperature, int | float) or not 0 < temperature < np.inf:
+        raise ValueError(f"{info_path}: 'temperature' must be a positive number, got {temperature!r}")
+    classifier = Classifier(jax.tree.map(lambda a: jnp.asarray(a, jnp.float32), variables), names, config,
+                            float(temperature))
     if classes is not None:
         classifier.check_classes(classes)
     return classifier
