@@ -1,19 +1,23 @@
 """Labelled point clouds of single objects, for training and evaluating the classifier (paper Sec. 4).
 
-Four sources, each a cloud of one instance in a z-up frame:
+Five sources, each a cloud of one instance in a z-up frame:
 
 - ``full``: the paper's recipe, points sampled uniformly on the instance's complete surface (model frame);
 - ``view``: one rendered depth frame of the instance alone on the table, from a random viewpoint, its
   pixels back-projected (what a single-view segment looks like; the paper's PointNetSingle input);
 - ``occluded``: the same, with 1-3 other instances placed around it (only its visible pixels);
-- ``fused``: 2-3 such frames fused into a TSDF and its surface extracted (a partial reconstruction).
+- ``fused``: 2-3 such frames fused into a TSDF and its surface extracted (a partial reconstruction);
+- ``scene``: what the loop feeds the classifier: segments that ``perception.observe`` cuts out of a
+  cluttered scene of the split's instances after 1-10 fused views, labelled by their majority object and
+  kept when pure enough (``CloudConfig.scenes``; off by default).
 
 Clouds are stored centred on their mean (the classifier normalises position and scale away), in float16.
 They are made with the perception settings of the loop they train for (``PerceptionConfig``: the table
 band of ``foreground``, the TSDF ``volume``): points at or below the table band are dropped, as the
 loop's foreground drops them, and fused clouds come from ``perception.observation.fuse``.
 Rendering uses the configured backend (``mujoco`` on the CPU; ``warp`` on a GPU). Clouds of each instance
-are cached in one file under ``cache_dir``, so an interrupted generation resumes where it stopped.
+(and of each scene) are cached in one file under ``cache_dir``, so an interrupted generation resumes where
+it stopped.
 """
 
 from __future__ import annotations
@@ -38,7 +42,7 @@ from jaxcls.world.objects import ObjectModel, ObjectSet, ObjectSetConfig
 from jaxcls.world.render.types import BackendChoice
 from jaxcls.world.scenes import SceneConfig
 
-SOURCES = ("full", "view", "occluded", "fused")
+SOURCES = ("full", "view", "occluded", "fused", "scene")
 _CACHE_VERSION = 1  # bump when the way clouds are made changes (scene layout, volume, intrinsics)
 _FUSED_SURFACE_POINTS = 8192  # surface points extracted for a fused cloud of one instance
 # The table and spacing clouds are rendered with: the world's default (its height is the scenes' own).
@@ -59,15 +63,21 @@ class CloudConfig:
     image_scale: float = bounded(0.5, gt=0.0, le=4.0)  # of the Kinect v1 (0.5 = 320x240)
     radius: tuple[float, float] = bounded((0.7, 1.2), gt=0.0)  # camera distance [low, high], m
     elevation_deg: tuple[float, float] = bounded((10.0, 80.0), ge=0.0, le=90.0)  # [low, high]
+    # The "scene" source: segments that ``perception.observe`` cuts out of cluttered scenes of the split's
+    # instances, fused along a random path of 1..scene_max_views views, labelled by their majority object
+    # and kept when that object holds >= scene_purity of their points (what the loop feeds the network).
+    scenes: int = bounded(0, ge=0)
+    scene_max_views: int = bounded(10, ge=1)
+    scene_purity: float = bounded(0.8, ge=0.0, le=1.0)
     backend: BackendChoice = "auto"
     cache_dir: str = "data/clouds"
 
     def __post_init__(self) -> None:
         check_bounds(self, "data.")
         if (self.full_per_instance + self.views_per_instance + self.occluded_per_instance
-                + self.fused_per_instance) == 0:
-            raise ValueError("data: full_per_instance, views_per_instance, occluded_per_instance and "
-                             "fused_per_instance are all 0: no clouds would be made")
+                + self.fused_per_instance + self.scenes) == 0:
+            raise ValueError("data: full_per_instance, views_per_instance, occluded_per_instance, "
+                             "fused_per_instance and scenes are all 0: no clouds would be made")
         for name in ("radius", "elevation_deg"):
             low, high = getattr(self, name)
             if low > high:
@@ -222,7 +232,8 @@ def instance_clouds(model: ObjectModel, pool: tuple[ObjectModel, ...], label: in
     rng = np.random.default_rng(seed)
     full = [_subset(model.surface_points, config.full_points, rng) for _ in range(config.full_per_instance)]
     maker = _InstanceRenderer(model, pool, object_set_config, config, rng, perception or PerceptionConfig())
-    by_source = {"full": full, "view": maker.single(), "occluded": maker.occluded(), "fused": maker.fused()}
+    by_source = {"full": full, "view": maker.single(), "occluded": maker.occluded(), "fused": maker.fused(),
+                 "scene": []}  # scene clouds are made per scene (``scene_clouds``)
     clouds = [_subset(c, config.max_points if s != "full" else config.full_points, rng)
               for s in SOURCES for c in by_source[s]]
     clouds = [c - c.mean(axis=0) for c in clouds]
@@ -231,9 +242,61 @@ def instance_clouds(model: ObjectModel, pool: tuple[ObjectModel, ...], label: in
     return CloudSet(points, mask, np.full(len(clouds), label, np.int32), source, np.zeros(len(clouds), np.int32))
 
 
+def scene_clouds(object_set: ObjectSet, split: Literal["train", "test"], object_set_config: ObjectSetConfig,
+                 config: CloudConfig, seed: int, perception: PerceptionConfig | None = None) -> CloudSet:
+    """The "scene" source of one cluttered scene of ``split``'s instances (see ``CloudConfig``): each pure
+    segment of ``perception.observe`` after a random path of 1..``scene_max_views`` views, centred, at most
+    ``max_points`` points, labelled with its majority object's class and that instance's index in the split."""
+    from jaxcls import metrics
+    from jaxcls.perception.observation import init_state, observe
+    from jaxcls.world.setup import WorldConfig, make_world
+
+    rng = np.random.default_rng(seed)
+    world = make_world(WorldConfig(objects=object_set_config, scene=dataclasses.replace(_SCENE, split=split),
+                                   camera=geometry.CameraConfig.kinect_v1(config.image_scale), backend=config.backend),
+                       int(rng.integers(2**31)), object_set=object_set)
+    spec = Spec.create(perception or PerceptionConfig(), world.intrinsics, world.table_height)
+    path = geometry.random_view_path(rng, world.viewpoints[:, :3, 3], int(rng.integers(1, config.scene_max_views + 1)),
+                                     world.config.viewpoints.candidate_radius)
+    state = init_state(spec)
+    for depth, T in zip(world.render(path).depth, world.poses(path), strict=True):
+        state = observe(spec, state, depth, T)
+    points, mask = np.asarray(state.segments.points), np.asarray(state.segments.mask)
+    owners = metrics.PointOwners(world.scene, world.models)
+    truth = metrics.segment_truth(owners(points.reshape(-1, 3), mask.reshape(-1)).reshape(mask.shape), mask)
+    keep = np.flatnonzero((truth.object >= 0) & (truth.purity >= config.scene_purity)
+                          & (truth.size >= config.min_points))
+    members = object_set.split(split)
+    clouds = [_subset(points[n][mask[n]], config.max_points, rng) for n in keep]
+    clouds = [c - c.mean(axis=0) for c in clouds]
+    label = [object_set.class_index(world.scene.objects[truth.object[n]].class_name) for n in keep]
+    instance = [members.index(world.models[truth.object[n]]) for n in keep]
+    padded, padded_mask = _pad(clouds, max(config.max_points, config.full_points))
+    return CloudSet(padded, padded_mask, np.asarray(label, np.int32), np.full(len(clouds), SOURCES.index("scene"),
+                    np.int32), np.asarray(instance, np.int32))
+
+
+def _save_part(path: Path, part: CloudSet) -> None:
+    with io.atomic_write(path) as out:
+        np.savez_compressed(out, points16=part.points.astype(np.float16),
+                                **{f.name: getattr(part, f.name) for f in dataclasses.fields(CloudSet)
+                               if f.name != "points"})
+
+
+def _load_part(path: Path) -> CloudSet:
+    with np.load(path) as data:
+        return CloudSet(points=data["points16"].astype(np.float32),
+                        **{f.name: data[f.name] for f in dataclasses.fields(CloudSet) if f.name != "points"})
+
+
+_SCENE_FIELDS = ("scenes", "scene_max_views", "scene_purity")
+
+
 def _cache_key(object_set: ObjectSet, split: str, config: CloudConfig, object_set_config: ObjectSetConfig,
                seed: int, perception: PerceptionConfig) -> str:
-    defining = {**dataclasses.asdict(config), "backend": None, "cache_dir": None, "objects": dataclasses.asdict(
+    """The per-instance clouds' key (the scene source's settings are not in it: it has its own folder)."""
+    defining = {**{k: v for k, v in dataclasses.asdict(config).items() if k not in _SCENE_FIELDS},
+                "backend": None, "cache_dir": None, "objects": dataclasses.asdict(
         object_set_config), "object_set": object_set.name, "classes": object_set.classes, "split": split,
         "seed": seed, "foreground": dataclasses.asdict(perception.foreground),
         "volume": dataclasses.asdict(perception.volume), "table_height": _SCENE.table_height,
@@ -263,20 +326,36 @@ def load_clouds(object_set: ObjectSet, split: Literal["train", "test"], config: 
     folder = Path(config.cache_dir) / f"{object_set.name}_{split}_{key}"
     folder.mkdir(parents=True, exist_ok=True)
     parts = []
-    for i, model in enumerate(tqdm(models, desc=f"{split} clouds", disable=not show_progress, leave=False)):
+    split_id = 0 if split == "train" else 1
+    instance_work = (config.full_per_instance + config.views_per_instance + config.occluded_per_instance
+                     + config.fused_per_instance) > 0
+    for i, model in enumerate(tqdm(models if instance_work else (), desc=f"{split} clouds",
+                                   disable=not show_progress, leave=False)):
         path = folder / f"{i:04d}_{model.name}.npz"
         if not path.is_file():
-            seq = np.random.SeedSequence([seed, 0 if split == "train" else 1, i])
-            part = instance_clouds(model, models, object_set.class_index(model.class_name), object_set_config,
-                                   config, int(seq.generate_state(1)[0]), perception)
-            with io.atomic_write(path) as out:
-                np.savez_compressed(out, points16=part.points.astype(np.float16),
-                                    **{f.name: getattr(part, f.name) for f in dataclasses.fields(CloudSet)
-                                       if f.name != "points"})
-        with np.load(path) as data:
-            part = CloudSet(points=data["points16"].astype(np.float32),
-                            **{f.name: data[f.name] for f in dataclasses.fields(CloudSet) if f.name != "points"})
+            seq = np.random.SeedSequence([seed, split_id, i])
+            _save_part(path, instance_clouds(model, models, object_set.class_index(model.class_name),
+                                             object_set_config, config, int(seq.generate_state(1)[0]), perception))
+        part = _load_part(path)
         parts.append(dataclasses.replace(part, instance=np.full(len(part), i, np.int32)))
+    if config.scenes:
+        # One file per scene (scene i has its own seed: more scenes extend the cache), in a folder keyed by
+        # what defines scene clouds (perception included: they are observe's segments), so a changed
+        # segmentation never reads stale clouds.
+        scene_defining = {"scene_max_views": config.scene_max_views, "scene_purity": config.scene_purity,
+                          "max_points": config.max_points,
+                          "min_points": config.min_points, "image_scale": config.image_scale,
+                          "perception": dataclasses.asdict(perception)}
+        scene_folder = folder / ("scenes_" + hashlib.sha1(json.dumps(scene_defining, sort_keys=True).encode())
+                                 .hexdigest()[:12])
+        scene_folder.mkdir(exist_ok=True)
+        for i in tqdm(range(config.scenes), desc=f"{split} scene clouds", disable=not show_progress, leave=False):
+            path = scene_folder / f"scene_{i:04d}.npz"
+            if not path.is_file():
+                seq = np.random.SeedSequence([seed, split_id, 1_000_000 + i])
+                _save_part(path, scene_clouds(object_set, split, object_set_config, config,
+                                              int(seq.generate_state(1)[0]), perception))
+            parts.append(_load_part(path))
     return CloudSet.concatenate(parts)
 
 

@@ -48,6 +48,7 @@ class Mix:
     view: float = bounded(0.0, ge=0.0)
     occluded: float = bounded(0.0, ge=0.0)
     fused: float = bounded(0.0, ge=0.0)
+    scene: float = bounded(0.0, ge=0.0)  # segments of cluttered scenes (``data.scenes`` of them)
 
     def __post_init__(self) -> None:
         check_bounds(self, "mix.")
