@@ -22,7 +22,7 @@ from pathlib import Path
 
 import jax
 import numpy as np
-from scipy.special import logsumexp
+from scipy.special import logsumexp, softmax
 from tqdm.auto import tqdm
 
 from jaxcls import geometry, io, metrics, perception, report, viz
@@ -67,7 +67,8 @@ def evaluate(config: InSceneConfig, classifier: pointnet.Classifier, show_progre
             owners = metrics.PointOwners(world.scene, world.models)
             target = np.array([o.target for o in world.scene.objects])
             label = np.array([object_set.class_index(o.class_name) for o in world.scene.objects])
-            spec = perception.Spec.create(config.perception, world.intrinsics, world.table_height, classifier)
+            # No classifier in the spec: the segments are classified once below, logits first.
+            spec = perception.Spec.create(config.perception, world.intrinsics, world.table_height)
             rng = np.random.default_rng([config.seed, s])
             for p in range(config.paths):
                 path = geometry.random_view_path(rng, world.viewpoints[:, :3, 3], max(config.views),
@@ -82,8 +83,8 @@ def evaluate(config: InSceneConfig, classifier: pointnet.Classifier, show_progre
                     pts, mask = np.asarray(seg.points), np.asarray(seg.mask)
                     truth = metrics.segment_truth(owners(pts.reshape(-1, 3), mask.reshape(-1)).reshape(mask.shape),
                                                   mask)
-                    probs = np.asarray(state.probs)
                     scores = np.asarray(pointnet.logits(classifier, seg.points, seg.mask))
+                    probs = softmax(scores / classifier.temperature, axis=1)  # what pointnet.classify gives
                     for n in np.flatnonzero((truth.object >= 0) & (truth.size > 0)):
                         obj = int(truth.object[n])
                         if not target[obj]:
