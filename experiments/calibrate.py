@@ -41,7 +41,7 @@ def main(argv: list[str] | None = None) -> None:
               for name, w in config.worlds.items()}
     config = dataclasses.replace(config, worlds=worlds)
     classifier = pointnet.load_classifier(args.weights or None)
-    records = [r for r in evaluate(config, dataclasses.replace(classifier, temperature=1.0))
+    records = [r for r in evaluate(config, {"fit": dataclasses.replace(classifier, temperature=1.0)})["fit"]
                if r["purity"] >= config.purity]
     scores = np.array([r["logits"] for r in records])
     labels = np.array([r["true"] for r in records])

@@ -54,13 +54,16 @@ class InSceneConfig:
             raise ValueError("worlds: name at least one world (see jaxcls/configs/classify_in_scene.yaml)")
 
 
-def evaluate(config: InSceneConfig, classifier: pointnet.Classifier, show_progress: bool = True) -> list[dict]:
-    """One record per segment that belongs to a target object: world, scene, path, views, true and
-    predicted class, confidence (calibrated, if the weights are), purity, size, uncalibrated logits."""
-    records = []
+def evaluate(config: InSceneConfig, classifiers: dict[str, pointnet.Classifier],
+             show_progress: bool = True) -> dict[str, list[dict]]:
+    """Per set of weights, one record per segment that belongs to a target object: world, scene, path,
+    views, true and predicted class, confidence (calibrated, if the weights are), purity, size,
+    uncalibrated logits. Every set of weights classifies the same segments (each scene is observed once)."""
+    records = {name: [] for name in classifiers}
     for world_name, world_config in config.worlds.items():
         object_set = object_set_from_config(world_config.objects)
-        classifier.check_classes(object_set.classes, f"world {world_name!r}")
+        for name, classifier in classifiers.items():
+            classifier.check_classes(object_set.classes, f"world {world_name!r} (weights {name!r})")
         seeds = scene_seeds(config.seed, config.scenes)
         for s in tqdm(range(config.scenes), desc=world_name, disable=not show_progress):
             world = make_world(world_config, seeds[s], object_set=object_set)
@@ -83,16 +86,16 @@ def evaluate(config: InSceneConfig, classifier: pointnet.Classifier, show_progre
                     pts, mask = np.asarray(seg.points), np.asarray(seg.mask)
                     truth = metrics.segment_truth(owners(pts.reshape(-1, 3), mask.reshape(-1)).reshape(mask.shape),
                                                   mask)
-                    scores = np.asarray(pointnet.logits(classifier, seg.points, seg.mask))
-                    probs = softmax(scores / classifier.temperature, axis=1)  # what pointnet.classify gives
-                    for n in np.flatnonzero((truth.object >= 0) & (truth.size > 0)):
-                        obj = int(truth.object[n])
-                        if not target[obj]:
-                            continue
-                        records.append({"world": world_name, "scene": s, "path": p, "views": k, "object": obj,
-                                        "true": int(label[obj]), "predicted": int(probs[n].argmax()),
-                                        "confidence": float(probs[n].max()), "purity": float(truth.purity[n]),
-                                        "size": int(truth.size[n]), "logits": scores[n].round(4).tolist()})
+                    scored = [n for n in np.flatnonzero((truth.object >= 0) & (truth.size > 0))
+                              if target[truth.object[n]]]
+                    for name, classifier in classifiers.items():
+                        scores = np.asarray(pointnet.logits(classifier, seg.points, seg.mask))
+                        probs = softmax(scores / classifier.temperature, axis=1)  # what pointnet.classify gives
+                        records[name] += [{
+                            "world": world_name, "scene": s, "path": p, "views": k, "object": int(truth.object[n]),
+                            "true": int(label[truth.object[n]]), "predicted": int(probs[n].argmax()),
+                            "confidence": float(probs[n].max()), "purity": float(truth.purity[n]),
+                            "size": int(truth.size[n]), "logits": scores[n].round(4).tolist()} for n in scored]
     return records
 
 
@@ -112,11 +115,10 @@ def main(argv: list[str] | None = None) -> None:
     out = Path(config.out_dir)
     save_config(config, out / "config.yaml")
     summary, confusions, reliabilities, per_class, pooled = [], {}, {}, [], []
-    all_records = {}
-    for name, path in config.weights.items():
-        classifier = pointnet.load_classifier(path or None)
-        records = evaluate(config, classifier)
-        all_records[name] = records
+    classifiers = {name: pointnet.load_classifier(path or None) for name, path in config.weights.items()}
+    all_records = evaluate(config, classifiers)
+    for name, records in all_records.items():
+        classifier = classifiers[name]
         classes = classifier.classes
         for world_name in config.worlds:
             for v in config.views:
@@ -131,7 +133,8 @@ def main(argv: list[str] | None = None) -> None:
                 cal_as_trained = metrics.calibration(raw_conf, correct)
                 wrong_conf = f"{conf[~correct].mean():.2f}" if (~correct).any() else ""
                 impure_acc = f"{np.mean([r['predicted'] == r['true'] for r in impure]):.3f}" if impure else ""
-                summary.append((name, world_name, v, f"{correct.mean():.3f}" if len(pure) else "", len(pure),
+                summary.append((name, f"{classifier.temperature:.2f}", world_name, v,
+                                f"{correct.mean():.3f}" if len(pure) else "", len(pure),
                                 f"{cal.ece:.3f}", f"{cal_as_trained.ece:.3f}", wrong_conf, len(impure), impure_acc))
                 if v in (1, max(config.views)):
                     confusions[f"{name}, {world_name}, {v} views"] = _confusion(pure, classes)
@@ -141,7 +144,7 @@ def main(argv: list[str] | None = None) -> None:
                     and r["purity"] >= config.purity]
             raw = np.array([r["logits"] for r in pure]).reshape(len(pure), -1)
             true = np.array([r["true"] for r in pure], int)
-            row = [name, world_name, len(pure)]
+            row = [name, f"{classifier.temperature:.2f}", world_name, len(pure)]
             for temperature in (classifier.temperature, 1.0):
                 logp = raw / temperature - logsumexp(raw / temperature, axis=1, keepdims=True)
                 cal = metrics.calibration(np.exp(logp).max(axis=1), logp.argmax(axis=1) == true)
@@ -162,13 +165,13 @@ def main(argv: list[str] | None = None) -> None:
              f"`{out}/confusion.png`, `{out}/reliability.png`.")
     report.publish(report.section(
         "PointNet in the scene: accuracy and calibration of segments", argv,
-        ("weights", "world", "views", "accuracy", "segments", f"ECE (T = {classifier.temperature:.2f})",
-         "ECE as trained (T = 1)", "mean confidence when wrong", "impure segments", "their accuracy"), summary,
+        ("weights", "T", "world", "views", "accuracy", "segments", "ECE (calibrated: T)", "ECE as trained (T = 1)",
+         "mean confidence when wrong", "impure segments", "their accuracy"), summary,
         intro=intro), args.out)
     report.publish(report.section(
         "PointNet in the scene: calibration, all view counts pooled", argv,
-        ("weights", "world", "segments", f"NLL (T = {classifier.temperature:.2f})",
-         f"ECE (T = {classifier.temperature:.2f})", "NLL as trained (T = 1)", "ECE as trained (T = 1)"), pooled),
+        ("weights", "T", "world", "segments", "NLL (calibrated: T)", "ECE (calibrated: T)", "NLL as trained (T = 1)",
+         "ECE as trained (T = 1)"), pooled),
         args.out)
     report.publish(report.section(
         f"PointNet in the scene: per-class accuracy after {min(config.views, key=lambda v: abs(v - 5))} views",

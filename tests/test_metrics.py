@@ -3,6 +3,7 @@ scikit-learn's reliability curve, and the in-scene evaluation's view paths and r
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import sys
 from pathlib import Path
@@ -103,7 +104,13 @@ def test_in_scene_evaluation_records_scored_segments():
     assert shipped.worlds["real_like"].sensor.pose_noise
     config = experiment.InSceneConfig(scenes=1, paths=1, views=(1, 2), worlds={
         "synthetic": WorldConfig(camera=CameraConfig.kinect_v1(0.5), backend="mujoco")})
-    records = experiment.evaluate(config, pointnet.load_classifier(), show_progress=False)
+    shipped = pointnet.load_classifier()
+    both = experiment.evaluate(config, {"a": shipped, "b": dataclasses.replace(shipped, temperature=1.0)},
+                               show_progress=False)
+    records = both["a"]
+    # Every set of weights classifies the same segments (same logits here: only the temperature differs).
+    assert [r["logits"] for r in both["b"]] == [r["logits"] for r in records]
+    assert all(b["confidence"] >= a["confidence"] for a, b in zip(records, both["b"], strict=True))
     assert {r["views"] for r in records} == {1, 2}
     assert all(0 <= r["confidence"] <= 1 and 0 < r["purity"] <= 1 and r["size"] > 0 for r in records)
     assert len([r for r in records if r["views"] == 2]) >= 4  # most of the 5 objects are segmented

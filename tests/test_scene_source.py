@@ -74,3 +74,34 @@ def test_a_mix_of_the_scene_source_needs_its_clouds():
                             np.zeros(2, np.int32), np.zeros(2, np.int32))
     with pytest.raises(ValueError, match=r"mix\.scene"):
         make_bank(empty, Mix(full=1.0, scene=0.5))
+
+
+@pytest.mark.parametrize(("touching", "noisy"), [(1.0, 0.0), (0.0, 1.0), (0.0, 0.0)])
+def test_scene_source_draws_touching_and_noisy_scenes(tmp_path, monkeypatch, touching, noisy):
+    """scene_touching / scene_noisy pick the world a scene is drawn in: gaps of 1-5 mm, or the sensor model
+    with hand-eye error; the segments still come out labelled."""
+    from jaxcls.world import setup
+
+    object_set = builtin_object_set(train_per_class=1, test_per_class=0)
+    config = clouds.CloudConfig(**{**_config(tmp_path, scenes=1).__dict__, "scene_touching": touching,
+                                   "scene_noisy": noisy})
+    worlds = []
+    real = setup.make_world
+
+    def capture(*args, **kwargs):
+        worlds.append(real(*args, **kwargs))
+        return worlds[-1]
+
+    monkeypatch.setattr(setup, "make_world", capture)
+    part = clouds.scene_clouds(object_set, "train", OBJECTS, config, seed=3, perception=PERCEPTION)
+    (world,) = worlds
+    gaps = (world.config.scene.min_gap, world.config.scene.max_gap)
+    assert gaps == ((0.001, 0.005) if touching else (0.003, 0.03))
+    sensor = world.config.sensor
+    assert sensor.axial_noise == sensor.pose_noise == bool(noisy)
+    assert len(part) >= 3 and np.all(part.source == clouds.SOURCES.index("scene"))
+
+
+def test_scene_fractions_are_checked():
+    with pytest.raises(ValueError, match="scene_touching"):
+        clouds.CloudConfig(scenes=1, scene_touching=0.7, scene_noisy=0.5)

@@ -39,6 +39,7 @@ from jaxcls.config import bounded, check_bounds
 from jaxcls.perception import foreground, observation, tsdf
 from jaxcls.perception.settings import PerceptionConfig, Spec
 from jaxcls.world.objects import ObjectModel, ObjectSet, ObjectSetConfig
+from jaxcls.world.render.sensor import SensorConfig
 from jaxcls.world.render.types import BackendChoice
 from jaxcls.world.scenes import SceneConfig
 
@@ -47,6 +48,7 @@ _CACHE_VERSION = 1  # bump when the way clouds are made changes (scene layout, v
 _FUSED_SURFACE_POINTS = 8192  # surface points extracted for a fused cloud of one instance
 # The table and spacing clouds are rendered with: the world's default (its height is the scenes' own).
 _SCENE = SceneConfig()
+_TOUCHING_GAPS = {"min_gap": 0.001, "max_gap": 0.005}  # the scene source's touching scenes (below a voxel)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -69,6 +71,11 @@ class CloudConfig:
     scenes: int = bounded(0, ge=0)
     scene_max_views: int = bounded(10, ge=1)
     scene_purity: float = bounded(0.8, ge=0.0, le=1.0)
+    # What the scenes look like: a fraction with touching objects (footprint gaps 1-5 mm, below a voxel, as
+    # the in-scene evaluation's "touching" world) and a fraction seen through the Kinect-v1 sensor model
+    # with hand-eye error (its "real_like" world); the rest ideal depth with gaps of 3 mm - 3 cm.
+    scene_touching: float = bounded(0.0, ge=0.0, le=1.0)
+    scene_noisy: float = bounded(0.0, ge=0.0, le=1.0)
     backend: BackendChoice = "auto"
     cache_dir: str = "data/clouds"
 
@@ -82,6 +89,9 @@ class CloudConfig:
             low, high = getattr(self, name)
             if low > high:
                 raise ValueError(f"data.{name} must be [low, high] with low <= high, got {[low, high]}")
+        if self.scene_touching + self.scene_noisy > 1.0:
+            raise ValueError(f"data.scene_touching + data.scene_noisy = {self.scene_touching + self.scene_noisy}"
+                             " must be <= 1 (they are fractions of the scenes)")
         if round(480 * self.image_scale) < 1:
             raise ValueError(f"data.image_scale = {self.image_scale} makes images under one pixel high")
 
@@ -252,14 +262,20 @@ def scene_clouds(object_set: ObjectSet, split: Literal["train", "test"], object_
     from jaxcls.world.setup import WorldConfig, make_world
 
     rng = np.random.default_rng(seed)
-    world = make_world(WorldConfig(objects=object_set_config, scene=dataclasses.replace(_SCENE, split=split),
-                                   camera=geometry.CameraConfig.kinect_v1(config.image_scale), backend=config.backend),
+    kind = rng.random()  # touching, noisy or plain (see CloudConfig.scene_touching / scene_noisy)
+    touching = kind < config.scene_touching
+    noisy = not touching and kind < config.scene_touching + config.scene_noisy
+    scene = dataclasses.replace(_SCENE, split=split, **(_TOUCHING_GAPS if touching else {}))
+    sensor = SensorConfig(pose_noise=True, pose_noise_shared=True) if noisy else SensorConfig.ideal()
+    world = make_world(WorldConfig(objects=object_set_config, scene=scene, sensor=sensor, backend=config.backend,
+                                   camera=geometry.CameraConfig.kinect_v1(config.image_scale)),
                        int(rng.integers(2**31)), object_set=object_set)
     spec = Spec.create(perception or PerceptionConfig(), world.intrinsics, world.table_height)
     path = geometry.random_view_path(rng, world.viewpoints[:, :3, 3], int(rng.integers(1, config.scene_max_views + 1)),
                                      world.config.viewpoints.candidate_radius)
+    depths, poses, _, _ = world.measure(jax.random.key(int(rng.integers(2**31))), path)
     state = init_state(spec)
-    for depth, T in zip(world.render(path).depth, world.poses(path), strict=True):
+    for depth, T in zip(depths, poses, strict=True):
         state = observe(spec, state, depth, T)
     points, mask = np.asarray(state.segments.points), np.asarray(state.segments.mask)
     owners = metrics.PointOwners(world.scene, world.models)
@@ -289,7 +305,7 @@ def _load_part(path: Path) -> CloudSet:
                         **{f.name: data[f.name] for f in dataclasses.fields(CloudSet) if f.name != "points"})
 
 
-_SCENE_FIELDS = ("scenes", "scene_max_views", "scene_purity")
+_SCENE_FIELDS = ("scenes", "scene_max_views", "scene_purity", "scene_touching", "scene_noisy")
 
 
 def _cache_key(object_set: ObjectSet, split: str, config: CloudConfig, object_set_config: ObjectSetConfig,
@@ -342,7 +358,7 @@ def load_clouds(object_set: ObjectSet, split: Literal["train", "test"], config: 
         # One file per scene (scene i has its own seed: more scenes extend the cache), in a folder keyed by
         # what defines scene clouds (perception included: they are observe's segments), so a changed
         # segmentation never reads stale clouds.
-        scene_defining = {"scene_max_views": config.scene_max_views, "scene_purity": config.scene_purity,
+        scene_defining = {**{name: getattr(config, name) for name in _SCENE_FIELDS if name != "scenes"},
                           "max_points": config.max_points,
                           "min_points": config.min_points, "image_scale": config.image_scale,
                           "perception": dataclasses.asdict(perception)}
