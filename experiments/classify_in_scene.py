@@ -16,6 +16,7 @@ Markdown tables go to stdout and ``--out``.
 from __future__ import annotations
 
 import argparse
+import collections
 import dataclasses
 import json
 from pathlib import Path
@@ -32,6 +33,8 @@ from jaxcls.perception.settings import PerceptionConfig
 from jaxcls.world import WorldConfig, make_world
 from jaxcls.world.dataset import scene_key, scene_seeds
 from jaxcls.world.objects import object_set_from_config
+
+SMALL_SEGMENT = 256  # points: segments smaller than this are reported apart among the errors
 
 
 @dataclasses.dataclass(frozen=True)
@@ -114,7 +117,7 @@ def main(argv: list[str] | None = None) -> None:
     config = load_config(InSceneConfig, args.config, args.overrides)
     out = Path(config.out_dir)
     save_config(config, out / "config.yaml")
-    summary, confusions, reliabilities, per_class, pooled = [], {}, {}, [], []
+    summary, confusions, reliabilities, per_class, pooled, errors = [], {}, {}, [], [], []
     classifiers = {name: pointnet.load_classifier(path or None) for name, path in config.weights.items()}
     all_records = evaluate(config, classifiers)
     for name, records in all_records.items():
@@ -150,6 +153,14 @@ def main(argv: list[str] | None = None) -> None:
                 cal = metrics.calibration(np.exp(logp).max(axis=1), logp.argmax(axis=1) == true)
                 row += [f"{-logp[np.arange(len(true)), true].mean():.3f}", f"{cal.ece:.3f}"]
             pooled.append(tuple(row))
+        for world_name in config.worlds:
+            for v in config.views:
+                wrong = [r for r in records if r["world"] == world_name and r["views"] == v
+                         and r["purity"] >= config.purity and r["predicted"] != r["true"]]
+                pairs = collections.Counter((classes[r["true"]], classes[r["predicted"]]) for r in wrong)
+                small = sum(r["size"] < SMALL_SEGMENT for r in wrong)
+                errors.append((name, world_name, v, len(wrong), small,
+                               ", ".join(f"{a} -> {b} {n}" for (a, b), n in pairs.most_common(4))))
         five = [r for r in records if r["views"] == min(config.views, key=lambda v: abs(v - 5))
                 and r["purity"] >= config.purity]
         for c, cls in enumerate(classes):
@@ -173,6 +184,10 @@ def main(argv: list[str] | None = None) -> None:
         ("weights", "T", "world", "segments", "NLL (calibrated: T)", "ECE (calibrated: T)", "NLL as trained (T = 1)",
          "ECE as trained (T = 1)"), pooled),
         args.out)
+    report.publish(report.section(
+        "PointNet in the scene: where the errors come from", argv,
+        ("weights", "world", "views", "errors", f"of them segments under {SMALL_SEGMENT} points",
+         "most frequent (true -> predicted count)"), errors), args.out)
     report.publish(report.section(
         f"PointNet in the scene: per-class accuracy after {min(config.views, key=lambda v: abs(v - 5))} views",
         argv, ("weights", "class", "segments", *config.worlds), per_class), args.out)

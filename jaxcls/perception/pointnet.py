@@ -32,7 +32,12 @@ from jaxcls.config import bounded, check_bounds
 from jaxcls.math import safe_norm
 
 WEIGHTS_DIR = Path(__file__).parent / "weights"
-BUILTIN_WEIGHTS = WEIGHTS_DIR / "pointnet_builtin.msgpack"
+# The weights shipped for the builtin object set, by name (``load_classifier("builtin_paper")``): ``builtin``
+# from ``jaxcls train --config pointnet`` (complete, partial and in-scene clouds; calibrated), the default;
+# ``builtin_paper`` from the paper's recipe (complete surfaces only; as trained, T = 1), for faithful rows.
+SHIPPED_WEIGHTS = {"builtin": WEIGHTS_DIR / "pointnet_builtin.msgpack",
+                   "builtin_paper": WEIGHTS_DIR / "pointnet_builtin_paper.msgpack"}
+BUILTIN_WEIGHTS = SHIPPED_WEIGHTS["builtin"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -259,15 +264,18 @@ def save_classifier(path: str | Path, classifier: Classifier, metadata: dict | N
 
 
 def load_classifier(path: str | Path | None = None, classes: Sequence[str] | None = None) -> Classifier:
-    """Weights written by ``save_classifier`` (default: the ones shipped for the builtin object set).
+    """Weights written by ``save_classifier``: a path, the name of a shipped set (``SHIPPED_WEIGHTS``), or
+    None for the default shipped for the builtin object set.
 
     With ``classes``, raise ValueError unless the weights were trained on exactly that class list.
     """
-    path = Path(path) if path is not None else BUILTIN_WEIGHTS
+    path = SHIPPED_WEIGHTS.get(str(path), path) if path is not None else BUILTIN_WEIGHTS
+    path = Path(path)
     info_path = path.with_suffix(".json")
     for p in (path, info_path):
         if not p.is_file():
-            raise FileNotFoundError(f"classifier: {p} not found (weights come as a .msgpack and a .json)")
+            raise FileNotFoundError(f"classifier: {p} not found (weights come as a .msgpack and a .json; "
+                                    f"shipped names: {', '.join(SHIPPED_WEIGHTS)})")
     try:
         info = json.loads(info_path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
