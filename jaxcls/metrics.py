@@ -97,3 +97,22 @@ def calibration(confidence: np.ndarray, correct: np.ndarray, bins: int = 10) -> 
     total = max(len(confidence), 1)
     ece = float(np.nansum(count / total * np.abs(mean_acc - mean_conf)))
     return Calibration(ece=ece, confidence=mean_conf, accuracy=mean_acc, count=count)
+
+
+def pose_error(estimate: np.ndarray, truth: np.ndarray, symmetry: int = 1) -> tuple[float, float]:
+    """(rotation error in degrees, translation error in metres) of a model-to-world ``estimate`` [4, 4]
+    against ``truth`` [4, 4], modulo the model's rotational symmetry about its z axis (``ObjectModel.
+    yaw_symmetry``: 0 = continuous, only the tilt of the axis counts; k >= 1 = the nearest of the k turns).
+    The symmetry axis is the model frame's z axis through its origin, so translations compare directly."""
+    R_est, R_true = np.asarray(estimate, np.float64)[:3, :3], np.asarray(truth, np.float64)[:3, :3]
+    translation = float(np.linalg.norm(np.asarray(estimate, np.float64)[:3, 3] - np.asarray(truth, np.float64)[:3, 3]))
+    if symmetry == 0:
+        cos = np.clip(R_est[:, 2] @ R_true[:, 2], -1.0, 1.0)
+        return float(np.degrees(np.arccos(cos))), translation
+    angles = []
+    for j in range(max(symmetry, 1)):
+        c, s = np.cos(2 * np.pi * j / symmetry), np.sin(2 * np.pi * j / symmetry)
+        turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        relative = (R_true @ turn).T @ R_est
+        angles.append(np.degrees(np.arccos(np.clip((np.trace(relative) - 1) / 2, -1.0, 1.0))))
+    return float(min(angles)), translation

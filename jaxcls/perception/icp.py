@@ -1,0 +1,286 @@
+"""Point-to-plane ICP of a segment onto an object model, and the registration ratio (paper Eq. 2).
+
+The model is the fixed side. ``model_target`` turns an ``ObjectModel`` into a ``Target`` once, on the host
+(NumPy/SciPy): surface samples with normals and a closest-sample lookup on a regular grid over the model's
+bounds plus the maximum correspondence distance (the ``candidates`` nearest samples of each cell's centre,
+from a KD-tree, then a step over the best one's nearest samples), so that an iteration is a few gathers per
+segment point rather than a nearest-neighbour search.
+
+``icp(source, mask, target, T_init, config)`` registers one segment ([P, 3] world points and a mask) onto
+one model and returns the model-to-world pose and rho. It is pure and jit-able; batch it with ``vmap``
+(segments x candidate models x pose hypotheses are one call in ``refine``). Each iteration:
+
+    p_i = T_mw x_i                                  segment points in the model frame
+    q_i, n_i = closest model sample and its normal  (grid lookup; pairs farther than max_correspondence
+                                                     are dropped)
+    min over (w, t) of sum_i ((R(w) (p_i - c) + c + t - q_i) . n_i)^2    linearised: R(w) ~ I + [w]x
+    T_mw <- [exp(w), c + t - exp(w) c] T_mw         (c: the paired points' centroid, for conditioning)
+
+``dof="yaw"`` restricts w to the world z axis (objects stand upright on the table: translation + yaw, 4
+degrees of freedom); ``dof="full"`` solves all 6. The same objective as Open3D's
+``TransformationEstimationPointToPlane`` (source = the segment, target = the model's samples), so both
+converge to the same pose; ``tests/test_icp.py`` checks that they do.
+
+Degenerate segments (fewer than 3 points, all points on a line or one spot, NaN points masked out) return
+the initial pose with rho = 0; nothing returns NaN.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import TYPE_CHECKING, Literal
+
+import jax
+import jax.numpy as jnp
+import jaxlie
+import numpy as np
+from flax import struct
+from scipy.spatial import cKDTree
+
+from jaxcls.config import bounded, check_bounds
+from jaxcls.math import safe_div
+from jaxcls.perception.foreground import compact
+
+if TYPE_CHECKING:  # perception reads models, it does not import the world
+    from jaxcls.world.objects import ObjectModel
+
+HIGHEST = jax.lax.Precision.HIGHEST
+Dof = Literal["yaw", "full"]
+_MIN_SPREAD = 1e-8  # m^2: a segment whose second principal variance is below this is a line or a point
+
+
+@dataclasses.dataclass(frozen=True)
+class ICPConfig:
+    """ICP and registration-ratio settings. Lengths in metres."""
+
+    iterations: int = bounded(20, ge=1)  # Gauss-Newton steps (a fixed count under lax.scan)
+    max_correspondence: float = bounded(0.02, gt=0.0)  # pairs farther apart are not used in a step
+    inlier_distance: float = bounded(0.01, gt=0.0)  # rho's inlier threshold (Eq. 2)
+    dof: Dof = "yaw"  # "yaw": translation + yaw about world z (upright objects); "full": 6-DoF
+    tolerance: float = bounded(1e-5, ge=0.0)  # converged once a step moves less (rad and m)
+    points: int = bounded(512, ge=1)  # segment points used (an even stride over the segment's slots)
+    model_points: int = bounded(2048, ge=1)  # model surface samples (the first ones: they are random)
+    grid_resolution: int = bounded(64, ge=2)  # closest-sample lookup cells per axis
+    candidates: int = bounded(4, ge=1)  # samples kept per cell; the nearest of them to the point is used
+    neighbours: int = bounded(8, ge=1)  # then a step over that sample's nearest samples (0 hops: the grid alone)
+    hops: int = bounded(1, ge=0)
+
+    def __post_init__(self) -> None:
+        check_bounds(self, "icp.")
+        if self.dof not in ("yaw", "full"):
+            raise ValueError(f"icp.dof must be 'yaw' or 'full', got {self.dof!r}")
+
+
+class Target(struct.PyTreeNode):
+    """One model, ready to be registered onto (model frame, metres).
+
+    points: [S, 3] f32 surface samples; normals: [S, 3] f32 unit outward normals; mask: [S] bool (False
+    = padding, in a library of models with fewer samples); grid: [G^3, K] i16 the K nearest samples of
+    each cell's centre, cells flattened x-major (models have fewer than 32768 samples); origin: [3] f32
+    the grid's min corner; cell: [3] f32 the cell's edge lengths; neighbours: [S, Kn] i32 each sample's
+    nearest samples (itself first).
+    """
+
+    points: jax.Array
+    normals: jax.Array
+    mask: jax.Array
+    grid: jax.Array
+    origin: jax.Array
+    cell: jax.Array
+    neighbours: jax.Array
+    resolution: int = struct.field(pytree_node=False)
+    hops: int = struct.field(pytree_node=False, default=1)
+
+
+class Registration(struct.PyTreeNode):
+    """What ``icp`` returns for one segment-model pair.
+
+    pose: [4, 4] f32 model-to-world; rho: [] f32 the registration ratio (Eq. 2); segment_fraction: [] f32
+    |S_R| / |S|; model_fraction: [] f32 |O_R| / |O|; matched: [S] bool the model samples matched by a
+    segment point within the inlier distance; rmse: [] f32 m, of the inlier distances; iterations: []
+    i32 steps taken before convergence; valid: [] bool False for a degenerate segment.
+    """
+
+    pose: jax.Array
+    rho: jax.Array
+    segment_fraction: jax.Array
+    model_fraction: jax.Array
+    matched: jax.Array
+    rmse: jax.Array
+    iterations: jax.Array
+    valid: jax.Array
+
+
+def model_target(model: ObjectModel, config: ICPConfig = ICPConfig(), samples: int | None = None) -> Target:
+    """The ``Target`` of ``model`` (host side, once per model): its first ``samples`` (default
+    ``config.model_points``) surface samples and the closest-sample grid over its bounds grown by
+    ``config.max_correspondence`` on every side."""
+    count = min(samples or config.model_points, len(model.surface_points))
+    if count >= 2**15:
+        raise ValueError(f"icp: {model.name}: at most 32767 model samples (got {count}); lower icp.model_points")
+    points = np.asarray(model.surface_points[:count], np.float64)
+    normals = np.asarray(model.surface_normals[:count], np.float32)
+    low = points.min(axis=0) - config.max_correspondence
+    high = points.max(axis=0) + config.max_correspondence
+    G = config.grid_resolution
+    cell = (high - low) / G
+    axes = [low[d] + (np.arange(G) + 0.5) * cell[d] for d in range(3)]
+    centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    tree = cKDTree(points)
+    _, index = tree.query(centres, k=min(config.candidates, count))
+    _, neighbours = tree.query(points, k=min(config.neighbours + 1, count))
+    return Target(points=jnp.asarray(points, jnp.float32), normals=jnp.asarray(normals),
+                  mask=jnp.ones(count, bool), grid=jnp.asarray(np.asarray(index, np.int16).reshape(G**3, -1)),
+                  origin=jnp.asarray(low, jnp.float32), cell=jnp.asarray(cell, jnp.float32),
+                  neighbours=jnp.asarray(np.asarray(neighbours, np.int32).reshape(count, -1)), resolution=G,
+                  hops=config.hops)
+
+
+def closest(target: Target, x: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Nearest model sample of each model-frame point ``x: [P, 3]``: (index [P] i32, distance [P] f32 m).
+
+    The nearest of the point's grid cell's candidates, then ``target.hops`` greedy steps to a nearer
+    sample among the current one's nearest samples: exact where that walk reaches the true nearest
+    sample (the candidates of a cell are the nearest of its centre, not of every point in it; the walk
+    repairs that near the surface, where correspondences are kept). Points outside the grid take the
+    nearest border cell, whose samples are farther than ``max_correspondence``."""
+    G = target.resolution
+    ijk = jnp.clip(jnp.floor((x - target.origin) / target.cell).astype(jnp.int32), 0, G - 1)
+    cell = (ijk[:, 0] * G + ijk[:, 1]) * G + ijk[:, 2]
+    index, d2 = _nearest_of(target, x, target.grid[cell].astype(jnp.int32))
+    for _ in range(target.hops):
+        index, d2 = _nearest_of(target, x, target.neighbours[index])
+    return index, jnp.sqrt(d2)
+
+
+def _nearest_of(target: Target, x: jax.Array, candidates: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """The nearest of ``candidates: [P, K]`` sample indices to each point: (index [P], squared distance [P])."""
+    d2 = jnp.sum((target.points[candidates] - x[:, None, :]) ** 2, axis=-1)
+    d2 = jnp.where(target.mask[candidates], d2, jnp.inf)
+    best = jnp.argmin(d2, axis=1)[:, None]
+    return jnp.take_along_axis(candidates, best, axis=1)[:, 0], jnp.take_along_axis(d2, best, axis=1)[:, 0]
+
+
+def _apply(T: jax.Array, x: jax.Array) -> jax.Array:
+    return jnp.einsum("ij,pj->pi", T[:3, :3], x, precision=HIGHEST) + T[:3, 3]
+
+
+def _spread(x: jax.Array, w: jax.Array) -> jax.Array:
+    """Second-largest principal variance (m^2) of the points ``x: [P, 3]`` weighted by ``w: [P]``."""
+    n = jnp.sum(w)
+    mean = safe_div(jnp.sum(w[:, None] * x, axis=0), n)
+    d = (x - mean) * w[:, None]
+    cov = safe_div(jnp.einsum("pi,pj->ij", d, x - mean, precision=HIGHEST), n)
+    return jnp.linalg.eigvalsh(cov)[1]
+
+
+def _step(T_mw: jax.Array, x: jax.Array, w0: jax.Array, target: Target, config: ICPConfig) -> jax.Array:
+    """One Gauss-Newton step: the increment [4, 4] applied on the left of ``T_mw`` (identity if too few
+    pairs constrain it)."""
+    p = _apply(T_mw, x)
+    index, dist = closest(target, p)
+    w = (w0 & (dist <= config.max_correspondence)).astype(p.dtype)
+    q, n = target.points[index], target.normals[index]
+    count = jnp.sum(w)
+    c = safe_div(jnp.sum(w[:, None] * p, axis=0), count)
+    pc = p - c
+    r = jnp.sum((p - q) * n, axis=-1)  # point-to-plane residuals
+    cross = jnp.cross(pc, n)
+    if config.dof == "full":
+        J = jnp.concatenate([cross, n], axis=-1)  # [P, 6]: d r / d (w, t)
+    else:
+        axis = T_mw[:3, 2]  # world z in the model frame: the only rotation allowed
+        J = jnp.concatenate([(cross @ axis)[:, None], n], axis=-1)  # [P, 4]
+    k = J.shape[1]
+    A = jnp.einsum("pi,pj->ij", J * w[:, None], J, precision=HIGHEST)
+    b = -jnp.einsum("pi,p->i", J * w[:, None], r, precision=HIGHEST)
+    damping = 1e-6 * jnp.trace(A) / k + 1e-12  # Levenberg: keeps unconstrained directions still
+    delta = jnp.linalg.solve(A + damping * jnp.eye(k, dtype=A.dtype), b)
+    delta = jnp.where((count >= k) & jnp.all(jnp.isfinite(delta)), delta, 0.0)
+    omega = delta[:3] if config.dof == "full" else delta[0] * T_mw[:3, 2]
+    t = delta[-3:]
+    R = jaxlie.SO3.exp(omega).as_matrix()
+    step = jnp.eye(4, dtype=T_mw.dtype).at[:3, :3].set(R).at[:3, 3].set(c + t - R @ c)
+    return step
+
+
+def icp(source: jax.Array, mask: jax.Array, target: Target, T_init: jax.Array, config: ICPConfig = ICPConfig(),
+        seen_from: jax.Array | None = None) -> Registration:
+    """Register a segment onto a model by point-to-plane ICP.
+
+    source: [P, 3] f32 world points (m); mask: [P] bool real points (NaN points count as masked); target:
+    the model (``model_target``); T_init: [4, 4] initial model-to-world pose; seen_from: optional [C, 3]
+    world camera positions that have looked at the scene (NaN rows = none), for the visibility-aware rho
+    (see ``registration_ratio``). At most ``config.points`` of the real points are used (evenly strided).
+    """
+    x, mask = _subsample(source, mask, config.points)
+    valid = (jnp.sum(mask) >= 3) & (_spread(x, mask.astype(x.dtype)) >= _MIN_SPREAD)
+    T_init = jnp.asarray(T_init, jnp.float32)
+    T_mw0 = _invert(T_init)
+
+    def body(carry, _):
+        T_mw, done, steps = carry
+        step = _step(T_mw, x, mask, target, config)
+        moved = jnp.maximum(jnp.linalg.norm(jaxlie.SO3.from_matrix(step[:3, :3]).log()),
+                            jnp.linalg.norm(step[:3, 3]))
+        T_new = jnp.where(done, T_mw, jnp.einsum("ij,jk->ik", step, T_mw, precision=HIGHEST))
+        T_new = _orthonormalise(T_new)
+        return (T_new, done | (moved < config.tolerance), steps + (~done).astype(jnp.int32)), None
+
+    (T_mw, _, steps), _ = jax.lax.scan(body, (T_mw0, ~valid, jnp.int32(0)), None, length=config.iterations)
+    pose = jnp.where(valid, _invert(T_mw), T_init)
+    ratio = registration_ratio(x, mask & valid, target, pose, config.inlier_distance, seen_from)
+    return Registration(pose=pose, iterations=steps, valid=valid, **ratio)
+
+
+def registration_ratio(source: jax.Array, mask: jax.Array, target: Target, pose: jax.Array,
+                       inlier_distance: float, seen_from: jax.Array | None = None) -> dict[str, jax.Array]:
+    """The registration ratio of Eq. 2 at model-to-world ``pose`` [4, 4]:
+
+        rho = (|S_R| / |S|) * (|O_R| / |O|)
+
+    S: the segment's points (``mask``); S_R: those within ``inlier_distance`` of their nearest model
+    sample; O: the model's samples; O_R: the samples that are some inlier's nearest. The first factor is
+    what Open3D calls ``fitness`` (inlier correspondences over source points); the second asks the
+    model to be covered too, so a small model hidden inside a big segment does not score 1.
+
+    With ``seen_from`` ([C, 3] world camera positions; NaN rows ignored), O counts only the samples whose
+    outward normal faces at least one of those cameras (the visibility-aware variant: the back of an
+    object that was only seen from one side is unseen, not missing). Self-occlusion is not modelled.
+    Returns rho, segment_fraction, model_fraction, matched ([S] bool), rmse (m).
+    """
+    T_mw = _invert(pose)
+    p = _apply(T_mw, jnp.where(mask[:, None], source, 0.0))
+    index, dist = closest(target, p)
+    inlier = mask & (dist <= inlier_distance)
+    S = target.points.shape[0]
+    matched = jnp.zeros(S, bool).at[jnp.where(inlier, index, S)].set(True, mode="drop")
+    considered = target.mask
+    if seen_from is not None:
+        cams = _apply(T_mw, jnp.nan_to_num(seen_from))  # cameras in the model frame
+        ok = jnp.all(jnp.isfinite(seen_from), axis=-1)
+        facing = jnp.einsum("sk,csk->cs", target.normals, cams[:, None, :] - target.points[None]) > 0
+        considered = considered & jnp.any(facing & ok[:, None], axis=0)
+    segment_fraction = safe_div(jnp.sum(inlier), jnp.sum(mask))
+    model_fraction = safe_div(jnp.sum(matched & considered), jnp.sum(considered))
+    rmse = jnp.sqrt(safe_div(jnp.sum(jnp.where(inlier, dist**2, 0.0)), jnp.sum(inlier)))
+    return {"rho": segment_fraction * model_fraction, "segment_fraction": segment_fraction,
+            "model_fraction": model_fraction, "matched": matched, "rmse": rmse}
+
+
+def _subsample(source: jax.Array, mask: jax.Array, count: int) -> tuple[jax.Array, jax.Array]:
+    """At most ``count`` of the real points, evenly strided (``foreground.compact``); NaN points dropped."""
+    mask = mask & jnp.all(jnp.isfinite(source), axis=-1)
+    if source.shape[0] <= count:
+        return jnp.where(mask[:, None], source, 0.0), mask
+    return compact(jnp.where(mask[:, None], source, 0.0), mask, count)
+
+
+def _invert(T: jax.Array) -> jax.Array:
+    R, t = T[:3, :3], T[:3, 3]
+    return jnp.eye(4, dtype=T.dtype).at[:3, :3].set(R.T).at[:3, 3].set(-R.T @ t)
+
+
+def _orthonormalise(T: jax.Array) -> jax.Array:
+    """Project the rotation block back onto SO(3) (float32 products drift) through its quaternion."""
+    return T.at[:3, :3].set(jaxlie.SO3.from_matrix(T[:3, :3]).normalize().as_matrix())
