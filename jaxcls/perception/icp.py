@@ -46,6 +46,7 @@ if TYPE_CHECKING:  # perception reads models, it does not import the world
 
 HIGHEST = jax.lax.Precision.HIGHEST
 Dof = Literal["yaw", "full"]
+_HOP_NEIGHBOURS = 8  # samples looked at per step of the closest-sample walk
 _MIN_SPREAD = 1e-8  # m^2: a segment whose second principal variance is below this is a line or a point
 
 
@@ -62,8 +63,8 @@ class ICPConfig:
     model_points: int = bounded(2048, ge=1)  # model surface samples (the first ones: they are random)
     grid_resolution: int = bounded(64, ge=2)  # closest-sample lookup cells per axis
     candidates: int = bounded(4, ge=1)  # samples kept per cell; the nearest of them to the point is used
-    neighbours: int = bounded(8, ge=1)  # then a step over that sample's nearest samples (0 hops: the grid alone)
-    hops: int = bounded(1, ge=0)
+    hops: int = bounded(1, ge=0)  # then steps over that sample's 8 nearest samples (0: the grid alone)
+    neighbours: int = bounded(32, ge=8)  # nearest samples kept per sample (rho's model side reads them all)
 
     def __post_init__(self) -> None:
         check_bounds(self, "icp.")
@@ -140,7 +141,7 @@ def closest(target: Target, x: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Nearest model sample of each model-frame point ``x: [P, 3]``: (index [P] i32, distance [P] f32 m).
 
     The nearest of the point's grid cell's candidates, then ``target.hops`` greedy steps to a nearer
-    sample among the current one's nearest samples: exact where that walk reaches the true nearest
+    sample among the current one's 8 nearest samples: exact where that walk reaches the true nearest
     sample (the candidates of a cell are the nearest of its centre, not of every point in it; the walk
     repairs that near the surface, where correspondences are kept). Points outside the grid take the
     nearest border cell, whose samples are farther than ``max_correspondence``."""
@@ -149,7 +150,7 @@ def closest(target: Target, x: jax.Array) -> tuple[jax.Array, jax.Array]:
     cell = (ijk[:, 0] * G + ijk[:, 1]) * G + ijk[:, 2]
     index, d2 = _nearest_of(target, x, target.grid[cell].astype(jnp.int32))
     for _ in range(target.hops):
-        index, d2 = _nearest_of(target, x, target.neighbours[index])
+        index, d2 = _nearest_of(target, x, target.neighbours[index, :_HOP_NEIGHBOURS])
     return index, jnp.sqrt(d2)
 
 
@@ -213,6 +214,7 @@ def icp(source: jax.Array, mask: jax.Array, target: Target, T_init: jax.Array, c
     world camera positions that have looked at the scene (NaN rows = none), for the visibility-aware rho
     (see ``registration_ratio``). At most ``config.points`` of the real points are used (evenly strided).
     """
+    whole, whole_mask = _subsample(source, mask, source.shape[0])  # NaN points out; rho reads them all
     x, mask = _subsample(source, mask, config.points)
     valid = (jnp.sum(mask) >= 3) & (_spread(x, mask.astype(x.dtype)) >= _MIN_SPREAD)
     T_init = jnp.asarray(T_init, jnp.float32)
@@ -229,7 +231,7 @@ def icp(source: jax.Array, mask: jax.Array, target: Target, T_init: jax.Array, c
 
     (T_mw, _, steps), _ = jax.lax.scan(body, (T_mw0, ~valid, jnp.int32(0)), None, length=config.iterations)
     pose = jnp.where(valid, _invert(T_mw), T_init)
-    ratio = registration_ratio(x, mask & valid, target, pose, config.inlier_distance, seen_from)
+    ratio = registration_ratio(whole, whole_mask & valid, target, pose, config.inlier_distance, seen_from)
     return Registration(pose=pose, iterations=steps, valid=valid, **ratio)
 
 
@@ -239,22 +241,28 @@ def registration_ratio(source: jax.Array, mask: jax.Array, target: Target, pose:
 
         rho = (|S_R| / |S|) * (|O_R| / |O|)
 
-    S: the segment's points (``mask``); S_R: those within ``inlier_distance`` of their nearest model
-    sample; O: the model's samples; O_R: the samples that are some inlier's nearest. The first factor is
-    what Open3D calls ``fitness`` (inlier correspondences over source points); the second asks the
-    model to be covered too, so a small model hidden inside a big segment does not score 1.
+    S: the segment's points (``mask``); S_R: those within ``inlier_distance`` of the model (of their
+    nearest sample); O: the model's samples; O_R: the samples within ``inlier_distance`` of some segment
+    point (found among the nearest samples of each point's nearest sample, ``Target.neighbours``: exact
+    while an inlier ball holds no more samples than that). The first factor is what Open3D calls
+    ``fitness`` (inlier correspondences over source points); the second asks the model to be covered
+    too, so a small model hidden inside a big segment does not score 1. Counting O_R from the model side
+    keeps it independent of how many points the segment has (a segment of 1024 points can cover more of a
+    2048-sample model than the 1024 samples that are some point's nearest).
 
     With ``seen_from`` ([C, 3] world camera positions; NaN rows ignored), O counts only the samples whose
     outward normal faces at least one of those cameras (the visibility-aware variant: the back of an
     object that was only seen from one side is unseen, not missing). Self-occlusion is not modelled.
-    Returns rho, segment_fraction, model_fraction, matched ([S] bool), rmse (m).
+    Returns rho, segment_fraction, model_fraction, matched ([S] bool: O_R), rmse (m, of S_R).
     """
     T_mw = _invert(pose)
     p = _apply(T_mw, jnp.where(mask[:, None], source, 0.0))
     index, dist = closest(target, p)
     inlier = mask & (dist <= inlier_distance)
     S = target.points.shape[0]
-    matched = jnp.zeros(S, bool).at[jnp.where(inlier, index, S)].set(True, mode="drop")
+    near = target.neighbours[index]  # [P, Kn]: samples around each point's nearest one
+    close = inlier[:, None] & (jnp.sum((target.points[near] - p[:, None, :]) ** 2, -1) <= inlier_distance**2)
+    matched = jnp.zeros(S, bool).at[jnp.where(close, near, S)].set(True, mode="drop")
     considered = target.mask
     if seen_from is not None:
         cams = _apply(T_mw, jnp.nan_to_num(seen_from))  # cameras in the model frame
