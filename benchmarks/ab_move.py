@@ -16,8 +16,6 @@ from __future__ import annotations
 import argparse
 import datetime
 import importlib
-import os
-import platform
 import re
 import statistics
 import subprocess
@@ -128,7 +126,7 @@ def main(argv: list[str] | None = None) -> None:
                     side.append(report.timed(fn, args.repeats)[1] * 1e3)
         print(samples, file=sys.stderr)
 
-    cpu = f"CPU ({platform.processor() or platform.machine()}, {os.cpu_count()} cores)"
+    cpu = report.cpu_name()
     rows = []
     for name, (a_ms, b_ms) in samples.items():
         ratio = [y / x for x, y in zip(a_ms, b_ms, strict=True)]

@@ -21,8 +21,6 @@ import argparse
 import dataclasses
 import datetime
 import json
-import os
-import platform
 from pathlib import Path
 
 import jax
@@ -36,13 +34,6 @@ from jaxcls.learn.clouds import SOURCES, load_clouds
 from jaxcls.learn.train import TrainConfig, create_state, evaluation_sets, make_bank, make_train_epoch, predict_all
 from jaxcls.perception import pointnet
 from jaxcls.world.objects import object_set_from_config
-
-
-def device_name() -> str:
-    d = jax.devices()[0]
-    if d.platform == "cpu":
-        return f"CPU ({platform.processor() or platform.machine()}, {os.cpu_count()} cores)"
-    return f"GPU ({d.device_kind})" if jax.device_count() == 1 else f"{jax.device_count()} x GPU ({d.device_kind})"
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -71,7 +62,7 @@ def main(argv: list[str] | None = None) -> None:
             epoch = make_train_epoch(cfg, M, args.steps, mesh)
             state = jax.device_put(create_state(cfg, M, args.steps), replicated)
             _, med, _ = report.timed(lambda e=epoch, s=state: e(s, bank, jax.random.key(0)), args.repeats)
-            rows.append((f"training, batch {batch} x {config.model.num_points} points", device_name(),
+            rows.append((f"training, batch {batch} x {config.model.num_points} points", report.device_name(),
                          f"{med / args.steps * 1e3:.2f} ms/step", f"{batch * args.steps / med:.0f} clouds/s"))
             print(rows[-1])
     with jax.default_device(jax.devices("cpu")[0]):
@@ -81,7 +72,7 @@ def main(argv: list[str] | None = None) -> None:
         mask = jnp.ones((5, 1024), bool)
         _, med, _ = report.timed(lambda: pointnet.classify(classifier, points, mask), args.repeats * 4)
         rows.append(("inference (`classify`), 5 segments x 1024 points",
-                     f"CPU ({platform.processor() or platform.machine()}, {os.cpu_count()} cores)",
+                     report.cpu_name(),
                      f"{med * 1e3:.1f} ms", f"{5 / med:.0f} segments/s"))
         print(rows[-1])
     report.publish(report.section(f"PointNet speed, {datetime.date.today()}", argv,

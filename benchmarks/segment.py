@@ -17,8 +17,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import os
-import platform
 import sys
 
 import jax
@@ -57,7 +55,7 @@ def main(argv: list[str] | None = None) -> None:
     intr = Intrinsics.kinect_v1(args.scale)
     res = f"{intr.width}x{intr.height}"
     cpu_device = jax.devices("cpu")[0]
-    cpu = f"CPU ({platform.processor() or platform.machine()}, {os.cpu_count()} cores)"
+    cpu = report.cpu_name()
     observe = jax.jit(perception.observe)  # one move: foreground, integration, extraction, `segment_jax`
 
     def spec_of(world) -> perception.Spec:

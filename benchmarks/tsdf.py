@@ -16,8 +16,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import os
-import platform
 import sys
 
 import jax
@@ -57,7 +55,7 @@ def main(argv: list[str] | None = None) -> None:
     volume = tsdf.create_volume(centre, size=args.size, resolution=args.resolution)
     res, grid = f"{intr.width}x{intr.height}", f"{args.resolution}^3"
     cpu_device = jax.devices("cpu")[0]
-    cpu = f"CPU ({platform.processor() or platform.machine()}, {os.cpu_count()} cores)"
+    cpu = report.cpu_name()
     rows: list[tuple[str, ...]] = []
     notes: list[str] = []
     extraction = f"jaxcls.perception.tsdf `extract_surface` (max_points={args.max_points})"

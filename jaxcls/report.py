@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import platform
 import shlex
 import statistics
 import sys
@@ -51,3 +53,18 @@ def timed(fn: Callable[[], object], repeats: int) -> tuple[float, float, object]
         out = jax.block_until_ready(fn())
         times.append(time.perf_counter() - start)
     return first, statistics.median(times), out
+
+
+def cpu_name() -> str:
+    """This machine's CPU as the tables name it: ``CPU (x86_64, 2 cores)``."""
+    return f"CPU ({platform.processor() or platform.machine()}, {os.cpu_count()} cores)"
+
+
+def device_name() -> str:
+    """JAX's default device as the tables name it (the CPU, or ``GPU (kind)``, ``N x GPU (kind)``)."""
+    import jax
+
+    d = jax.devices()[0]
+    if d.platform == "cpu":
+        return cpu_name()
+    return f"GPU ({d.device_kind})" if jax.device_count() == 1 else f"{jax.device_count()} x GPU ({d.device_kind})"

@@ -214,8 +214,8 @@ def icp(source: jax.Array, mask: jax.Array, target: Target, T_init: jax.Array, c
     world camera positions that have looked at the scene (NaN rows = none), for the visibility-aware rho
     (see ``registration_ratio``). At most ``config.points`` of the real points are used (evenly strided).
     """
-    whole, whole_mask = _subsample(source, mask, source.shape[0])  # NaN points out; rho reads them all
-    x, mask = _subsample(source, mask, config.points)
+    whole, whole_mask = subsample(source, mask, source.shape[0])  # NaN points out; rho reads them all
+    x, mask = subsample(source, mask, config.points)
     valid = (jnp.sum(mask) >= 3) & (_spread(x, mask.astype(x.dtype)) >= _MIN_SPREAD)
     T_init = jnp.asarray(T_init, jnp.float32)
     T_mw0 = _invert(T_init)
@@ -276,8 +276,9 @@ def registration_ratio(source: jax.Array, mask: jax.Array, target: Target, pose:
             "model_fraction": model_fraction, "matched": matched, "rmse": rmse}
 
 
-def _subsample(source: jax.Array, mask: jax.Array, count: int) -> tuple[jax.Array, jax.Array]:
-    """At most ``count`` of the real points, evenly strided (``foreground.compact``); NaN points dropped."""
+def subsample(source: jax.Array, mask: jax.Array, count: int) -> tuple[jax.Array, jax.Array]:
+    """([count or P, 3], mask) at most ``count`` of the real points of ``source: [P, 3]`` (``mask: [P]``),
+    evenly strided (``foreground.compact``); NaN points are dropped, free slots are zeros."""
     mask = mask & jnp.all(jnp.isfinite(source), axis=-1)
     if source.shape[0] <= count:
         return jnp.where(mask[:, None], source, 0.0), mask

@@ -132,8 +132,11 @@ def initial_poses(points: jax.Array, mask: jax.Array, centroid: jax.Array, table
 def refine(points: jax.Array, mask: jax.Array, probs: jax.Array, library: ModelLibrary, config: RefineConfig,
            table_height: float | jax.Array = 0.0, seen_from: jax.Array | None = None) -> Refinement:
     """GR for N segments: points [N, P, 3] world (m), mask [N, P], probs [N, M] PointNet's scores (classes
-    in ``library.classes`` order); seen_from: optional [C, 3] camera positions for the visibility-aware
-    rho (``icp.registration_ratio``). Pure; see ``refine_jit``."""
+    in ``library.classes`` order); at most ``config.icp.points`` points of a segment are read, rho
+    included. seen_from: optional [C, 3] camera positions for the visibility-aware rho
+    (``icp.registration_ratio``). Pure; see ``refine_jit``."""
+    # Every registration (and its rho) reads the same icp.points of each segment: sampled once, here.
+    points, mask = jax.vmap(lambda p, m: icp.subsample(p, m, config.icp.points))(points, mask)
     k = min(config.top_k, probs.shape[1])
     _, candidates = jax.lax.top_k(probs, k)  # [N, k]
     models = library.class_models[candidates]  # [N, k, J]
