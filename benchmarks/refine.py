@@ -135,8 +135,7 @@ def main(argv: list[str] | None = None) -> None:
 
     contenders["Open3D registration_icp, 120 x 30 iterations, one after another (+ KD-tree rho)"] = (
         run_open3d, lambda outs: outs)
-    first = {name: time.perf_counter() for name in contenders}
-    results = {}
+    first, results = {}, {}
     for name, (run, _) in contenders.items():
         start = time.perf_counter()
         results[name] = run()

@@ -25,7 +25,7 @@ def scene():
     owners = metrics.PointOwners(world.scene, world.models)
     points, mask = np.asarray(state.segments.points), np.asarray(state.segments.mask)
     truth = metrics.segment_truth(owners(points.reshape(-1, 3), mask.reshape(-1)).reshape(mask.shape), mask)
-    library = refine.ModelLibrary.build(world.object_set.test, classifier.classes)
+    library = refine.ModelLibrary.build(refine.library_models(world.object_set, "known"), classifier.classes)
     return world, classifier, state, truth, library
 
 
@@ -83,3 +83,7 @@ def test_library_and_config_errors_name_the_problem(scene):
         refine.ModelLibrary.build(world.object_set.test[:4], classifier.classes)
     with pytest.raises(ValueError, match="prune_after"):
         refine.RefineConfig(prune_after=40)
+    # The library kinds: the scenes' own split's instances, or the training instances only.
+    assert refine.library_models(world.object_set, "known") == world.object_set.test
+    assert refine.library_models(world.object_set, "category") == world.object_set.train
+    assert refine.library_models(world.object_set, "known", "all") == world.object_set.train + world.object_set.test

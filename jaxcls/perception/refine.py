@@ -34,7 +34,7 @@ from jaxcls.math import safe_div
 from jaxcls.perception import icp
 
 if TYPE_CHECKING:  # perception reads models, it does not import the world
-    from jaxcls.world.objects import ObjectModel
+    from jaxcls.world.objects import ObjectModel, ObjectSet
 
 LibraryKind = Literal["known", "category"]
 
@@ -46,7 +46,7 @@ class RefineConfig:
     icp: icp.ICPConfig = dataclasses.field(default_factory=icp.ICPConfig)
     top_k: int = bounded(3, ge=1)  # candidate classes per segment (Eq. 1's top-k)
     hypotheses: int = bounded(8, ge=1)  # initial yaws per model, evenly spaced
-    prune_after: int = bounded(5, ge=0)  # iterations run on every hypothesis before the best one goes on
+    prune_after: int = bounded(5, ge=1)  # iterations on every hypothesis before the best goes on (= iterations: none)
     # Which models stand for a class: "known" = the instances the scenes are drawn from (the paper's "a CAD
     # model for each object class"), "category" = the training instances only (the scene's shapes unseen).
     library: LibraryKind = "known"
@@ -97,6 +97,17 @@ class ModelLibrary(struct.PyTreeNode):
                    names=tuple(m.name for m in models), classes=classes)
 
 
+def library_models(object_set: ObjectSet, kind: LibraryKind, scene_split: str = "test") -> tuple[ObjectModel, ...]:
+    """The models that stand for the classes (``RefineConfig.library``): ``known`` = the instances of the
+    split the scenes are drawn from (``"train"``, ``"test"`` or ``"all"``), ``category`` = the training
+    instances only."""
+    if kind == "category":
+        return tuple(object_set.train)
+    if kind != "known":
+        raise ValueError(f"refine.library must be 'known' or 'category', got {kind!r}")
+    return tuple(object_set.split(scene_split))
+
+
 class Refinement(struct.PyTreeNode):
     """GR's answer per segment (N segments, k candidates).
 
@@ -141,8 +152,8 @@ def refine(points: jax.Array, mask: jax.Array, probs: jax.Array, library: ModelL
     _, candidates = jax.lax.top_k(probs, k)  # [N, k]
     models = library.class_models[candidates]  # [N, k, J]
     model_ok = library.class_mask[candidates]
-    first = dataclasses.replace(config.icp, iterations=max(config.prune_after, 1))
-    rest = dataclasses.replace(config.icp, iterations=max(config.icp.iterations - config.prune_after, 1))
+    first = dataclasses.replace(config.icp, iterations=config.prune_after)
+    remaining = config.icp.iterations - first.iterations
 
     def target(m):
         return jax.tree.map(lambda a: a[m], library.targets)
@@ -153,10 +164,11 @@ def refine(points: jax.Array, mask: jax.Array, probs: jax.Array, library: ModelL
         tgt = target(m)
         stage = jax.vmap(lambda T: icp.icp(p, mk, tgt, T, first, seen_from))(inits)
         best = jnp.argmax(stage.rho)
-        if config.prune_after == 0 or config.prune_after == config.icp.iterations:
+        if remaining == 0:
             done = jax.tree.map(lambda a: a[best], stage)
         else:
-            done = icp.icp(p, mk, tgt, stage.pose[best], rest, seen_from)
+            done = icp.icp(p, mk, tgt, stage.pose[best], dataclasses.replace(config.icp, iterations=remaining),
+                           seen_from)
         return done.rho, done.pose, done.valid
 
     per_model = jax.vmap(jax.vmap(jax.vmap(one_model, in_axes=(None, None, 0)), in_axes=(None, None, 0)))
