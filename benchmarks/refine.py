@@ -27,7 +27,7 @@ from scipy.spatial import cKDTree
 
 from jaxcls import metrics, report
 from jaxcls.geometry import CameraConfig
-from jaxcls.perception import Spec, icp, init_state, observe, pointnet, refine
+from jaxcls.perception import Spec, icp, init_state, observe, pointnet, pose, refine
 from jaxcls.perception.settings import PerceptionConfig
 from jaxcls.world import WorldConfig, make_world
 
@@ -54,9 +54,9 @@ def _open3d_move(points, mask, probs, models, targets, config: refine.RefineConf
     reg = o3d.pipelines.registration
     clouds = []
     for t in targets:
-        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(t.points, np.float64)))
-        cloud.normals = o3d.utility.Vector3dVector(np.asarray(t.normals, np.float64))
-        clouds.append((cloud, cKDTree(np.asarray(t.points, np.float64))))
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(t.samples()[0], np.float64)))
+        cloud.normals = o3d.utility.Vector3dVector(np.asarray(t.samples()[1], np.float64))
+        clouds.append((cloud, cKDTree(np.asarray(t.samples()[0], np.float64))))
     criteria = reg.ICPConvergenceCriteria(1e-6, 1e-6, 30)
     refined, poses = [], []
     for n in range(len(points)):
@@ -69,7 +69,7 @@ def _open3d_move(points, mask, probs, models, targets, config: refine.RefineConf
         best = (-1.0, 0, np.eye(4))
         for c in np.argsort(-probs[n])[: config.top_k]:
             cloud, tree = clouds[c]
-            inits = np.asarray(refine.initial_poses(points[n], mask[n], np.asarray(targets[c].points).mean(0),
+            inits = np.asarray(pose.initial_poses(points[n], mask[n], np.asarray(targets[c].samples()[0]).mean(0),
                                                     table_height, config.hypotheses), np.float64)
             for T0 in inits:
                 result = reg.registration_icp(source, cloud, config.icp.max_correspondence, np.linalg.inv(T0),

@@ -71,8 +71,8 @@ def _open3d_icp(source: np.ndarray, target: icp.Target, T_init: np.ndarray, conf
     o3d = pytest.importorskip("open3d")
     reg = o3d.pipelines.registration
     src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(source.astype(np.float64)))
-    tgt = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(target.points, np.float64)))
-    tgt.normals = o3d.utility.Vector3dVector(np.asarray(target.normals, np.float64))
+    tgt = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(target.samples()[0], np.float64)))
+    tgt.normals = o3d.utility.Vector3dVector(np.asarray(target.samples()[1], np.float64))
     # Open3D moves the source (the segment) onto the target (the model): its transform is world -> model.
     result = reg.registration_icp(src, tgt, config.max_correspondence, np.linalg.inv(T_init),
                                   reg.TransformationEstimationPointToPlane(),
@@ -108,7 +108,7 @@ def test_icp_agrees_with_open3d_on_rendered_partial_views():
         ours = np.asarray(out.pose[k], np.float64)
         angle, shift = metrics.pose_error(ours, theirs, model.yaw_symmetry)
         agree.append(angle <= 0.5 and shift <= 0.002)
-        rho_gap.append(abs(float(out.rho[k]) - _kdtree_rho(seen, np.asarray(target.points), theirs,
+        rho_gap.append(abs(float(out.rho[k]) - _kdtree_rho(seen, np.asarray(target.samples()[0]), theirs,
                                                           config.inlier_distance)))
         angle, shift = metrics.pose_error(ours, pose, model.yaw_symmetry)
         truth_ok.append(angle <= 2.0 and shift <= 0.005)
@@ -129,8 +129,8 @@ def test_icp_recovers_a_posed_model_exactly(dof):
     pose = np.eye(4)
     pose[:3, :3] = Rotation.from_euler("z", 0.8).as_matrix()
     pose[:3, 3] = [0.12, -0.07, 0.0]
-    side = np.asarray(target.points) @ np.array([1.0, 0.3, 0.2]) > 0  # one side, from the target's own samples
-    seen = np.asarray(target.points)[side]
+    side = np.asarray(target.samples()[0]) @ np.array([1.0, 0.3, 0.2]) > 0  # one side, from the target's own samples
+    seen = np.asarray(target.samples()[0])[side]
     seen = seen[rng.permutation(len(seen))[:P]]
     source, mask = _pad(seen @ pose[:3, :3].T + pose[:3, 3])
     result = icp.icp(source, mask, target, _perturb(rng, pose, 10.0, 0.015, dof).astype(np.float32), config)
@@ -138,7 +138,7 @@ def test_icp_recovers_a_posed_model_exactly(dof):
     assert angle < 0.05 and shift < 2e-4
     assert bool(result.valid) and 0 < int(result.iterations) < config.iterations  # converged, then stopped
     assert float(result.segment_fraction) == pytest.approx(1.0)
-    covered = cKDTree(seen).query(np.asarray(target.points))[0] <= config.inlier_distance  # Eq. 2's O_R
+    covered = cKDTree(seen).query(np.asarray(target.samples()[0]))[0] <= config.inlier_distance  # Eq. 2's O_R
     assert float(result.model_fraction) == pytest.approx(covered.mean(), abs=0.01)
     assert 0.3 < covered.mean() < 0.7
 
@@ -161,7 +161,7 @@ def test_degenerate_segments_keep_the_initial_pose_and_score_zero():
         assert not bool(result.valid) and float(result.rho) == 0.0, name
         np.testing.assert_array_equal(np.asarray(result.pose), T_init, err_msg=name)
     # Masked-out slots and NaN points are not points: a good cloud among NaNs registers as without them.
-    good = np.asarray(target.points)[:48] + T_init[:3, 3]
+    good = np.asarray(target.samples()[0])[:48] + T_init[:3, 3]
     source = np.full((64, 3), np.nan, np.float32)
     source[:48] = good
     result = icp.icp(source, np.ones(64, bool), target, T_init, config)
@@ -177,7 +177,7 @@ def test_visibility_aware_ratio_counts_only_the_model_side_seen():
     model = builtin_object_set(train_per_class=0, test_per_class=1).test[2]
     config = icp.ICPConfig()
     target = icp.model_target(model, config)
-    points, normals = np.asarray(target.points), np.asarray(target.normals)
+    points, normals = np.asarray(target.samples()[0]), np.asarray(target.samples()[1])
     camera = np.array([2.0, 0.0, 0.3])
     facing = np.einsum("sk,sk->s", normals, camera - points) > 0
     source, mask = _pad(points[facing][:P])

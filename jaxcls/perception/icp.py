@@ -28,6 +28,7 @@ the initial pose with rho = 0; nothing returns NaN.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Literal
 
 import jax
@@ -73,13 +74,16 @@ class ICPConfig:
 
 
 class Target(struct.PyTreeNode):
-    """One model, ready to be registered onto (model frame, metres).
+    """Models ready to be registered onto (model frames, metres): L models stacked, and ``which`` of them
+    this registration uses. ``model_target`` makes one (L = 1); ``stack`` makes a library; ``select``
+    points at one model without copying it (under ``vmap`` over ``which`` every lookup gathers straight
+    from the stacked arrays, never from a per-registration copy of a model's grid).
 
-    points: [S, 3] f32 surface samples; normals: [S, 3] f32 unit outward normals; mask: [S] bool (False
-    = padding, in a library of models with fewer samples); grid: [G^3, K] i16 the K nearest samples of
-    each cell's centre, cells flattened x-major (models have fewer than 32768 samples); origin: [3] f32
-    the grid's min corner; cell: [3] f32 the cell's edge lengths; neighbours: [S, Kn] i32 each sample's
-    nearest samples (itself first).
+    points: [L, S, 3] f32 surface samples; normals: [L, S, 3] f32 unit outward normals; mask: [L, S] bool
+    (False = padding); grid: [L, G^3, K] i16 the K nearest samples of each cell's centre, cells flattened
+    x-major (models have fewer than 32768 samples); origin: [L, 3] f32 the grid's min corner; cell: [L, 3]
+    f32 the cell's edge lengths; neighbours: [L, S, Kn] i16 each sample's nearest samples (itself first);
+    which: [] i32 the model used.
     """
 
     points: jax.Array
@@ -89,8 +93,28 @@ class Target(struct.PyTreeNode):
     origin: jax.Array
     cell: jax.Array
     neighbours: jax.Array
+    which: jax.Array
     resolution: int = struct.field(pytree_node=False)
     hops: int = struct.field(pytree_node=False, default=1)
+
+    def select(self, which: jax.Array | int) -> Target:
+        """The same stack, registering onto model ``which``."""
+        return self.replace(which=jnp.asarray(which, jnp.int32))
+
+    def samples(self) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """The used model's (points [S, 3], normals [S, 3], mask [S])."""
+        return self.points[self.which], self.normals[self.which], self.mask[self.which]
+
+    def _at(self, index: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """(points, normals, mask) of the used model's samples ``index`` (any shape of i32)."""
+        return self.points[self.which, index], self.normals[self.which, index], self.mask[self.which, index]
+
+
+def stack(targets: Sequence[Target]) -> Target:
+    """One ``Target`` holding every model of ``targets`` (each from ``model_target``, with the same sample
+    count and config), ``which`` = 0."""
+    leaves = jax.tree.map(lambda *a: jnp.concatenate(a), *[t.replace(which=t.which[None]) for t in targets])
+    return leaves.replace(which=jnp.int32(0))
 
 
 class Registration(struct.PyTreeNode):
@@ -130,11 +154,12 @@ def model_target(model: ObjectModel, config: ICPConfig = ICPConfig(), samples: i
     tree = cKDTree(points)
     _, index = tree.query(centres, k=min(config.candidates, count))
     _, neighbours = tree.query(points, k=min(config.neighbours + 1, count))
-    return Target(points=jnp.asarray(points, jnp.float32), normals=jnp.asarray(normals),
-                  mask=jnp.ones(count, bool), grid=jnp.asarray(np.asarray(index, np.int16).reshape(G**3, -1)),
-                  origin=jnp.asarray(low, jnp.float32), cell=jnp.asarray(cell, jnp.float32),
-                  neighbours=jnp.asarray(np.asarray(neighbours, np.int32).reshape(count, -1)), resolution=G,
-                  hops=config.hops)
+    return Target(points=jnp.asarray(points[None], jnp.float32), normals=jnp.asarray(normals[None]),
+                  mask=jnp.ones((1, count), bool),
+                  grid=jnp.asarray(np.asarray(index, np.int16).reshape(1, G**3, -1)),
+                  origin=jnp.asarray(low[None], jnp.float32), cell=jnp.asarray(cell[None], jnp.float32),
+                  neighbours=jnp.asarray(np.asarray(neighbours, np.int16).reshape(1, count, -1)),
+                  which=jnp.int32(0), resolution=G, hops=config.hops)
 
 
 def closest(target: Target, x: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -146,18 +171,19 @@ def closest(target: Target, x: jax.Array) -> tuple[jax.Array, jax.Array]:
     repairs that near the surface, where correspondences are kept). Points outside the grid take the
     nearest border cell, whose samples are farther than ``max_correspondence``."""
     G = target.resolution
-    ijk = jnp.clip(jnp.floor((x - target.origin) / target.cell).astype(jnp.int32), 0, G - 1)
+    origin, size = target.origin[target.which], target.cell[target.which]
+    ijk = jnp.clip(jnp.floor((x - origin) / size).astype(jnp.int32), 0, G - 1)
     cell = (ijk[:, 0] * G + ijk[:, 1]) * G + ijk[:, 2]
-    index, d2 = _nearest_of(target, x, target.grid[cell].astype(jnp.int32))
+    index, d2 = _nearest_of(target, x, target.grid[target.which, cell].astype(jnp.int32))
     for _ in range(target.hops):
-        index, d2 = _nearest_of(target, x, target.neighbours[index, :_HOP_NEIGHBOURS])
+        index, d2 = _nearest_of(target, x, target.neighbours[target.which, index, :_HOP_NEIGHBOURS].astype(jnp.int32))
     return index, jnp.sqrt(d2)
 
 
 def _nearest_of(target: Target, x: jax.Array, candidates: jax.Array) -> tuple[jax.Array, jax.Array]:
     """The nearest of ``candidates: [P, K]`` sample indices to each point: (index [P], squared distance [P])."""
-    d2 = jnp.sum((target.points[candidates] - x[:, None, :]) ** 2, axis=-1)
-    d2 = jnp.where(target.mask[candidates], d2, jnp.inf)
+    points, _, real = target._at(candidates)
+    d2 = jnp.where(real, jnp.sum((points - x[:, None, :]) ** 2, axis=-1), jnp.inf)
     best = jnp.argmin(d2, axis=1)[:, None]
     return jnp.take_along_axis(candidates, best, axis=1)[:, 0], jnp.take_along_axis(d2, best, axis=1)[:, 0]
 
@@ -175,13 +201,15 @@ def _spread(x: jax.Array, w: jax.Array) -> jax.Array:
     return jnp.linalg.eigvalsh(cov)[1]
 
 
-def _step(T_mw: jax.Array, x: jax.Array, w0: jax.Array, target: Target, config: ICPConfig) -> jax.Array:
-    """One Gauss-Newton step: the increment [4, 4] applied on the left of ``T_mw`` (identity if too few
-    pairs constrain it)."""
+def _step(T_mw: jax.Array, x: jax.Array, w0: jax.Array, target: Target, config: ICPConfig
+          ) -> tuple[jax.Array, jax.Array]:
+    """One Gauss-Newton step: (the increment [4, 4] applied on the left of ``T_mw``, identity if too few
+    pairs constrain it; the number of points within the inlier distance at ``T_mw``)."""
     p = _apply(T_mw, x)
     index, dist = closest(target, p)
     w = (w0 & (dist <= config.max_correspondence)).astype(p.dtype)
-    q, n = target.points[index], target.normals[index]
+    inliers = jnp.sum(w0 & (dist <= config.inlier_distance))
+    q, n, _ = target._at(index)
     count = jnp.sum(w)
     c = safe_div(jnp.sum(w[:, None] * p, axis=0), count)
     pc = p - c
@@ -202,7 +230,43 @@ def _step(T_mw: jax.Array, x: jax.Array, w0: jax.Array, target: Target, config: 
     t = delta[-3:]
     R = jaxlie.SO3.exp(omega).as_matrix()
     step = jnp.eye(4, dtype=T_mw.dtype).at[:3, :3].set(R).at[:3, 3].set(c + t - R @ c)
-    return step
+    return step, inliers
+
+
+class Alignment(struct.PyTreeNode):
+    """What ``align`` returns: pose [4, 4] f32 model-to-world; fitness [] f32 the fraction of the used
+    points within the inlier distance at the pose the last step started from (Open3D's ``fitness``; the
+    final pose's once converged); iterations [] i32 steps taken; valid [] bool False for a degenerate
+    segment (then pose = T_init, fitness = 0)."""
+
+    pose: jax.Array
+    fitness: jax.Array
+    iterations: jax.Array
+    valid: jax.Array
+
+
+def align(source: jax.Array, mask: jax.Array, target: Target, T_init: jax.Array, config: ICPConfig = ICPConfig()
+          ) -> Alignment:
+    """The ICP alone, without rho's model side (``icp`` adds it): a cheap score for pruning hypotheses.
+    Arguments as ``icp``."""
+    x, mask = subsample(source, mask, config.points)
+    valid = (jnp.sum(mask) >= 3) & (_spread(x, mask.astype(x.dtype)) >= _MIN_SPREAD)
+    T_init = jnp.asarray(T_init, jnp.float32)
+
+    def body(carry, _):
+        T_mw, done, steps, inliers = carry
+        step, now = _step(T_mw, x, mask, target, config)
+        moved = jnp.maximum(jnp.linalg.norm(jaxlie.SO3.from_matrix(step[:3, :3]).log()),
+                            jnp.linalg.norm(step[:3, 3]))
+        T_new = jnp.where(done, T_mw, jnp.einsum("ij,jk->ik", step, T_mw, precision=HIGHEST))
+        T_new = _orthonormalise(T_new)
+        inliers = jnp.where(done, inliers, now)
+        return (T_new, done | (moved < config.tolerance), steps + (~done).astype(jnp.int32), inliers), None
+
+    start = (_invert(T_init), ~valid, jnp.int32(0), jnp.int32(0))
+    (T_mw, _, steps, inliers), _ = jax.lax.scan(body, start, None, length=config.iterations)
+    return Alignment(pose=jnp.where(valid, _invert(T_mw), T_init), iterations=steps, valid=valid,
+                     fitness=jnp.where(valid, safe_div(inliers, jnp.sum(mask)), 0.0))
 
 
 def icp(source: jax.Array, mask: jax.Array, target: Target, T_init: jax.Array, config: ICPConfig = ICPConfig(),
@@ -215,28 +279,14 @@ def icp(source: jax.Array, mask: jax.Array, target: Target, T_init: jax.Array, c
     (see ``registration_ratio``). At most ``config.points`` of the real points are used (evenly strided).
     """
     whole, whole_mask = subsample(source, mask, source.shape[0])  # NaN points out; rho reads them all
-    x, mask = subsample(source, mask, config.points)
-    valid = (jnp.sum(mask) >= 3) & (_spread(x, mask.astype(x.dtype)) >= _MIN_SPREAD)
-    T_init = jnp.asarray(T_init, jnp.float32)
-    T_mw0 = _invert(T_init)
-
-    def body(carry, _):
-        T_mw, done, steps = carry
-        step = _step(T_mw, x, mask, target, config)
-        moved = jnp.maximum(jnp.linalg.norm(jaxlie.SO3.from_matrix(step[:3, :3]).log()),
-                            jnp.linalg.norm(step[:3, 3]))
-        T_new = jnp.where(done, T_mw, jnp.einsum("ij,jk->ik", step, T_mw, precision=HIGHEST))
-        T_new = _orthonormalise(T_new)
-        return (T_new, done | (moved < config.tolerance), steps + (~done).astype(jnp.int32)), None
-
-    (T_mw, _, steps), _ = jax.lax.scan(body, (T_mw0, ~valid, jnp.int32(0)), None, length=config.iterations)
-    pose = jnp.where(valid, _invert(T_mw), T_init)
-    ratio = registration_ratio(whole, whole_mask & valid, target, pose, config.inlier_distance, seen_from)
-    return Registration(pose=pose, iterations=steps, valid=valid, **ratio)
+    fit = align(source, mask, target, T_init, config)
+    ratio = registration_ratio(whole, whole_mask & fit.valid, target, fit.pose, config.inlier_distance, seen_from)
+    return Registration(pose=fit.pose, iterations=fit.iterations, valid=fit.valid, **ratio)
 
 
 def registration_ratio(source: jax.Array, mask: jax.Array, target: Target, pose: jax.Array,
-                       inlier_distance: float, seen_from: jax.Array | None = None) -> dict[str, jax.Array]:
+                       inlier_distance: float, seen_from: jax.Array | None = None, neighbours: int | None = None
+                       ) -> dict[str, jax.Array]:
     """The registration ratio of Eq. 2 at model-to-world ``pose`` [4, 4]:
 
         rho = (|S_R| / |S|) * (|O_R| / |O|)
@@ -253,21 +303,22 @@ def registration_ratio(source: jax.Array, mask: jax.Array, target: Target, pose:
     With ``seen_from`` ([C, 3] world camera positions; NaN rows ignored), O counts only the samples whose
     outward normal faces at least one of those cameras (the visibility-aware variant: the back of an
     object that was only seen from one side is unseen, not missing). Self-occlusion is not modelled.
+    ``neighbours`` reads only that many of each sample's nearest (a cheaper, lower estimate of O_R).
     Returns rho, segment_fraction, model_fraction, matched ([S] bool: O_R), rmse (m, of S_R).
     """
     T_mw = _invert(pose)
     p = _apply(T_mw, jnp.where(mask[:, None], source, 0.0))
     index, dist = closest(target, p)
     inlier = mask & (dist <= inlier_distance)
-    S = target.points.shape[0]
-    near = target.neighbours[index]  # [P, Kn]: samples around each point's nearest one
-    close = inlier[:, None] & (jnp.sum((target.points[near] - p[:, None, :]) ** 2, -1) <= inlier_distance**2)
+    points, normals, considered = target.samples()
+    S = points.shape[0]
+    near = target.neighbours[target.which, index, :neighbours].astype(jnp.int32)  # [P, Kn]: around each nearest
+    close = inlier[:, None] & (jnp.sum((target._at(near)[0] - p[:, None, :]) ** 2, -1) <= inlier_distance**2)
     matched = jnp.zeros(S, bool).at[jnp.where(close, near, S)].set(True, mode="drop")
-    considered = target.mask
     if seen_from is not None:
         cams = _apply(T_mw, jnp.nan_to_num(seen_from))  # cameras in the model frame
         ok = jnp.all(jnp.isfinite(seen_from), axis=-1)
-        facing = jnp.einsum("sk,csk->cs", target.normals, cams[:, None, :] - target.points[None]) > 0
+        facing = jnp.einsum("sk,csk->cs", normals, cams[:, None, :] - points[None]) > 0
         considered = considered & jnp.any(facing & ok[:, None], axis=0)
     segment_fraction = safe_div(jnp.sum(inlier), jnp.sum(mask))
     model_fraction = safe_div(jnp.sum(matched & considered), jnp.sum(considered))

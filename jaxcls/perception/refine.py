@@ -8,13 +8,12 @@ pose the segment's pose.
 ``ModelLibrary.build`` stacks the models once (host side): each one's ``icp.Target`` (samples, normals,
 closest-sample grid), its class, and which models stand for each class. ``refine`` runs every (segment,
 candidate class, model, yaw hypothesis) registration in ONE jitted, vmapped call, in two stages: all
-``hypotheses`` initial yaws for ``prune_after`` iterations, then the best of them per (segment, model)
-for the remaining ones (the issue's lever against 8x the work). It compiles once per library shape and
-config; ``refine_jit`` is the module-level jit.
+``hypotheses`` initial yaws for ``prune_after`` iterations (``icp.align``, the ICP alone), then, per
+(segment, model), the one with the best rho for the remaining iterations (the issue's lever against 8x
+the work). It compiles once per library shape and config; ``refine_jit`` is the module-level jit.
 
-Initial poses (the paper gets them from DenseFusion; depth alone here): the model stands upright on the
-table (its frame's z = 0 is its base) with its centroid's footprint under the segment's centroid, turned
-by ``hypotheses`` evenly spaced yaws.
+Initial poses: ``pose.initial_poses`` (the model upright on the table under the segment's centroid, turned
+by ``hypotheses`` evenly spaced yaws).
 """
 
 from __future__ import annotations
@@ -29,9 +28,7 @@ import numpy as np
 from flax import struct
 
 from jaxcls.config import bounded, check_bounds
-from jaxcls.geometry import yaw_rotation
-from jaxcls.math import safe_div
-from jaxcls.perception import icp
+from jaxcls.perception import icp, pose
 
 if TYPE_CHECKING:  # perception reads models, it does not import the world
     from jaxcls.world.objects import ObjectModel, ObjectSet
@@ -61,9 +58,10 @@ class RefineConfig:
 class ModelLibrary(struct.PyTreeNode):
     """The models GR registers onto, stacked to static shapes (L models, M classes, at most J per class).
 
-    targets: ``icp.Target`` with a leading [L] axis; centroid: [L, 3] f32 model-frame centroid of the
-    samples (m); class_models: [M, J] i32 the models of each class (padded with 0); class_mask: [M, J]
-    bool; names: the models' names; classes: the class names (the classifier's order).
+    targets: ``icp.Target`` of the L models (``select(m)`` registers onto model m); centroid: [L, 3] f32
+    model-frame centroid of the samples (m); class_models: [M, J] i32 the models of each class (padded
+    with 0); class_mask: [M, J] bool; names: the models' names; classes: the class names (the
+    classifier's order).
     """
 
     targets: icp.Target
@@ -91,8 +89,8 @@ class ModelLibrary(struct.PyTreeNode):
         J = max(len(p) for p in per_class)
         class_models = np.array([p + [0] * (J - len(p)) for p in per_class], np.int32)
         class_mask = np.array([[True] * len(p) + [False] * (J - len(p)) for p in per_class])
-        stacked = jax.tree.map(lambda *leaves: jnp.stack(leaves), *targets)
-        return cls(targets=stacked, centroid=jnp.asarray(np.stack([np.asarray(t.points).mean(0) for t in targets])),
+        return cls(targets=icp.stack(targets),
+                   centroid=jnp.asarray(np.stack([np.asarray(t.points[0]).mean(0) for t in targets])),
                    class_models=jnp.asarray(class_models), class_mask=jnp.asarray(class_mask),
                    names=tuple(m.name for m in models), classes=classes)
 
@@ -126,20 +124,6 @@ class Refinement(struct.PyTreeNode):
     valid: jax.Array
 
 
-def initial_poses(points: jax.Array, mask: jax.Array, centroid: jax.Array, table_height: float | jax.Array,
-                  hypotheses: int) -> jax.Array:
-    """[H, 4, 4] model-to-world poses: upright on the table (model z = 0 at ``table_height``), the model's
-    centroid (``centroid`` [3], model frame) under the segment's (``points`` [P, 3], ``mask`` [P]) in xy,
-    turned by yaws 2 pi h / H."""
-    w = mask.astype(points.dtype)
-    c = safe_div(jnp.sum(w[:, None] * points, axis=0), jnp.sum(w))
-    yaw = 2 * jnp.pi * jnp.arange(hypotheses) / hypotheses
-    R = yaw_rotation(yaw)  # [H, 3, 3]
-    t = jnp.concatenate([c[:2] - (R[:, :2, :2] @ centroid[:2]),
-                         jnp.full((hypotheses, 1), table_height, points.dtype)], axis=1)
-    return jnp.zeros((hypotheses, 4, 4), points.dtype).at[:, :3, :3].set(R).at[:, :3, 3].set(t).at[:, 3, 3].set(1)
-
-
 def refine(points: jax.Array, mask: jax.Array, probs: jax.Array, library: ModelLibrary, config: RefineConfig,
            table_height: float | jax.Array = 0.0, seen_from: jax.Array | None = None) -> Refinement:
     """GR for N segments: points [N, P, 3] world (m), mask [N, P], probs [N, M] PointNet's scores (classes
@@ -155,24 +139,27 @@ def refine(points: jax.Array, mask: jax.Array, probs: jax.Array, library: ModelL
     first = dataclasses.replace(config.icp, iterations=config.prune_after)
     remaining = config.icp.iterations - first.iterations
 
-    def target(m):
-        return jax.tree.map(lambda a: a[m], library.targets)
+    def one_model(n, m):
+        """Every hypothesis of model ``m`` on segment ``n``, pruned to the best, then refined: (rho, pose)."""
+        p, mk = points[n], mask[n]
+        inits = pose.initial_poses(p, mk, library.centroid[m], table_height, config.hypotheses)
+        tgt = library.targets.select(m)
+        stage = jax.vmap(lambda T: icp.align(p, mk, tgt, T, first))(inits)
+        score = jax.vmap(lambda T: icp.registration_ratio(p, mk, tgt, T, config.icp.inlier_distance, seen_from)
+                         ["rho"])(stage.pose)  # "best rho kept": fitness alone saturates on partial views
+        best = jax.tree.map(lambda a: a[jnp.argmax(score)], stage)
+        if remaining:
+            done = icp.icp(p, mk, tgt, best.pose, dataclasses.replace(config.icp, iterations=remaining), seen_from)
+            return done.rho, done.pose, done.valid
+        ratio = icp.registration_ratio(p, mk & best.valid, tgt, best.pose, config.icp.inlier_distance, seen_from)
+        return ratio["rho"], best.pose, best.valid
 
-    def one_model(p, mk, m):
-        """Every hypothesis of model ``m`` on one segment, pruned to the best, then refined: (rho, pose)."""
-        inits = initial_poses(p, mk, library.centroid[m], table_height, config.hypotheses)
-        tgt = target(m)
-        stage = jax.vmap(lambda T: icp.icp(p, mk, tgt, T, first, seen_from))(inits)
-        best = jnp.argmax(stage.rho)
-        if remaining == 0:
-            done = jax.tree.map(lambda a: a[best], stage)
-        else:
-            done = icp.icp(p, mk, tgt, stage.pose[best], dataclasses.replace(config.icp, iterations=remaining),
-                           seen_from)
-        return done.rho, done.pose, done.valid
-
-    per_model = jax.vmap(jax.vmap(jax.vmap(one_model, in_axes=(None, None, 0)), in_axes=(None, None, 0)))
-    rho, pose, valid = per_model(points, mask, models)  # [N, k, J], [N, k, J, 4, 4]
+    # One flat vmap over the (segment, candidate, model) pairs: nested vmaps made XLA's CPU gathers ~1.6x
+    # slower (benchmarks/refine.py).
+    N = points.shape[0]
+    pair_segment = jnp.repeat(jnp.arange(N), models.size // N)
+    rho, poses, valid = jax.vmap(one_model)(pair_segment, models.reshape(-1))
+    rho, poses, valid = rho.reshape(models.shape), poses.reshape(*models.shape, 4, 4), valid.reshape(models.shape)
     rho = jnp.where(model_ok & valid, rho, -1.0)
     j = jnp.argmax(rho, axis=2)  # the best model of each candidate class
     class_rho = jnp.maximum(jnp.take_along_axis(rho, j[..., None], axis=2)[..., 0], 0.0)  # [N, k]
@@ -180,7 +167,7 @@ def refine(points: jax.Array, mask: jax.Array, probs: jax.Array, library: ModelL
     segment_valid = jnp.any(valid & model_ok, axis=(1, 2))
     chosen_j = jnp.take_along_axis(j, c[:, None], axis=1)[:, 0]
     n = jnp.arange(points.shape[0])
-    chosen_pose = pose[n, c, chosen_j]
+    chosen_pose = poses[n, c, chosen_j]
     prior = candidates[:, 0]
     return Refinement(prior=prior, candidates=candidates, rho=jnp.where(segment_valid[:, None], class_rho, 0.0),
                       refined=jnp.where(segment_valid, candidates[n, c], prior),
