@@ -70,7 +70,7 @@ def _open3d_move(points, mask, probs, models, targets, config: refine.RefineConf
         for c in np.argsort(-probs[n])[: config.top_k]:
             cloud, tree = clouds[c]
             inits = np.asarray(pose.initial_poses(points[n], mask[n], np.asarray(targets[c].samples()[0]).mean(0),
-                                                    table_height, config.hypotheses), np.float64)
+                                                  table_height, pose.even_yaws(config.hypotheses)), np.float64)
             for T0 in inits:
                 result = reg.registration_icp(source, cloud, config.icp.max_correspondence, np.linalg.inv(T0),
                                               reg.TransformationEstimationPointToPlane(), criteria)

@@ -8,7 +8,7 @@ import pytest
 
 from jaxcls import metrics
 from jaxcls.geometry import CameraConfig
-from jaxcls.perception import Spec, init_state, observe, pointnet, refine
+from jaxcls.perception import Spec, init_state, observe, pointnet, pose, refine
 from jaxcls.perception.settings import PerceptionConfig
 from jaxcls.world import WorldConfig, make_world
 
@@ -87,3 +87,54 @@ def test_library_and_config_errors_name_the_problem(scene):
     assert refine.library_models(world.object_set, "known") == world.object_set.test
     assert refine.library_models(world.object_set, "category") == world.object_set.train
     assert refine.library_models(world.object_set, "known", "all") == world.object_set.train + world.object_set.test
+
+
+def test_initial_poses_put_the_models_centroid_under_the_segments_on_the_table():
+    """Analytic: every hypothesis stands on the table (rotation about z only, base at the table height)
+    and turns the model's centroid to lie under the segment's centroid; (a) yaws evenly spaced over a full
+    turn; (b) the copies of a yaw estimate under the class's symmetry order, then rings ``spread`` apart."""
+    rng = np.random.default_rng(0)
+    points = rng.normal([0.3, -0.2, 0.05], 0.02, (64, 3)).astype(np.float32)
+    mask = np.arange(64) < 50
+    centroid = np.array([0.01, -0.02, 0.03], np.float32)
+    T = np.asarray(pose.initial_poses(points, mask, centroid, 0.1, pose.even_yaws(8)))
+    np.testing.assert_allclose(T[:, 2, 3], 0.1, atol=1e-6)
+    np.testing.assert_allclose(T[:, 2, :3], np.tile([0.0, 0.0, 1.0], (8, 1)), atol=1e-6)
+    under = np.einsum("hij,j->hi", T[:, :3, :3], centroid) + T[:, :3, 3]
+    np.testing.assert_allclose(under[:, :2], np.tile(points[mask].mean(0)[:2], (8, 1)), atol=1e-5)
+    yaws = np.arctan2(T[:, 1, 0], T[:, 0, 0])
+    np.testing.assert_allclose(np.mod(yaws, 2 * np.pi), 2 * np.pi * np.arange(8) / 8, atol=1e-5)
+    np.testing.assert_allclose(pose.learned_yaws(1.0, 1, 3, 0.4), [1.0, 1.4, 0.6], atol=1e-6)
+    np.testing.assert_allclose(pose.learned_yaws(1.0, 0, 1, 0.4), [1.0], atol=1e-6)
+    np.testing.assert_allclose(pose.learned_yaws(0.2, 2, 4, 0.4), [0.2, 0.2 + np.pi, 0.6, 0.6 + np.pi], atol=1e-6)
+
+
+def test_registration_experiment_scores_every_library_and_rho():
+    """experiments/registration.py: the shipped config loads; ``_only`` makes the object's class stand for
+    its own model alone (same shapes); one recovery case yields a record per library x rho kind."""
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    path = Path(__file__).parent.parent / "experiments" / "registration.py"
+    spec = importlib.util.spec_from_file_location("registration", path)
+    experiment = importlib.util.module_from_spec(spec)
+    sys.modules["registration"] = experiment
+    spec.loader.exec_module(experiment)
+    from jaxcls.config import load_config
+
+    shipped = load_config(experiment.RegistrationConfig, "registration")
+    assert shipped.isolated.scene.num_objects == 1 and "default" in shipped.refine
+    classifier = pointnet.load_classifier()
+    config = experiment.RegistrationConfig(
+        objects=1, views=(1,), refine={"small": refine.RefineConfig(hypotheses=2, prune_after=2,
+                                                                    icp=refine.icp.ICPConfig(iterations=4))},
+        isolated=WorldConfig(camera=CameraConfig.kinect_v1(0.5), backend="mujoco",
+                             scene=experiment._isolated().scene))
+    records = experiment.recovery(config, classifier, show_progress=False)
+    assert {(r["library"], r["aware"]) for r in records} == {(k, a) for k in experiment.LIBRARIES for a in (0, 1)}
+    for r in records:
+        assert len(r["rho"]) == len(classifier.classes) and min(r["rho"]) >= 0
+        assert r["beats"] == (r["margin"] > 0)
+        if r["library"] == "instance" and r["refined"] == r["class"]:
+            assert r["model"] == r["instance"]  # its class holds its own model only

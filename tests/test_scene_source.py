@@ -71,7 +71,7 @@ def test_a_mix_of_the_scene_source_needs_its_clouds():
     from jaxcls.learn.train import Mix, make_bank
 
     empty = clouds.CloudSet(np.zeros((2, 4, 3), np.float32), np.ones((2, 4), bool), np.zeros(2, np.int32),
-                            np.zeros(2, np.int32), np.zeros(2, np.int32))
+                            np.zeros(2, np.int32), np.zeros(2, np.int32), np.zeros(2, np.float32))
     with pytest.raises(ValueError, match=r"mix\.scene"):
         make_bank(empty, Mix(full=1.0, scene=0.5))
 

@@ -150,7 +150,8 @@ def test_data_parallel_over_four_host_devices(workspace, straight_run):
         config = _tiny_config(Path({str(workspace)!r}), out_dir={str(workspace / "parallel")!r})
         rng = np.random.default_rng(0)
         fake = CloudSet(rng.normal(size=(8, 64, 3)).astype(np.float32), np.ones((8, 64), bool),
-                        np.arange(8, dtype=np.int32), np.zeros(8, np.int32), np.zeros(8, np.int32))
+                        np.arange(8, dtype=np.int32), np.zeros(8, np.int32), np.zeros(8, np.int32),
+                        np.zeros(8, np.float32))
         out = {{}}
         for n in (1, 4):
             mesh = Mesh(np.asarray(jax.devices()[:n]), ("data",))
@@ -215,3 +216,58 @@ def test_training_does_not_need_mujoco():
     """``jaxcls train`` runs where MuJoCo is absent (the GPU machine) once its clouds are cached."""
     code = "import sys, jaxcls.cli, jaxcls.learn.train; sys.exit('mujoco' in sys.modules)"
     assert subprocess.run([sys.executable, "-c", code], timeout=120).returncode == 0
+
+
+def test_yaw_orders_and_the_yaw_loss():
+    """The head's order per class is the lcm of its instances' finite orders (0 if all are continuous);
+    its loss is 0 at the target, blind to a turn by 2 pi / s, and ignores continuous classes."""
+    from jaxcls.learn.train import yaw_loss
+    from jaxcls.perception import pointnet
+
+    assert pointnet.yaw_orders([[2, 4], [0, 0], [1, 0], [2, 2]]) == (4, 0, 1, 2)
+    orders = jnp.array([4, 0, 1], jnp.int32)
+    labels = jnp.array([0, 1, 2])
+    yaw = jnp.array([0.3, 1.0, -2.0])
+    s = np.array([4.0, 0.0, 1.0])
+    target = np.stack([np.cos(s * yaw), np.sin(s * yaw)], -1)
+    head = np.zeros((3, 3, 2), np.float32)
+    head[np.arange(3), labels] = target
+    head[1, 1] = [5.0, 5.0]  # a continuous class: whatever the head says costs nothing
+    assert float(yaw_loss(jnp.asarray(head), labels, yaw, orders)) == pytest.approx(0.0, abs=1e-10)
+    turned = yaw + 2 * np.pi / np.maximum(s, 1)
+    assert float(yaw_loss(jnp.asarray(head), labels, turned, orders)) == pytest.approx(0.0, abs=1e-8)
+    assert float(yaw_loss(jnp.asarray(head), labels, yaw + 0.2, orders)) > 0.01
+    assert clouds._yaw(np.array([[0.0, -1, 0, 0.2], [1, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])) == pytest.approx(np.pi / 2)
+
+
+def test_a_yaw_head_trains_and_feeds_refinement(workspace):
+    """``model.yaw_head``: training records the head's error on held-out clouds, the weights carry the
+    classes' orders, ``estimate_yaw`` gives [N, M] (0 for continuous classes), and GR's learned mode takes it
+    (and refuses to run without it)."""
+    from jaxcls.perception import pointnet, refine
+
+    config = _tiny_config(workspace, out_dir=str(workspace / "yaw"), epochs=2)
+    config = dataclasses.replace(config, model=dataclasses.replace(config.model, yaw_head=True))
+    run = train(config, show_progress=False)
+    final = json.loads((run / "metrics.json").read_text())["final"]
+    assert final["view"]["yaw_error_deg"]["count"] > 0 and 0 <= final["view"]["yaw_error_deg"]["median"] <= 180
+    classifier = pointnet.load_classifier(run / "pointnet.msgpack")
+    object_set = builtin_object_set(train_per_class=1, test_per_class=1)
+    assert classifier.yaw_orders == pointnet.yaw_orders([[m.yaw_symmetry for m in object_set.train
+                                                          if m.class_name == c] for c in classifier.classes])
+    rng = np.random.default_rng(0)
+    points = rng.normal(0, 0.03, (2, 64, 3)).astype(np.float32)
+    mask = np.ones((2, 64), bool)
+    yaw = np.asarray(pointnet.estimate_yaw(classifier, points, mask))
+    orders = np.asarray(classifier.yaw_orders)
+    assert yaw.shape == (2, len(classifier.classes)) and np.all(yaw[:, orders == 0] == 0)
+    assert np.all(np.abs(yaw) <= np.pi / np.maximum(orders, 1) + 1e-6)
+    library = refine.ModelLibrary.build(object_set.test, classifier.classes)
+    rc = refine.RefineConfig(yaw_source="learned", hypotheses=3, prune_after=2, icp=refine.icp.ICPConfig(iterations=4))
+    probs = np.full((2, len(classifier.classes)), 1.0 / len(classifier.classes), np.float32)
+    out = refine.refine_jit(points, mask, probs, library, rc, 0.0, None, yaw, orders)
+    assert np.all(np.isfinite(np.asarray(out.pose)))
+    with pytest.raises(ValueError, match="learned"):
+        refine.refine_jit(points, mask, probs, library, rc, 0.0)
+    with pytest.raises(ValueError, match="no yaw head"):
+        pointnet.estimate_yaw(pointnet.load_classifier("builtin_paper"), points, mask)

@@ -44,7 +44,7 @@ from jaxcls.world.render.types import BackendChoice
 from jaxcls.world.scenes import SceneConfig
 
 SOURCES = ("full", "view", "occluded", "fused", "scene")
-_CACHE_VERSION = 1  # bump when the way clouds are made changes (scene layout, volume, intrinsics)
+_CACHE_VERSION = 2  # bump when the way clouds are made changes (scene layout, volume, intrinsics)
 _FUSED_SURFACE_POINTS = 8192  # surface points extracted for a fused cloud of one instance
 # The table and spacing clouds are rendered with: the world's default (its height is the scenes' own).
 _SCENE = SceneConfig()
@@ -101,7 +101,9 @@ class CloudSet:
     """Clouds padded to one size (NumPy, host side).
 
     points: [C, S, 3] f32 m (0 where padded); mask: [C, S] bool; label: [C] i32 class index;
-    source: [C] i32 index into ``SOURCES``; instance: [C] i32 index of the instance in its split.
+    source: [C] i32 index into ``SOURCES``; instance: [C] i32 index of the instance in its split; yaw: [C]
+    f32 rad, the instance's yaw about z in the cloud's frame (its model frame turned by this; the yaw head's
+    target).
     """
 
     points: np.ndarray
@@ -109,6 +111,7 @@ class CloudSet:
     label: np.ndarray
     source: np.ndarray
     instance: np.ndarray
+    yaw: np.ndarray
 
     def __len__(self) -> int:
         return len(self.label)
@@ -201,26 +204,30 @@ class _InstanceRenderer:
                     frames.append((d, T))
         return clouds, frames
 
-    def single(self) -> list[np.ndarray]:
+    def single(self) -> tuple[list[np.ndarray], list[float]]:
+        """(clouds, the instance's yaw in each)."""
         if self.config.views_per_instance == 0:
-            return []
-        renderer, index, centre, _ = self._scene(())
+            return [], []
+        renderer, index, centre, pose = self._scene(())
         clouds, _ = self._views(renderer, index, centre, self.config.views_per_instance)
-        return clouds
+        return clouds, [_yaw(pose)] * len(clouds)
 
-    def occluded(self) -> list[np.ndarray]:
+    def occluded(self) -> tuple[list[np.ndarray], list[float]]:
         clouds: list[np.ndarray] = []
+        yaws: list[float] = []
         others = [m for m in self.pool if m is not self.model]
         for _ in range(self.config.occluded_per_instance):
             picks = self.rng.choice(len(others), size=min(len(others), int(self.rng.integers(1, 4))), replace=False)
-            renderer, index, centre, _ = self._scene(tuple(others[k] for k in picks))
-            clouds += self._views(renderer, index, centre, 1)[0]
-        return clouds
+            renderer, index, centre, pose = self._scene(tuple(others[k] for k in picks))
+            seen = self._views(renderer, index, centre, 1)[0]
+            clouds += seen
+            yaws += [_yaw(pose)] * len(seen)
+        return clouds, yaws
 
-    def fused(self) -> list[np.ndarray]:
+    def fused(self) -> tuple[list[np.ndarray], list[float]]:
         if self.config.fused_per_instance == 0:
-            return []
-        renderer, index, centre, _ = self._scene(())
+            return [], []
+        renderer, index, centre, pose = self._scene(())
         empty = observation.empty_volume(self.spec)
         clouds = []
         for _ in range(self.config.fused_per_instance):
@@ -233,7 +240,12 @@ class _InstanceRenderer:
             pts = np.asarray(surface.points)[keep]
             if len(pts) >= self.config.min_points:
                 clouds.append(pts)
-        return clouds
+        return clouds, [_yaw(pose)] * len(clouds)
+
+
+def _yaw(pose: np.ndarray) -> float:
+    """The yaw about z (rad) of an upright model-to-world ``pose`` [4, 4]."""
+    return float(np.arctan2(pose[1, 0], pose[0, 0]))
 
 
 def instance_clouds(model: ObjectModel, pool: tuple[ObjectModel, ...], label: int, object_set_config: ObjectSetConfig,
@@ -242,14 +254,16 @@ def instance_clouds(model: ObjectModel, pool: tuple[ObjectModel, ...], label: in
     rng = np.random.default_rng(seed)
     full = [_subset(model.surface_points, config.full_points, rng) for _ in range(config.full_per_instance)]
     maker = _InstanceRenderer(model, pool, object_set_config, config, rng, perception or PerceptionConfig())
-    by_source = {"full": full, "view": maker.single(), "occluded": maker.occluded(), "fused": maker.fused(),
-                 "scene": []}  # scene clouds are made per scene (``scene_clouds``)
+    by_source = {"full": (full, [0.0] * len(full)), "view": maker.single(), "occluded": maker.occluded(),
+                 "fused": maker.fused(), "scene": ([], [])}  # scene clouds are made per scene (``scene_clouds``)
     clouds = [_subset(c, config.max_points if s != "full" else config.full_points, rng)
-              for s in SOURCES for c in by_source[s]]
+              for s in SOURCES for c in by_source[s][0]]
     clouds = [c - c.mean(axis=0) for c in clouds]
-    source = np.concatenate([np.full(len(by_source[s]), i, np.int32) for i, s in enumerate(SOURCES)])
+    source = np.concatenate([np.full(len(by_source[s][0]), i, np.int32) for i, s in enumerate(SOURCES)])
+    yaw = np.asarray([y for s in SOURCES for y in by_source[s][1]], np.float32)
     points, mask = _pad(clouds, max(config.max_points, config.full_points))
-    return CloudSet(points, mask, np.full(len(clouds), label, np.int32), source, np.zeros(len(clouds), np.int32))
+    return CloudSet(points, mask, np.full(len(clouds), label, np.int32), source, np.zeros(len(clouds), np.int32),
+                    yaw)
 
 
 def scene_clouds(object_set: ObjectSet, split: Literal["train", "test"], object_set_config: ObjectSetConfig,
@@ -287,9 +301,10 @@ def scene_clouds(object_set: ObjectSet, split: Literal["train", "test"], object_
     clouds = [c - c.mean(axis=0) for c in clouds]
     label = [object_set.class_index(world.scene.objects[truth.object[n]].class_name) for n in keep]
     instance = [members.index(world.models[truth.object[n]]) for n in keep]
+    yaw = [world.scene.objects[truth.object[n]].yaw for n in keep]
     padded, padded_mask = _pad(clouds, max(config.max_points, config.full_points))
     return CloudSet(padded, padded_mask, np.asarray(label, np.int32), np.full(len(clouds), SOURCES.index("scene"),
-                    np.int32), np.asarray(instance, np.int32))
+                    np.int32), np.asarray(instance, np.int32), np.asarray(yaw, np.float32))
 
 
 def _save_part(path: Path, part: CloudSet) -> None:
@@ -376,9 +391,10 @@ def load_clouds(object_set: ObjectSet, split: Literal["train", "test"], config: 
 
 
 def sample_batch(key: jax.Array, points: jax.Array, mask: jax.Array, index: jax.Array, num_points: int,
-                 rotate: bool = True) -> tuple[jax.Array, jax.Array]:
+                 rotate: bool | jax.Array = True) -> tuple[jax.Array, jax.Array]:
     """Clouds ``index: [B]`` of a bank (``points: [C, S, 3]``, ``mask: [C, S]``), each a random subset of
-    ``num_points`` real points (fewer where the cloud has fewer, padded) turned by a random yaw.
+    ``num_points`` real points (fewer where the cloud has fewer, padded) turned by a random yaw (``rotate``
+    True), by the given yaws (``rotate``: [B] rad) or not at all (False).
 
     Returns (points [B, num_points, 3], mask [B, num_points]). Pure JAX (runs inside the training jit).
     """
@@ -388,7 +404,8 @@ def sample_batch(key: jax.Array, points: jax.Array, mask: jax.Array, index: jax.
     order = jnp.argsort(priority, axis=-1)[:, :num_points]
     pts = jnp.take_along_axis(pts, order[..., None], axis=1)
     m = jnp.take_along_axis(m, order, axis=1)
-    if rotate:
-        R = geometry.yaw_rotation(jax.random.uniform(k_yaw, index.shape, minval=-jnp.pi, maxval=jnp.pi))
-        pts = jnp.einsum("bij,bpj->bpi", R, pts)
+    if rotate is True:
+        rotate = jax.random.uniform(k_yaw, index.shape, minval=-jnp.pi, maxval=jnp.pi)
+    if rotate is not False:
+        pts = jnp.einsum("bij,bpj->bpi", geometry.yaw_rotation(rotate), pts)
     return jnp.where(m[..., None], pts, 0.0), m

@@ -91,13 +91,14 @@ class TrainState(train_state.TrainState):
 
 @struct.dataclass
 class Bank:
-    """Training clouds on the device: points [C, S, 3] m, mask [C, S], label [C] i32, and the probability
-    [C] f32 of drawing each (the mix spread over its source's clouds)."""
+    """Training clouds on the device: points [C, S, 3] m, mask [C, S], label [C] i32, the probability
+    [C] f32 of drawing each (the mix spread over its source's clouds), yaw [C] f32 rad (the instance's)."""
 
     points: jax.Array
     mask: jax.Array
     label: jax.Array
     probability: jax.Array
+    yaw: jax.Array
 
 
 def make_bank(clouds: CloudSet, mix: Mix) -> Bank:
@@ -110,7 +111,7 @@ def make_bank(clouds: CloudSet, mix: Mix) -> Bank:
             raise ValueError(f"train: mix.{source} = {share} but the data config makes no '{source}' clouds")
         weight[members] = share / max(members.sum(), 1)
     return Bank(jnp.asarray(clouds.points), jnp.asarray(clouds.mask), jnp.asarray(clouds.label),
-                jnp.asarray(weight / weight.sum(), jnp.float32))
+                jnp.asarray(weight / weight.sum(), jnp.float32), jnp.asarray(clouds.yaw, jnp.float32))
 
 
 def create_state(config: TrainConfig, num_classes: int, steps_per_epoch: int) -> TrainState:
@@ -129,25 +130,44 @@ def _prepare(key: jax.Array, points: jax.Array, mask: jax.Array, jitter: float) 
     return jnp.where(mask[..., None], points + noise, 0.0), mask
 
 
-def make_train_epoch(config: TrainConfig, num_classes: int, steps: int, mesh: Mesh):
-    """Jitted ``(state, bank, key) -> (state, {"loss", "accuracy"} per step)``: one epoch as a scan."""
+def yaw_loss(head: jax.Array, labels: jax.Array, yaw: jax.Array, orders: jax.Array) -> jax.Array:
+    """The yaw head's loss: mean over the clouds of a class with a finite symmetry order s of the squared
+    distance between the head's (cos, sin) for the true class and (cos s yaw, sin s yaw).
+
+    head: [B, M, 2]; labels: [B] i32; yaw: [B] rad; orders: [M] i32 (0 = continuous: no yaw to learn)."""
+    s = orders[labels].astype(yaw.dtype)
+    target = jnp.stack([jnp.cos(s * yaw), jnp.sin(s * yaw)], axis=-1)
+    pred = jnp.take_along_axis(head, labels[:, None, None], axis=1)[:, 0]
+    weight = (s > 0).astype(yaw.dtype)
+    return jnp.sum(weight * jnp.sum((pred - target) ** 2, axis=-1)) / jnp.maximum(jnp.sum(weight), 1.0)
+
+
+def make_train_epoch(config: TrainConfig, num_classes: int, steps: int, mesh: Mesh, orders: tuple[int, ...] = ()):
+    """Jitted ``(state, bank, key) -> (state, {"loss", "accuracy"} per step)``: one epoch as a scan.
+    ``orders``: each class's yaw-symmetry order (``pointnet.yaw_orders``), with ``model.yaw_head``."""
     model = pointnet.make_model(num_classes, config.model)
     batch_sharding = NamedSharding(mesh, PartitionSpec("data"))
+    if config.model.yaw_head and len(orders) != num_classes:
+        raise ValueError(f"train: model.yaw_head needs a yaw-symmetry order per class, got {orders}")
+    class_orders = jnp.asarray(orders or (0,) * num_classes, jnp.int32)
 
     def step(state: TrainState, key: jax.Array, bank: Bank):
-        k_pick, k_sample, k_jitter, k_dropout = jax.random.split(key, 4)
+        k_pick, k_sample, k_jitter, k_dropout, k_turn = jax.random.split(key, 5)
         index = jax.random.choice(k_pick, bank.label.shape[0], (config.batch_size,), p=bank.probability)
-        points, mask = sample_batch(k_sample, bank.points, bank.mask, index, config.model.num_points)
+        turn = jax.random.uniform(k_turn, index.shape, minval=-jnp.pi, maxval=jnp.pi)
+        points, mask = sample_batch(k_sample, bank.points, bank.mask, index, config.model.num_points, turn)
         points, mask = _prepare(k_jitter, points, mask, config.jitter)
-        points, mask, labels = (jax.lax.with_sharding_constraint(a, batch_sharding)
-                                for a in (points, mask, bank.label[index]))
+        points, mask, labels, yaw = (jax.lax.with_sharding_constraint(a, batch_sharding)
+                                     for a in (points, mask, bank.label[index], bank.yaw[index] + turn))
 
         def loss_fn(params):
-            (logits, transform), updates = model.apply(
+            (logits, transform, head), updates = model.apply(
                 {"params": params, "batch_stats": state.batch_stats}, points, mask, train=True,
                 rngs={"dropout": k_dropout}, mutable=["batch_stats"])
             loss = optax.softmax_cross_entropy_with_integer_labels(logits, labels).mean()
             loss = loss + config.model.feature_transform_weight * pointnet.orthogonality_loss(transform)
+            if head is not None:
+                loss = loss + config.model.yaw_weight * yaw_loss(head, labels, yaw, class_orders)
             return loss, (logits, updates["batch_stats"])
 
         (loss, (logits, stats)), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params)
@@ -161,39 +181,58 @@ def make_train_epoch(config: TrainConfig, num_classes: int, steps: int, mesh: Me
     return train_epoch
 
 
-def _classifier(state: TrainState, classes: tuple[str, ...], config: TrainConfig) -> pointnet.Classifier:
-    return pointnet.Classifier({"params": state.params, "batch_stats": state.batch_stats}, classes, config.model)
+def _classifier(state: TrainState, classes: tuple[str, ...], config: TrainConfig, orders: tuple[int, ...] = ()
+                ) -> pointnet.Classifier:
+    return pointnet.Classifier({"params": state.params, "batch_stats": state.batch_stats}, classes, config.model,
+                               yaw_orders=orders if config.model.yaw_head else ())
 
 
-def evaluation_sets(clouds: CloudSet, config: TrainConfig) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Held-out clouds per source as (points [E, P, 3], mask [E, P], label [E]): a fixed subset of P points
-    (clouds are stored in random order), complete clouds at ``eval_rotations`` evenly spaced yaws."""
+def evaluation_sets(clouds: CloudSet, config: TrainConfig) -> dict[str, tuple[np.ndarray, ...]]:
+    """Held-out clouds per source as (points [E, P, 3], mask [E, P], label [E], yaw [E] rad): a fixed subset
+    of P points (clouds are stored in random order), complete clouds at ``eval_rotations`` evenly spaced
+    yaws."""
     P = config.model.num_points
     sets = {}
     for i, source in enumerate(SOURCES):
         part = clouds.select(clouds.source == i)
         if not len(part):
             continue
-        points, mask, label = part.points[:, :P], part.mask[:, :P], part.label
+        points, mask, label, yaw = part.points[:, :P], part.mask[:, :P], part.label, part.yaw
         if source == "full":
             yaws = 2 * np.pi * np.arange(config.eval_rotations) / config.eval_rotations
             R = np.asarray(geometry.yaw_rotation(yaws.astype(np.float32)))
             points = np.einsum("rij,cpj->rcpi", R, points).reshape(-1, P, 3)
             mask, label = np.tile(mask, (len(yaws), 1)), np.tile(label, len(yaws))
-        sets[source] = (points.astype(np.float32), mask, label)
+            yaw = (yaws[:, None] + yaw[None]).reshape(-1)
+        sets[source] = (points.astype(np.float32), mask, label, yaw.astype(np.float32))
     return sets
 
 
-def predict_all(classifier: pointnet.Classifier, points: np.ndarray, mask: np.ndarray, batch: int) -> np.ndarray:
-    """Predicted classes [E] of any number of clouds, in fixed-size batches (the last one padded with empty
-    clouds) so that ``classify`` compiles once."""
+def predict_all(classifier: pointnet.Classifier, points: np.ndarray, mask: np.ndarray, batch: int,
+                fn=None) -> np.ndarray:
+    """Predicted classes [E] of any number of clouds (or ``fn(classifier, points, mask)``'s output, default
+    the argmax of ``classify``), in fixed-size batches (the last one padded with empty clouds) so that it
+    compiles once."""
+    fn = fn or (lambda c, p, m: jnp.argmax(pointnet.classify(c, p, m), -1))
     out = []
     for start in range(0, len(points), batch):
         p, m = points[start:start + batch], mask[start:start + batch]
         pad = batch - len(p)
         p, m = np.pad(p, ((0, pad), (0, 0), (0, 0))), np.pad(m, ((0, pad), (0, 0)))
-        out.append(np.asarray(jnp.argmax(pointnet.classify(classifier, p, m), -1))[:batch - pad])
+        out.append(np.asarray(fn(classifier, p, m))[:batch - pad])
     return np.concatenate(out)
+
+
+def yaw_errors(classifier: pointnet.Classifier, points: np.ndarray, mask: np.ndarray, label: np.ndarray,
+               yaw: np.ndarray, batch: int) -> np.ndarray:
+    """Degrees [E']: the yaw head's error for the true class of each cloud whose class has a finite order
+    s, modulo 2 pi / s (a turn that maps the class onto itself is no error)."""
+    estimate = predict_all(classifier, points, mask, batch, pointnet.estimate_yaw)[np.arange(len(label)), label]
+    s = np.asarray(classifier.yaw_orders)[label]
+    keep = s > 0
+    period = 2 * np.pi / np.maximum(s, 1)
+    wrapped = np.abs((estimate - yaw + period / 2) % period - period / 2)
+    return np.degrees(wrapped[keep])
 
 
 def _checkpoint_manager(run_dir: Path, config: TrainConfig) -> ocp.CheckpointManager:
@@ -257,7 +296,9 @@ def train(config: TrainConfig, show_progress: bool = True) -> Path:
     replicated = NamedSharding(mesh, PartitionSpec())
     bank = jax.device_put(make_bank(train_clouds, config.mix), replicated)
     state = jax.device_put(create_state(config, M, steps), replicated)
-    train_epoch = make_train_epoch(config, M, steps, mesh)
+    orders = pointnet.yaw_orders([[m.yaw_symmetry for m in object_set.train if m.class_name == c]
+                                  for c in classes]) if config.model.yaw_head else ()
+    train_epoch = make_train_epoch(config, M, steps, mesh, orders)
     evals = evaluation_sets(test_clouds, config)
 
     metrics_path = run_dir / "metrics.json"
@@ -279,9 +320,9 @@ def train(config: TrainConfig, show_progress: bool = True) -> Path:
             raise RuntimeError(f"train: epoch {epoch + 1}: the loss is {loss}; the run diverged (lower "
                                f"learning_rate?). {run_dir} keeps epoch {epoch}: run again to resume from it")
         seconds = time.perf_counter() - began
-        classifier = _classifier(state, classes, config)
+        classifier = _classifier(state, classes, config, orders)
         scores = {s: float(np.mean(predict_all(classifier, p, m, config.eval_batch) == y))
-                  for s, (p, m, y) in evals.items()}
+                  for s, (p, m, y, _) in evals.items()}
         history.append({"epoch": epoch + 1, "loss": loss, "train_accuracy": accuracy, "test_accuracy": scores,
                         "train_seconds": seconds, "clouds_per_second": steps * config.batch_size / seconds})
         io.write_json(metrics_path, {"classes": list(classes), "history": history})
@@ -289,23 +330,28 @@ def train(config: TrainConfig, show_progress: bool = True) -> Path:
         bar.set_postfix(loss=f"{loss:.3f}", acc=f"{accuracy:.3f}",
                         **{f"test_{s}": f"{v:.3f}" for s, v in scores.items()})
     manager.wait_until_finished()
-    return finish(run_dir, config, classes, state, evals, history)
+    return finish(run_dir, config, classes, state, evals, history, orders)
 
 
 def finish(run_dir: Path, config: TrainConfig, classes: tuple[str, ...], state: TrainState,
-           evals: dict, history: list[dict]) -> Path:
-    """Final per-class figures (None for a class without held-out clouds), confusion matrices, plots and
-    the exported weights."""
+           evals: dict, history: list[dict], orders: tuple[int, ...] = ()) -> Path:
+    """Final per-class figures (None for a class without held-out clouds), confusion matrices, the yaw
+    head's errors, plots and the exported weights."""
     M = len(classes)
-    classifier = _classifier(state, classes, config)
+    classifier = _classifier(state, classes, config, orders)
     final: dict[str, Any] = {}
-    for source, (p, m, y) in evals.items():
+    for source, (p, m, y, yaw) in evals.items():
         predicted = predict_all(classifier, p, m, config.eval_batch)
         confusion = confusion_matrix(y, predicted, labels=np.arange(M))
         final[source] = {"accuracy": float(np.mean(predicted == y)), "count": len(y),
                          "per_class": {c: float(confusion[i, i] / confusion[i].sum()) if confusion[i].sum() else None
                                        for i, c in enumerate(classes)},
                          "confusion": confusion.tolist()}
+        if config.model.yaw_head:
+            errors = yaw_errors(classifier, p, m, y, yaw, config.eval_batch)
+            final[source]["yaw_error_deg"] = {"median": float(np.median(errors)) if len(errors) else None,
+                                              "within_15": float(np.mean(errors <= 15)) if len(errors) else None,
+                                              "count": len(errors)}
     io.write_json(run_dir / "metrics.json", {"classes": list(classes), "final": final, "history": history})
     viz.save(viz.training_curve(history), run_dir / "curve.png")
     viz.save(viz.confusion({s: np.asarray(f["confusion"]) for s, f in final.items()}, classes),

@@ -5,13 +5,16 @@
 - ``tsdf``: fuse posed depth frames into a TSDF; extract surface points with normals;
 - ``segment``: split the surface into N object segments (reference path and its JAX twin);
 - ``pointnet``: PointNet class scores of segments and top-k candidates (weights shipped in ``weights/``);
-- ``observation``: the chain above as one pure function, ``observe``, over an ``Observation`` state.
+- ``observation``: the chain above as one pure function, ``observe``, over an ``Observation`` state;
+- ``pose``: initial model poses of a segment (upright on the table, yaw hypotheses);
+- ``icp``: point-to-plane ICP of a segment onto a model and the registration ratio (Eq. 2);
+- ``refine``: geometric refinement, every candidate registered in one call (Eq. 2-4).
 
 Perception imports the top-level helpers (``geometry``, ``math``, ``config``, ``io``), never the world,
 training, the episode or the commands.
 """
 
-from jaxcls.perception import foreground, observation, pointnet, segment, settings, tsdf
+from jaxcls.perception import foreground, icp, observation, pointnet, pose, refine, segment, settings, tsdf
 from jaxcls.perception.observation import Observation, empty_volume, init_state, observe
 from jaxcls.perception.settings import (
     ForegroundConfig,
@@ -23,5 +26,5 @@ from jaxcls.perception.settings import (
 )
 
 __all__ = ["ForegroundConfig", "Observation", "PerceptionConfig", "SegmentConfig", "ShapeConfig", "Spec",
-           "VolumeConfig", "empty_volume", "foreground", "init_state", "observation", "observe", "pointnet",
-           "segment", "settings", "tsdf"]
+           "VolumeConfig", "empty_volume", "foreground", "icp", "init_state", "observation", "observe", "pointnet",
+           "pose", "refine", "segment", "settings", "tsdf"]

@@ -48,6 +48,10 @@ class ModelConfig:
     dropout: float = bounded(0.3, ge=0.0, lt=1.0)  # before the last layer (PointNet's keep probability 0.7)
     bn_momentum: float = bounded(0.9, ge=0.0, lt=1.0)
     feature_transform_weight: float = bounded(0.001, ge=0.0)  # weight of ``orthogonality_loss``
+    # A second head on the same trunk: per class, (cos, sin) of the class's yaw-symmetry order times the
+    # object's yaw (geometric refinement's initial yaw; ``estimate_yaw``), trained with this loss weight.
+    yaw_head: bool = False
+    yaw_weight: float = bounded(1.0, ge=0.0)
 
     def __post_init__(self) -> None:
         check_bounds(self, "model.")
@@ -132,21 +136,29 @@ class TNet(nn.Module):
 class PointNet(nn.Module):
     """PointNet classification network. ``points: [B, P, 3]`` normalised (``normalise``), ``mask: [B, P]``.
 
-    Returns (logits [B, M], feature transform [B, 64, 64]).
+    Returns (logits [B, M], feature transform [B, 64, 64], yaw [B, M, 2] or None): with ``yaw_head``, a
+    second head on the pooled feature gives per class (cos, sin) of order x yaw (``estimate_yaw``).
     """
 
     num_classes: int
     dropout: float = 0.3
     momentum: float = 0.9
+    yaw_head: bool = False
 
     @nn.compact
-    def __call__(self, points: jax.Array, mask: jax.Array, train: bool = False) -> tuple[jax.Array, jax.Array]:
+    def __call__(self, points: jax.Array, mask: jax.Array, train: bool = False
+                 ) -> tuple[jax.Array, jax.Array, jax.Array | None]:
         x = points @ TNet(3, self.momentum)(points, mask, train)
         x = _SharedMLP((64, 64), self.momentum)(x, mask, train)
         feature_transform = TNet(64, self.momentum)(x, mask, train)
         x = _SharedMLP((64, 128, 1024), self.momentum)(x @ feature_transform, mask, train)
-        logits = _Head((512, 256), self.num_classes, self.momentum, self.dropout)(masked_max(x, mask), train)
-        return logits, feature_transform
+        pooled = masked_max(x, mask)
+        logits = _Head((512, 256), self.num_classes, self.momentum, self.dropout)(pooled, train)
+        yaw = None
+        if self.yaw_head:
+            yaw = _Head((512, 256), 2 * self.num_classes, self.momentum, name="yaw")(pooled, train)
+            yaw = yaw.reshape(*yaw.shape[:-1], self.num_classes, 2)
+        return logits, feature_transform, yaw
 
 
 def orthogonality_loss(transform: jax.Array) -> jax.Array:
@@ -158,7 +170,8 @@ def orthogonality_loss(transform: jax.Array) -> jax.Array:
 
 def make_model(num_classes: int, config: ModelConfig) -> PointNet:
     """The network for ``num_classes`` outputs with ``config``'s dropout and batch-norm momentum."""
-    return PointNet(num_classes=num_classes, dropout=config.dropout, momentum=config.bn_momentum)
+    return PointNet(num_classes=num_classes, dropout=config.dropout, momentum=config.bn_momentum,
+                    yaw_head=config.yaw_head)
 
 
 def init_variables(key: jax.Array, num_classes: int, config: ModelConfig) -> dict:
@@ -181,6 +194,9 @@ class Classifier:
     # Temperature scaling (Guo et al. 2017): probabilities are softmax(logits / temperature); 1 = as trained.
     # Fitted on held-out training-instance scenes (``fit_temperature``), stored in the weights' .json.
     temperature: float = struct.field(pytree_node=False, default=1.0)
+    # With a yaw head: each class's yaw-symmetry order (0 = turning it changes nothing: no yaw), the
+    # multiple of the yaw the head regresses (``yaw_orders`` of the training instances).
+    yaw_orders: tuple[int, ...] = struct.field(pytree_node=False, default=())
 
     def check_classes(self, classes: Sequence[str], source: str = "object set") -> None:
         """Raise ValueError unless ``classes`` is exactly the class list these weights were trained on."""
@@ -201,8 +217,34 @@ def logits(classifier: Classifier, points: jax.Array, mask: jax.Array) -> jax.Ar
                          f"{mask_shape}")
     points, mask = normalise(jnp.asarray(points, jnp.float32), jnp.asarray(mask, bool))
     model = make_model(len(classifier.classes), classifier.config)
-    scores, _ = model.apply(classifier.variables, points, mask, train=False)
-    return scores
+    return model.apply(classifier.variables, points, mask, train=False)[0]
+
+
+@jax.jit
+def estimate_yaw(classifier: Classifier, points: jax.Array, mask: jax.Array) -> jax.Array:
+    """[N, M] rad: the yaw head's estimate of each segment's yaw about z if it were of class m, modulo
+    2 pi / ``yaw_orders[m]`` (0 for a class whose order is 0: any yaw fits it). points: [N, P, 3] m, z up;
+    mask: [N, P]. The yaw is that of the class's canonical model frame (``pose.initial_poses`` takes it)."""
+    if not classifier.config.yaw_head:
+        raise ValueError("estimate_yaw: these weights have no yaw head (train with model.yaw_head=true)")
+    points, mask = normalise(jnp.asarray(points, jnp.float32), jnp.asarray(mask, bool))
+    model = make_model(len(classifier.classes), classifier.config)
+    head = model.apply(classifier.variables, points, mask, train=False)[2]
+    order = jnp.asarray(classifier.yaw_orders, jnp.float32)
+    angle = jnp.arctan2(head[..., 1], head[..., 0]) / jnp.maximum(order, 1.0)
+    return jnp.where(order > 0, angle, 0.0)
+
+
+def yaw_orders(class_symmetries: Sequence[Sequence[int]]) -> tuple[int, ...]:
+    """Per class, the yaw-symmetry order the yaw head regresses from its instances' orders
+    (``ObjectModel.yaw_symmetry``: 0 continuous, k-fold, 1 none): the least common multiple of the
+    finite ones (a turn by 2 pi / order maps every instance onto itself, so equal clouds never get
+    different targets), 0 when every instance is continuous."""
+    orders = []
+    for symmetries in class_symmetries:
+        finite = [int(k) for k in symmetries if k > 0]
+        orders.append(int(np.lcm.reduce(finite)) if finite else 0)
+    return tuple(orders)
 
 
 @jax.jit
@@ -258,7 +300,7 @@ def save_classifier(path: str | Path, classifier: Classifier, metadata: dict | N
         raise ValueError(f"save_classifier: weights are not finite in {np.dtype(dtype).name}; save as float32")
     io.write_bytes(path, serialization.msgpack_serialize(serialization.to_state_dict(stored)))
     info = {"classes": list(classifier.classes), "model": dataclasses.asdict(classifier.config),
-            "temperature": classifier.temperature, **(metadata or {})}
+            "temperature": classifier.temperature, "yaw_orders": list(classifier.yaw_orders), **(metadata or {})}
     io.write_json(path.with_suffix(".json"), info, indent=2)
     return path
 
@@ -312,8 +354,13 @@ def load_classifier(path: str | Path | None = None, classes: Sequence[str] | Non
     temperature = info.get("temperature", 1.0)  # weights saved before calibration existed: as trained
     if isinstance(temperature, bool) or not isinstance(temperature, int | float) or not 0 < temperature < np.inf:
         raise ValueError(f"{info_path}: 'temperature' must be a positive number, got {temperature!r}")
+    orders = info.get("yaw_orders", [])
+    if config.yaw_head and (not isinstance(orders, list) or len(orders) != len(names)
+                            or not all(isinstance(k, int) and k >= 0 for k in orders)):
+        raise ValueError(f"{info_path}: 'yaw_orders' must list a yaw-symmetry order (int >= 0) per class for "
+                         f"weights with a yaw head, got {orders!r}")
     classifier = Classifier(jax.tree.map(lambda a: jnp.asarray(a, jnp.float32), variables), names, config,
-                            float(temperature))
+                            float(temperature), tuple(orders) if config.yaw_head else ())
     if classes is not None:
         classifier.check_classes(classes)
     return classifier

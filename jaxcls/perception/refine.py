@@ -34,6 +34,7 @@ if TYPE_CHECKING:  # perception reads models, it does not import the world
     from jaxcls.world.objects import ObjectModel, ObjectSet
 
 LibraryKind = Literal["known", "category"]
+YawSource = Literal["hypotheses", "learned"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -42,7 +43,11 @@ class RefineConfig:
 
     icp: icp.ICPConfig = dataclasses.field(default_factory=icp.ICPConfig)
     top_k: int = bounded(3, ge=1)  # candidate classes per segment (Eq. 1's top-k)
-    hypotheses: int = bounded(8, ge=1)  # initial yaws per model, evenly spaced
+    hypotheses: int = bounded(8, ge=1)  # initial yaws per model
+    # Where they come from: "hypotheses" = evenly spaced over a full turn (a); "learned" = around the
+    # classifier's yaw-head estimate (b; ``refine(yaw=...)``), its symmetric copies, then yaw_spread apart.
+    yaw_source: YawSource = "hypotheses"
+    yaw_spread: float = bounded(0.5, gt=0.0)  # rad between the rings of learned hypotheses
     prune_after: int = bounded(5, ge=1)  # iterations on every hypothesis before the best goes on (= iterations: none)
     # Which models stand for a class: "known" = the instances the scenes are drawn from (the paper's "a CAD
     # model for each object class"), "category" = the training instances only (the scene's shapes unseen).
@@ -50,6 +55,8 @@ class RefineConfig:
 
     def __post_init__(self) -> None:
         check_bounds(self, "refine.")
+        if self.yaw_source not in ("hypotheses", "learned"):
+            raise ValueError(f"refine.yaw_source must be 'hypotheses' or 'learned', got {self.yaw_source!r}")
         if self.prune_after > self.icp.iterations:
             raise ValueError(f"refine.prune_after ({self.prune_after}) must be <= refine.icp.iterations "
                              f"({self.icp.iterations})")
@@ -125,11 +132,17 @@ class Refinement(struct.PyTreeNode):
 
 
 def refine(points: jax.Array, mask: jax.Array, probs: jax.Array, library: ModelLibrary, config: RefineConfig,
-           table_height: float | jax.Array = 0.0, seen_from: jax.Array | None = None) -> Refinement:
+           table_height: float | jax.Array = 0.0, seen_from: jax.Array | None = None, yaw: jax.Array | None = None,
+           yaw_orders: jax.Array | None = None) -> Refinement:
     """GR for N segments: points [N, P, 3] world (m), mask [N, P], probs [N, M] PointNet's scores (classes
     in ``library.classes`` order); at most ``config.icp.points`` points of a segment are read, rho
     included. seen_from: optional [C, 3] camera positions for the visibility-aware rho
-    (``icp.registration_ratio``). Pure; see ``refine_jit``."""
+    (``icp.registration_ratio``). With ``config.yaw_source = "learned"``: yaw [N, M] rad the yaw head's
+    estimates (``pointnet.estimate_yaw``) and yaw_orders [M] i32 their symmetry orders
+    (``Classifier.yaw_orders``). Pure; see ``refine_jit``."""
+    learned = config.yaw_source == "learned"
+    if learned and (yaw is None or yaw_orders is None):
+        raise ValueError("refine: yaw_source 'learned' needs yaw [N, M] (pointnet.estimate_yaw) and yaw_orders [M]")
     # Every registration (and its rho) reads the same icp.points of each segment: sampled once, here.
     points, mask = jax.vmap(lambda p, m: icp.subsample(p, m, config.icp.points))(points, mask)
     k = min(config.top_k, probs.shape[1])
@@ -139,10 +152,13 @@ def refine(points: jax.Array, mask: jax.Array, probs: jax.Array, library: ModelL
     first = dataclasses.replace(config.icp, iterations=config.prune_after)
     remaining = config.icp.iterations - first.iterations
 
-    def one_model(n, m):
-        """Every hypothesis of model ``m`` on segment ``n``, pruned to the best, then refined: (rho, pose)."""
+    def one_model(n, c, m):
+        """Every hypothesis of model ``m`` (class ``c``) on segment ``n``, pruned to the best, then refined:
+        (rho, pose)."""
         p, mk = points[n], mask[n]
-        inits = pose.initial_poses(p, mk, library.centroid[m], table_height, config.hypotheses)
+        yaws = (pose.learned_yaws(yaw[n, c], yaw_orders[c], config.hypotheses, config.yaw_spread) if learned
+                else pose.even_yaws(config.hypotheses))
+        inits = pose.initial_poses(p, mk, library.centroid[m], table_height, yaws)
         tgt = library.targets.select(m)
         stage = jax.vmap(lambda T: icp.align(p, mk, tgt, T, first))(inits)
         score = jax.vmap(lambda T: icp.registration_ratio(p, mk, tgt, T, config.icp.inlier_distance, seen_from)
@@ -158,7 +174,8 @@ def refine(points: jax.Array, mask: jax.Array, probs: jax.Array, library: ModelL
     # slower (benchmarks/refine.py).
     N = points.shape[0]
     pair_segment = jnp.repeat(jnp.arange(N), models.size // N)
-    rho, poses, valid = jax.vmap(one_model)(pair_segment, models.reshape(-1))
+    pair_class = jnp.broadcast_to(candidates[..., None], models.shape).reshape(-1)
+    rho, poses, valid = jax.vmap(one_model)(pair_segment, pair_class, models.reshape(-1))
     rho, poses, valid = rho.reshape(models.shape), poses.reshape(*models.shape, 4, 4), valid.reshape(models.shape)
     rho = jnp.where(model_ok & valid, rho, -1.0)
     j = jnp.argmax(rho, axis=2)  # the best model of each candidate class
