@@ -6,12 +6,13 @@ point-to-plane registrations of segments of up to 1024 points onto 2048 model sa
 Segments: ``perception.observe`` on 3 views of held-out built-in scenes; candidates: the shipped
 classifier's top 3; models: one per class (the scene's own instance for its classes, else the first
 held-out instance), so a move is exactly 120 registrations. Ours: ``refine.refine_jit`` (one jitted,
-vmapped call: every hypothesis for ``prune_after`` iterations, then the best per model for the rest), in
-both DoF modes and a straightforward variant without pruning. Open3D: ``registration_icp`` with
-``TransformationEstimationPointToPlane``, the same 120 initial poses, 30 iterations each, one after another,
-then rho (Eq. 2) per registration from KD-trees, and Eq. 3-4. Each round times every contender once,
-interleaved; the table gives medians and the spread over rounds, and the final accuracy of each: the
-refined class right, the pose within 5 degrees (modulo symmetry) and 5 mm, over the scenes' segments.
+vmapped call: every hypothesis for ``prune_after`` iterations, then the best rho per model for the rest),
+in both DoF modes, with 512 points and more iterations, and a straightforward variant without pruning.
+Open3D: ``registration_icp`` with ``TransformationEstimationPointToPlane``, the same 120 initial poses, 30
+iterations each, one after another, then rho (Eq. 2) per registration from KD-trees, and Eq. 3-4. Each
+round times every contender once, interleaved; the table gives medians and the spread over rounds, and
+the final accuracy of each: the refined class right, the pose within 5 degrees (modulo symmetry) and 5 mm,
+over the scenes' segments.
 """
 
 from __future__ import annotations
@@ -109,11 +110,13 @@ def main(argv: list[str] | None = None) -> None:
     classifier = pointnet.load_classifier()
     moves = [_move(seed, classifier) for seed in range(args.scenes)]
     ours = {
-        "jaxcls refine, yaw (4-DoF), 5 + 15 iterations, 512 points": refine.RefineConfig(),
-        "jaxcls refine, 6-DoF, 5 + 15 iterations, 512 points": refine.RefineConfig(icp=icp.ICPConfig(dof="full")),
-        "jaxcls refine, yaw, no pruning: 120 x 20 iterations": refine.RefineConfig(prune_after=20),
-        "jaxcls refine, yaw, 3 + 9 iterations, 256 points": refine.RefineConfig(
-            prune_after=3, icp=icp.ICPConfig(iterations=12, points=256)),
+        "jaxcls refine (default): yaw (4-DoF), 8 yaws x 3 + best x 9 iterations, 256 points": refine.RefineConfig(),
+        "jaxcls refine, 6-DoF, otherwise the default": refine.RefineConfig(icp=icp.ICPConfig(
+            dof="full", iterations=12, points=256)),
+        "jaxcls refine, yaw, 512 points, 5 + 15 iterations": refine.RefineConfig(
+            prune_after=5, icp=icp.ICPConfig(iterations=20, points=512)),
+        "jaxcls refine, yaw, no pruning: 120 x 20 iterations, 512 points": refine.RefineConfig(
+            prune_after=20, icp=icp.ICPConfig(iterations=20, points=512)),
     }
     contenders = {}
     for name, config in ours.items():

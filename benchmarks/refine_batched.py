@@ -62,7 +62,9 @@ def main(argv: list[str] | None = None) -> None:
         return save(args.save, args.scenes)
     moves = pickle.loads(args.moves.read_bytes())
     library = jax.tree.map(jnp.asarray, moves[0]["library"])  # one library for every episode of the batch
-    variants = {"yaw (4-DoF)": refine.RefineConfig(), "6-DoF": refine.RefineConfig(icp=icp.ICPConfig(dof="full"))}
+    variants = {"yaw (4-DoF), the default: 256 points, 3 + 9 iterations": refine.RefineConfig(),
+                "6-DoF, 512 points, 5 + 15 iterations": refine.RefineConfig(
+                    prune_after=5, icp=icp.ICPConfig(dof="full", iterations=20, points=512))}
     batched = jax.jit(jax.vmap(refine.refine, in_axes=(0, 0, 0, None, None, None)), static_argnums=(4,))
     rows = []
     for name, config in variants.items():

@@ -138,3 +138,27 @@ def test_registration_experiment_scores_every_library_and_rho():
         assert r["beats"] == (r["margin"] > 0)
         if r["library"] == "instance" and r["refined"] == r["class"]:
             assert r["model"] == r["instance"]  # its class holds its own model only
+
+
+def test_the_shipped_yaw_head_starts_refinement_at_the_objects_yaw(scene):
+    """The shipped weights' yaw head gives the yaw of the scene's asymmetric objects within 15 degrees, and
+    GR from it and one hypothesis either side (yaw_source 'learned') recovers their class and pose."""
+    world, classifier, state, truth, library = scene
+    assert classifier.config.yaw_head and len(classifier.yaw_orders) == len(classifier.classes)
+    yaw = np.asarray(pose_head := pointnet.estimate_yaw(classifier, state.segments.points, state.segments.mask))
+    config = refine.RefineConfig(yaw_source="learned", hypotheses=3)
+    out = refine.refine_jit(state.segments.points, state.segments.mask, state.probs, library, config,
+                            world.table_height, None, pose_head, np.asarray(classifier.yaw_orders))
+    checked = 0
+    for n in np.flatnonzero(truth.object >= 0):
+        obj = world.scene.objects[truth.object[n]]
+        c = classifier.classes.index(obj.class_name)
+        if classifier.yaw_orders[c] != 1:
+            continue
+        checked += 1
+        error = abs((yaw[n, c] - obj.yaw + np.pi) % (2 * np.pi) - np.pi)
+        assert np.degrees(error) < 15.0
+        assert int(out.refined[n]) == c
+        angle, shift = metrics.pose_error(np.asarray(out.pose[n]), world.scene.object_poses()[truth.object[n]], 1)
+        assert angle < 3.0 and shift < 0.005
+    assert checked >= 1

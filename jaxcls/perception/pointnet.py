@@ -5,7 +5,10 @@ mean subtracted, scaled into the unit sphere, as the paper's training clouds are
 input T-Net (3x3); a shared MLP 64-64 follows, a feature T-Net (64x64, kept near orthogonal by
 ``orthogonality_loss``), a shared MLP 64-128-1024, a max-pool over the real points only, and a head
 512-256-M with batch norm and dropout. Padded points never reach the pool nor the batch statistics, so
-adding masked points changes nothing.
+adding masked points changes nothing. Optionally (``ModelConfig.yaw_head``; the shipped default weights
+have it) a second head 512-256-2M on the same pooled feature regresses, per class, (cos, sin) of the
+class's yaw-symmetry order times the object's yaw: ``estimate_yaw``, the initial yaw of geometric
+refinement.
 
 Inference goes through a ``Classifier`` (weights + class list): ``classify`` gives probabilities for
 ``[N, P, 3]`` segments, ``top_k`` the candidates ICP chooses among. ``load_classifier()`` without a path

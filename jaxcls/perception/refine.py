@@ -41,14 +41,16 @@ YawSource = Literal["hypotheses", "learned"]
 class RefineConfig:
     """GR settings: the ICP (``icp:``), how many candidate classes, initial yaws and which models."""
 
-    icp: icp.ICPConfig = dataclasses.field(default_factory=icp.ICPConfig)
+    # 256 points and 3 + 9 iterations: as accurate as 512 points and 5 + 15 on the recovery cases
+    # (experiments/registration.py), 2.3x faster (RESULTS.md, BENCHMARKS.md).
+    icp: icp.ICPConfig = dataclasses.field(default_factory=lambda: icp.ICPConfig(iterations=12, points=256))
     top_k: int = bounded(3, ge=1)  # candidate classes per segment (Eq. 1's top-k)
     hypotheses: int = bounded(8, ge=1)  # initial yaws per model
     # Where they come from: "hypotheses" = evenly spaced over a full turn (a); "learned" = around the
     # classifier's yaw-head estimate (b; ``refine(yaw=...)``), its symmetric copies, then yaw_spread apart.
     yaw_source: YawSource = "hypotheses"
     yaw_spread: float = bounded(0.5, gt=0.0)  # rad between the rings of learned hypotheses
-    prune_after: int = bounded(5, ge=1)  # iterations on every hypothesis before the best goes on (= iterations: none)
+    prune_after: int = bounded(3, ge=1)  # iterations on every hypothesis before the best goes on (= iterations: none)
     # Which models stand for a class: "known" = the instances the scenes are drawn from (the paper's "a CAD
     # model for each object class"), "category" = the training instances only (the scene's shapes unseen).
     library: LibraryKind = "known"
