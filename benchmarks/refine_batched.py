@@ -61,14 +61,18 @@ def main(argv: list[str] | None = None) -> None:
     if args.save:
         return save(args.save, args.scenes)
     moves = pickle.loads(args.moves.read_bytes())
-    library = jax.tree.map(jnp.asarray, moves[0]["library"])  # one library for every episode of the batch
+    grid_library = jax.tree.map(jnp.asarray, moves[0]["library"])  # one library for every episode of the batch
     variants = {"yaw (4-DoF), the default: 256 points, 3 + 9 iterations": refine.RefineConfig(),
                 "6-DoF, 512 points, 5 + 15 iterations": refine.RefineConfig(
-                    prune_after=5, icp=icp.ICPConfig(dof="full", iterations=20, points=512))}
+                    prune_after=5, icp=icp.ICPConfig(dof="full", iterations=20, points=512)),
+                "yaw, the default, brute-force closest samples": refine.RefineConfig(
+                    icp=icp.ICPConfig(iterations=12, points=256, lookup="brute"))}
     batched = jax.jit(jax.vmap(refine.refine, in_axes=(0, 0, 0, None, None, None)), static_argnums=(4,))
     rows = []
     for name, config in variants.items():
         for B in args.batch:
+            library = grid_library.replace(targets=grid_library.targets.replace(
+                brute=config.icp.lookup == "brute"))
             pick = [moves[b % len(moves)] for b in range(B)]
             points, mask, probs = (jnp.asarray(np.stack([m[k] for m in pick])) for k in ("points", "mask", "probs"))
             registrations = B * points.shape[1] * config.top_k * config.hypotheses

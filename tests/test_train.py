@@ -237,7 +237,8 @@ def test_yaw_orders_and_the_yaw_loss():
     turned = yaw + 2 * np.pi / np.maximum(s, 1)
     assert float(yaw_loss(jnp.asarray(head), labels, turned, orders)) == pytest.approx(0.0, abs=1e-8)
     assert float(yaw_loss(jnp.asarray(head), labels, yaw + 0.2, orders)) > 0.01
-    assert clouds._yaw(np.array([[0.0, -1, 0, 0.2], [1, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])) == pytest.approx(np.pi / 2)
+    quarter_turn = np.array([[0.0, -1, 0, 0.2], [1, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+    assert clouds._yaw(quarter_turn) == pytest.approx(np.pi / 2)
 
 
 def test_a_yaw_head_trains_and_feeds_refinement(workspace):

@@ -47,6 +47,7 @@ if TYPE_CHECKING:  # perception reads models, it does not import the world
 
 HIGHEST = jax.lax.Precision.HIGHEST
 Dof = Literal["yaw", "full"]
+Lookup = Literal["grid", "brute"]
 _HOP_NEIGHBOURS = 8  # samples looked at per step of the closest-sample walk
 _MIN_SPREAD = 1e-8  # m^2: a segment whose second principal variance is below this is a line or a point
 
@@ -66,11 +67,16 @@ class ICPConfig:
     candidates: int = bounded(4, ge=1)  # samples kept per cell; the nearest of them to the point is used
     hops: int = bounded(1, ge=0)  # then steps over that sample's 8 nearest samples (0: the grid alone)
     neighbours: int = bounded(32, ge=8)  # nearest samples kept per sample (rho's model side reads them all)
+    # Closest-sample search: "grid" (the lookup above, O(points) gathers) or "brute" (every sample, exact;
+    # O(points x samples): for comparison, measured in BENCHMARKS.md on both backends).
+    lookup: Lookup = "grid"
 
     def __post_init__(self) -> None:
         check_bounds(self, "icp.")
         if self.dof not in ("yaw", "full"):
             raise ValueError(f"icp.dof must be 'yaw' or 'full', got {self.dof!r}")
+        if self.lookup not in ("grid", "brute"):
+            raise ValueError(f"icp.lookup must be 'grid' or 'brute', got {self.lookup!r}")
 
 
 class Target(struct.PyTreeNode):
@@ -96,6 +102,7 @@ class Target(struct.PyTreeNode):
     which: jax.Array
     resolution: int = struct.field(pytree_node=False)
     hops: int = struct.field(pytree_node=False, default=1)
+    brute: bool = struct.field(pytree_node=False, default=False)  # ICPConfig.lookup == "brute"
 
     def select(self, which: jax.Array | int) -> Target:
         """The same stack, registering onto model ``which``."""
@@ -159,7 +166,7 @@ def model_target(model: ObjectModel, config: ICPConfig = ICPConfig(), samples: i
                   grid=jnp.asarray(np.asarray(index, np.int16).reshape(1, G**3, -1)),
                   origin=jnp.asarray(low[None], jnp.float32), cell=jnp.asarray(cell[None], jnp.float32),
                   neighbours=jnp.asarray(np.asarray(neighbours, np.int16).reshape(1, count, -1)),
-                  which=jnp.int32(0), resolution=G, hops=config.hops)
+                  which=jnp.int32(0), resolution=G, hops=config.hops, brute=config.lookup == "brute")
 
 
 def closest(target: Target, x: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -169,7 +176,13 @@ def closest(target: Target, x: jax.Array) -> tuple[jax.Array, jax.Array]:
     sample among the current one's 8 nearest samples: exact where that walk reaches the true nearest
     sample (the candidates of a cell are the nearest of its centre, not of every point in it; the walk
     repairs that near the surface, where correspondences are kept). Points outside the grid take the
-    nearest border cell, whose samples are farther than ``max_correspondence``."""
+    nearest border cell, whose samples are farther than ``max_correspondence``. With ``target.brute``
+    (``ICPConfig.lookup = "brute"``): the nearest of all samples, exact."""
+    if target.brute:  # every sample: exact
+        points, _, real = target.samples()
+        d2 = jnp.where(real, jnp.sum((x[:, None, :] - points[None]) ** 2, axis=-1), jnp.inf)
+        index = jnp.argmin(d2, axis=1)
+        return index, jnp.sqrt(jnp.take_along_axis(d2, index[:, None], axis=1)[:, 0])
     G = target.resolution
     origin, size = target.origin[target.which], target.cell[target.which]
     ijk = jnp.clip(jnp.floor((x - origin) / size).astype(jnp.int32), 0, G - 1)
