@@ -18,6 +18,8 @@ FORBIDDEN = {
                      "jaxcls.commands", "jaxcls.cli", "jaxcls.viz", "jaxcls.report"),
     "jaxcls.perception": ("jaxcls.world", "jaxcls.planning", "jaxcls.episode", "jaxcls.active", "jaxcls.learn",
                           "jaxcls.commands", "jaxcls.cli", "jaxcls.viz", "jaxcls.report"),
+    "jaxcls.planning": ("jaxcls.world", "jaxcls.episode", "jaxcls.active", "jaxcls.learn", "jaxcls.commands",
+                        "jaxcls.cli", "jaxcls.viz", "jaxcls.report"),
     "jaxcls.learn": ("jaxcls.commands", "jaxcls.cli", "jaxcls.episode", "jaxcls.active"),
     # The shared helpers at the top sit below every layer.
     **{f"jaxcls.{m}": ("jaxcls.world", "jaxcls.perception", "jaxcls.learn", "jaxcls.commands", "jaxcls.cli")

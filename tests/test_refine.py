@@ -30,10 +30,18 @@ def scene():
 
 
 def test_refine_finds_each_objects_class_and_pose(scene):
+    """With the visibility-aware rho (the cameras that looked; the recommended setting), every object's
+    class, instance and pose; the plain rho of Eq. 2 takes a mug's second minimum ~7 degrees off here (the
+    partial-view ambiguity RESULTS.md measures), so it is held to the class and instance."""
     world, classifier, state, truth, library = scene
     config = refine.RefineConfig()
+    cameras = world.poses([0, 10, 20])[:, :3, 3].astype(np.float32)
+    plain = refine.refine_jit(state.segments.points, state.segments.mask, state.probs, library, config,
+                              world.table_height)
     out = refine.refine_jit(state.segments.points, state.segments.mask, state.probs, library, config,
-                            world.table_height)
+                            world.table_height, cameras)
+    np.testing.assert_array_equal(np.asarray(plain.refined), np.asarray(out.refined))
+    np.testing.assert_array_equal(np.asarray(plain.model), np.asarray(out.model))
     poses = world.scene.object_poses()
     scored = [n for n in range(len(truth.object)) if truth.object[n] >= 0]
     assert len(scored) >= 4
@@ -147,8 +155,9 @@ def test_the_shipped_yaw_head_starts_refinement_at_the_objects_yaw(scene):
     assert classifier.config.yaw_head and len(classifier.yaw_orders) == len(classifier.classes)
     yaw = np.asarray(pose_head := pointnet.estimate_yaw(classifier, state.segments.points, state.segments.mask))
     config = refine.RefineConfig(yaw_source="learned", hypotheses=3)
+    cameras = world.poses([0, 10, 20])[:, :3, 3].astype(np.float32)  # the visibility-aware rho
     out = refine.refine_jit(state.segments.points, state.segments.mask, state.probs, library, config,
-                            world.table_height, None, pose_head, np.asarray(classifier.yaw_orders))
+                            world.table_height, cameras, pose_head, np.asarray(classifier.yaw_orders))
     checked = 0
     for n in np.flatnonzero(truth.object >= 0):
         obj = world.scene.objects[truth.object[n]]

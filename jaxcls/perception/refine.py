@@ -42,8 +42,10 @@ class RefineConfig:
     """GR settings: the ICP (``icp:``), how many candidate classes, initial yaws and which models."""
 
     # 256 points and 3 + 9 iterations: as accurate as 512 points and 5 + 15 on the recovery cases
-    # (experiments/registration.py), 2.3x faster (RESULTS.md, BENCHMARKS.md).
-    icp: icp.ICPConfig = dataclasses.field(default_factory=lambda: icp.ICPConfig(iterations=12, points=256))
+    # (experiments/registration.py), 2.3x faster; rho's inlier distance 5 mm: a sharper Eq. 2 than 10 mm
+    # (instances of a class differ by a few mm), the true class and instance win far more often (RESULTS.md).
+    icp: icp.ICPConfig = dataclasses.field(
+        default_factory=lambda: icp.ICPConfig(iterations=12, points=256, inlier_distance=0.005))
     top_k: int = bounded(3, ge=1)  # candidate classes per segment (Eq. 1's top-k)
     hypotheses: int = bounded(8, ge=1)  # initial yaws per model
     # Where they come from: "hypotheses" = evenly spaced over a full turn (a); "learned" = around the
