@@ -1,6 +1,7 @@
 """Visibility of aligned model cuboids (paper Eq. 5): the paper's hard count against a NumPy painter (hull
 of the projected corners, near to far), the per-pixel count against MuJoCo's ray caster on the same boxes,
-the soft count's limit and gradients, and cuboids behind the camera."""
+the soft count's limit and gradients, and cuboids behind the camera. Next-best-view (Eq. 6-8): the paper's
+policies on hand-built scenes and the documented choices on degenerate inputs."""
 
 from __future__ import annotations
 
@@ -11,7 +12,8 @@ import pytest
 from scipy.spatial import ConvexHull
 from scipy.spatial.transform import Rotation
 
-from jaxcls.geometry import Intrinsics, look_at, pixel_rays
+from jaxcls.geometry import Intrinsics, hemisphere_viewpoints, look_at, pixel_rays
+from jaxcls.planning import nbv
 from jaxcls.planning import visibility as vis
 
 K = Intrinsics.kinect_v1(1.0)
@@ -152,3 +154,80 @@ def test_cuboids_behind_or_around_the_camera_are_clipped_not_wrapped():
     soft = np.asarray(vis.soft_counts_jit(corners, poses, live, T.astype(np.float32), K))
     assert np.all(np.isfinite(soft)) and soft[0, 1] < 1.0
     assert np.all(np.asarray(vis.counts_jit(corners, poses, np.zeros(2, bool), T.astype(np.float32), K)) == 0)
+
+
+# --- next-best-view (Eq. 6-8) -------------------------------------------------------------------------
+
+SMALL = Intrinsics.kinect_v1(0.25)
+
+
+def _boxes(spec):
+    """Belief of boxes given as (half x, half y, height, x, y)."""
+    corners = np.stack([np.array([[sx * hx, sy * hy, z] for sx in (-1, 1) for sy in (-1, 1) for z in (0, h)])
+                        for hx, hy, h, _, _ in spec]).astype(np.float32)
+    poses = np.tile(np.eye(4, dtype=np.float32), (len(spec), 1, 1))
+    poses[:, 0, 3], poses[:, 1, 3] = [s[3] for s in spec], [s[4] for s in spec]
+    return nbv.Belief(corners=jnp.asarray(corners), poses=jnp.asarray(poses), live=jnp.ones(len(spec), bool))
+
+
+def _ring(count=24, elevation=0.35, radius=1.0):
+    azimuth = 2 * np.pi * np.arange(count) / count
+    eye = radius * np.stack([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
+                             np.full(count, np.sin(elevation))], -1)
+    return look_at(eye, np.zeros(3)).astype(np.float32)
+
+
+def test_random_never_revisits_and_history_leaves_visited_views():
+    T = hemisphere_viewpoints(np.zeros(3), 100).astype(np.float32)
+    belief = _boxes([(0.05, 0.05, 0.1, 0.0, 0.0)])
+    views = nbv.Views.start(T, 0)
+    key = jax.random.key(0)
+    path = [0]
+    for t in range(15):
+        nxt = int(nbv.choose_jit(nbv.policy("random"), views, belief, jax.random.fold_in(key, t), SMALL))
+        assert nxt not in path
+        path.append(nxt)
+        views = views.move(nxt)
+    # A ring of views around one box: every view sees about the same, so only history separates them.
+    ring = _ring()
+    views = nbv.Views.start(ring, 0).move(1).move(0)  # been at 1, back at 0
+    hist = int(nbv.choose_jit(nbv.VisOcclHist(), views, belief, key, SMALL, nbv.NBVConfig(radius=0.6)))
+    assert not bool(views.visited[hist]) and hist not in (0, 1)
+    weight = np.asarray(nbv.history_weight(views, jnp.arange(24), nbv.NBVConfig()))
+    assert weight[0] == 0 and weight[1] == 0 and weight[12] > 0.99 and np.all(np.diff(weight[1:13]) >= -1e-6)
+    literal = np.asarray(nbv.history_weight(views, jnp.arange(24), nbv.NBVConfig(history="max")))
+    assert literal[0] > 0  # the paper's literal max: the farther visited view decides, a visited view is not 0
+
+
+def test_occlusion_aware_policies_turn_to_a_hidden_object():
+    """A small box hidden behind a tall one from the current view: vis_occl and vis_occl_hist move to a view
+    that shows it; at the current view the z-buffer says it is hidden, the no-occlusion count says it is not."""
+    belief = _boxes([(0.06, 0.06, 0.45, 0.0, 0.0), (0.03, 0.03, 0.06, 0.15, 0.0)])
+    ring = _ring(24, elevation=0.15)
+    views = nbv.Views.start(ring, 12)  # at azimuth 180 deg: the tall box stands between camera and small box
+    here = ring[12:13]
+    hidden = np.asarray(visibility_counts(belief, here, "paper"))[0, 1]
+    assert hidden == 0 and np.asarray(visibility_counts(belief, here, "no_occlusion"))[0, 1] > 0
+    for p in (nbv.VisOccl(), nbv.VisOcclHist()):
+        nxt = int(nbv.choose_jit(p, views, belief, jax.random.key(0), SMALL, nbv.NBVConfig(radius=0.6)))
+        assert np.asarray(visibility_counts(belief, ring[nxt:nxt + 1], "paper"))[0, 1] > 0, (p, nxt)
+
+
+def visibility_counts(belief, T, mode):
+    config = vis.VisibilityConfig(mode=mode, scale=1.0)
+    return vis.counts_jit(belief.corners, belief.poses, belief.live, T, SMALL, config)
+
+
+def test_degenerate_inputs_give_documented_choices():
+    ring = _ring()
+    dead = _boxes([(0.05, 0.05, 0.1, 0.0, 0.0)]).replace(live=jnp.zeros(1, bool))
+    views = nbv.Views.start(ring, 0)
+    for name in nbv.POLICIES:
+        nxt = int(nbv.choose_jit(nbv.policy(name), views, dead, jax.random.key(1), SMALL))
+        assert 0 <= nxt < 24 and nxt != 0
+    lonely = nbv.NBVConfig(radius=0.01)  # no candidate: the nearest other viewpoint
+    assert int(nbv.choose_jit(nbv.VisOcclHist(), views, dead, jax.random.key(1), SMALL, lonely)) in (1, 23)
+    everywhere = nbv.Views(T_wc=jnp.asarray(ring), visited=jnp.ones(24, bool), current=jnp.int32(5))
+    assert int(nbv.choose_jit(nbv.policy("random"), everywhere, dead, jax.random.key(1), SMALL)) != 5
+    with pytest.raises(ValueError, match="unknown policy"):
+        nbv.policy("oracle")

@@ -1,10 +1,11 @@
 """Where to look next (paper Sec. 3.3), after a move's perception and refinement.
 
-- ``visibility``: pixels of each aligned model cuboid a candidate view would see (Eq. 5), hard and soft.
+- ``visibility``: pixels of each aligned model cuboid a candidate view would see (Eq. 5), hard and soft;
+- ``nbv``: the candidates of a move, the history weight, the utility and the policies (Eq. 6-8).
 
 Planning imports perception and the top-level helpers, never the world, the episode or the commands.
 """
 
-from jaxcls.planning import visibility
+from jaxcls.planning import nbv, visibility
 
-__all__ = ["visibility"]
+__all__ = ["nbv", "visibility"]

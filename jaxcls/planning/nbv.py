@@ -1,0 +1,188 @@
+"""Next-best-view (paper Sec. 3.3, Eq. 5-8): score the candidate views of a move and pick one.
+
+The candidates of a move are the viewpoints within ``radius`` of the current one (the paper's r = 0.5 m),
+at most ``max_candidates`` of them, nearest first (a static shape). Visited ones stay candidates but the
+history weight lowers them (Eq. 6); ``random`` draws among the unvisited ones only.
+
+    O_i = sum_j O_i^j                    (Eq. 5: visible pixels of segment j's aligned cuboid at view i)
+    W_i = 1 - G(min_tau D(i, tau))       (Eq. 6, G(d) = exp(-d^2 / 2 sigma^2), sigma = r / 2; "min" over the
+                                          visited views as DESIGN.md explains; ``history="max"`` is the
+                                          paper's literal max over tau of 1 - G, for the ablation)
+    U_i = W_i * O_i / max_i O_i          (Eq. 7)
+    next view = argmax_i U_i             (Eq. 8)
+
+Policies are typed configs in a registry (``POLICIES``: name -> config class), each run by ``choose``, a
+pure function ``(config, views, belief, key) -> view index``:
+
+- ``random``: a uniformly random unvisited candidate;
+- ``vis_no_occl``: Eq. 7 without the z-buffer (each cuboid counted alone) and without history;
+- ``vis_occl``: with the z-buffer (``visibility`` "paper" mode), without history;
+- ``vis_occl_hist``: with both (the paper's VisOcclHist).
+
+Documented choices for degenerate inputs (never NaN, never a crash inside jit): no live segment or nothing
+visible at any candidate -> O is 0 everywhere: ``vis_occl_hist`` takes U = W (the least visited direction),
+the others the nearest candidate (ties go to the nearest); no candidate within the radius -> the nearest
+other viewpoint; ``random`` with every candidate
+visited -> the nearest unvisited viewpoint, or a random candidate when every viewpoint is visited.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import ClassVar
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from jaxcls.config import bounded, check_bounds
+from jaxcls.geometry import Intrinsics
+from jaxcls.math import safe_div
+from jaxcls.planning import visibility
+
+
+@dataclasses.dataclass(frozen=True)
+class Random:
+    """The paper's Random: a uniformly random unvisited candidate."""
+
+    name: ClassVar[str] = "random"
+
+
+@dataclasses.dataclass(frozen=True)
+class VisNoOccl:
+    """The paper's VisNoOccl: visibility without occlusion, no history."""
+
+    name: ClassVar[str] = "vis_no_occl"
+
+
+@dataclasses.dataclass(frozen=True)
+class VisOccl:
+    """The paper's VisOccl: visibility through the z-buffer, no history."""
+
+    name: ClassVar[str] = "vis_occl"
+
+
+@dataclasses.dataclass(frozen=True)
+class VisOcclHist:
+    """The paper's VisOcclHist: visibility through the z-buffer times the history weight (Eq. 6-8)."""
+
+    name: ClassVar[str] = "vis_occl_hist"
+
+
+Policy = Random | VisNoOccl | VisOccl | VisOcclHist
+POLICIES: dict[str, type] = {p.name: p for p in (Random, VisNoOccl, VisOccl, VisOcclHist)}
+
+
+def policy(name: str) -> Policy:
+    """The policy config registered as ``name`` (``POLICIES``)."""
+    if name not in POLICIES:
+        raise ValueError(f"nbv: unknown policy {name!r}; choose one of {sorted(POLICIES)}")
+    return POLICIES[name]()
+
+
+@dataclasses.dataclass(frozen=True)
+class NBVConfig:
+    """Candidate set, history weight and visibility settings of a move's view choice."""
+
+    radius: float = bounded(0.5, gt=0.0)  # m: candidates lie within this of the current view (the paper's r)
+    max_candidates: int = bounded(32, ge=1)  # the nearest ones, a static shape
+    history: str = "min"  # Eq. 6 over the visited views: "min" distance (the intent) or the literal "max"
+    visibility: visibility.VisibilityConfig = dataclasses.field(default_factory=visibility.VisibilityConfig)
+
+    def __post_init__(self) -> None:
+        check_bounds(self, "nbv.")
+        if self.history not in ("min", "max"):
+            raise ValueError(f"nbv.history must be 'min' or 'max', got {self.history!r}")
+
+
+class Views(struct.PyTreeNode):
+    """The viewpoints of an episode and where the camera has been.
+
+    T_wc: [V, 4, 4] camera-to-world poses of the viewpoints; visited: [V] bool; current: [] i32.
+    """
+
+    T_wc: jax.Array
+    visited: jax.Array
+    current: jax.Array
+
+    @classmethod
+    def start(cls, T_wc: jax.Array, current: int | jax.Array) -> Views:
+        T_wc = jnp.asarray(T_wc, jnp.float32)
+        current = jnp.asarray(current, jnp.int32)
+        return cls(T_wc=T_wc, visited=jnp.zeros(T_wc.shape[0], bool).at[current].set(True), current=current)
+
+    def move(self, index: jax.Array) -> Views:
+        return self.replace(visited=self.visited.at[index].set(True), current=jnp.asarray(index, jnp.int32))
+
+
+class Belief(struct.PyTreeNode):
+    """What the planner knows of the scene: each segment's aligned model cuboid.
+
+    corners: [N, 8, 3] model frame (m); poses: [N, 4, 4] model-to-world (refinement's Eq. 4); live: [N] bool.
+    """
+
+    corners: jax.Array
+    poses: jax.Array
+    live: jax.Array
+
+
+def candidates(views: Views, config: NBVConfig) -> tuple[jax.Array, jax.Array]:
+    """The move's candidates: (index [K] i32 of the ``max_candidates`` viewpoints nearest the current one,
+    the current one excluded; ok [K] bool those within ``radius``)."""
+    position = views.T_wc[:, :3, 3]
+    distance = jnp.linalg.norm(position - position[views.current], axis=-1)
+    distance = distance.at[views.current].set(jnp.inf)
+    K = min(config.max_candidates, position.shape[0])
+    order = jnp.argsort(distance)[:K]
+    return order, distance[order] <= config.radius
+
+
+def history_weight(views: Views, index: jax.Array, config: NBVConfig) -> jax.Array:
+    """[K] Eq. 6 for the viewpoints ``index`` [K]: 1 - G(D) with G(0) = 1, sigma = radius / 2, over the
+    visited views by ``config.history`` ("min": the nearest visited view decides)."""
+    position = views.T_wc[:, :3, 3]
+    d = jnp.linalg.norm(position[index][:, None, :] - position[None, :, :], axis=-1)  # [K, V]
+    sigma = config.radius / 2
+    one_minus_g = 1.0 - jnp.exp(-(d**2) / (2 * sigma**2))
+    if config.history == "min":
+        return jnp.min(jnp.where(views.visited[None], one_minus_g, 1.0), axis=1)
+    return jnp.max(jnp.where(views.visited[None], one_minus_g, 0.0), axis=1)
+
+
+def utilities(policy_config: Policy, views: Views, belief: Belief, index: jax.Array, intrinsics: Intrinsics,
+              config: NBVConfig) -> jax.Array:
+    """[K] Eq. 7 at the viewpoints ``index`` for a visibility policy (0 where nothing is seen anywhere and
+    no history counts)."""
+    mode = "no_occlusion" if isinstance(policy_config, VisNoOccl) else "paper"
+    seen = visibility.counts(belief.corners, belief.poses, belief.live, views.T_wc[index], intrinsics,
+                             dataclasses.replace(config.visibility, mode=mode))
+    total = jnp.sum(seen, axis=1)  # O_i (Eq. 5)
+    normalised = safe_div(total, jnp.max(total))
+    if isinstance(policy_config, VisOcclHist):
+        weight = history_weight(views, index, config)
+        return jnp.where(jnp.max(total) > 0, weight * normalised, weight)
+    return normalised
+
+
+def choose(policy_config: Policy, views: Views, belief: Belief, key: jax.Array, intrinsics: Intrinsics,
+           config: NBVConfig = NBVConfig()) -> jax.Array:
+    """[] i32: the next viewpoint (Eq. 8, or the policy's own rule); see the module docstring for the
+    choices made on degenerate inputs. Pure and jit-able (``choose_jit``)."""
+    index, ok = candidates(views, config)
+    position = views.T_wc[:, :3, 3]
+    nearest_other = index[0]
+    if isinstance(policy_config, Random):
+        fresh = ok & ~views.visited[index]
+        draw = jax.random.uniform(key, index.shape)
+        pick = index[jnp.argmax(jnp.where(fresh, draw, -1.0))]
+        d = jnp.linalg.norm(position - position[views.current], axis=-1)
+        unvisited = jnp.where(views.visited, jnp.inf, d)
+        fallback = jnp.where(jnp.isfinite(jnp.min(unvisited)), jnp.argmin(unvisited),
+                             index[jnp.argmax(jnp.where(ok, draw, -1.0))])
+        return jnp.where(jnp.any(fresh), pick, jnp.where(jnp.any(ok), fallback, nearest_other)).astype(jnp.int32)
+    U = utilities(policy_config, views, belief, index, intrinsics, config)
+    best = index[jnp.argmax(jnp.where(ok, U, -jnp.inf))]  # ties: the nearest candidate (index is sorted)
+    return jnp.where(jnp.any(ok), best, nearest_other).astype(jnp.int32)
+
+
+choose_jit = jax.jit(choose, static_argnames=("policy_config", "intrinsics", "config"))
