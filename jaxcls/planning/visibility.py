@@ -148,8 +148,8 @@ def _slab_depth(rays: jax.Array, corners: jax.Array, pose_cm: jax.Array) -> jax.
 
 def _counts_one_view(corners: jax.Array, poses: jax.Array, live: jax.Array, T_wc: jax.Array, intrinsics: Intrinsics,
                      mode: Mode) -> jax.Array:
-    pixels = _pixels(intrinsics)
     if mode == "exact":
+        pixels = _pixels(intrinsics)
         rays = jnp.concatenate([(pixels - jnp.array([intrinsics.cx, intrinsics.cy])) /
                                 jnp.array([intrinsics.fx, intrinsics.fy]), jnp.ones((pixels.shape[0], 1))], -1)
         T_cm = jnp.einsum("ij,njk->nik", _invert(T_wc), poses, precision=HIGHEST)
@@ -161,16 +161,38 @@ def _counts_one_view(corners: jax.Array, poses: jax.Array, live: jax.Array, T_wc
         return jnp.sum(owned, axis=1).astype(jnp.float32)
     cam = _camera_corners(corners, poses, T_wc)
     start, direction, kept, front = jax.vmap(lambda c: _projected_hull(c, intrinsics))(cam)
-    inside = jax.vmap(lambda s, d, k: _signed_distance(pixels, s, d, k) >= 0)(start, direction, kept)  # [N, P]
-    inside = inside & (live & front)[:, None]
+    lower, upper = jax.vmap(lambda s, d, k: _row_spans(s, d, k, intrinsics.height))(start, direction, kept)
+    u = jnp.arange(intrinsics.width, dtype=jnp.float32)
+    inside = (u >= lower[..., None]) & (u <= upper[..., None])  # [N, H, W]
+    inside = inside & (live & front)[:, None, None]
     if mode == "no_occlusion":
-        return jnp.sum(inside, axis=1).astype(jnp.float32)
-    depth = jax.vmap(_segment_depth)(cam)
-    N = corners.shape[0]
-    idx = jnp.arange(N)
-    nearer = (depth[None, :] < depth[:, None]) | ((depth[None, :] == depth[:, None]) & (idx[None, :] < idx[:, None]))
-    hidden = jnp.any(nearer[:, :, None] & inside[None, :, :], axis=1)  # [N, P]: a nearer segment covers it
-    return jnp.sum(inside & ~hidden, axis=1).astype(jnp.float32)
+        return jnp.sum(inside, axis=(1, 2)).astype(jnp.float32)
+    order = jnp.argsort(jax.vmap(_segment_depth)(cam), stable=True)  # near to far (ties: lower index first)
+    free = jnp.ones(inside.shape[1:], bool)
+    painted = []
+    for k in range(corners.shape[0]):  # paint whole segments near to far through the z-buffer
+        mine = inside[order[k]] & free
+        painted.append(jnp.sum(mine))
+        free = free & ~inside[order[k]]
+    return jnp.zeros(corners.shape[0], jnp.float32).at[order].set(jnp.stack(painted).astype(jnp.float32))
+
+
+def _row_spans(start: jax.Array, direction: jax.Array, kept: jax.Array, height: int
+               ) -> tuple[jax.Array, jax.Array]:
+    """The hull's extent along each pixel row: (lower [H], upper [H]) in u, empty where lower > upper.
+
+    Edge e keeps the pixels with d_u (v - s_v) - d_v (u - s_u) >= 0, a bound on u for d_v != 0 (an upper
+    one for d_v > 0, a lower one for d_v < 0) and a condition on the row alone for d_v = 0."""
+    v = jnp.arange(height, dtype=jnp.float32)[:, None]
+    du, dv = direction[None, :, 0], direction[None, :, 1]
+    su, sv = start[None, :, 0], start[None, :, 1]
+    rhs = du * (v - sv) + dv * su  # constraint: dv * u <= rhs
+    flat = jnp.abs(dv) <= 1e-9
+    bound = rhs / jnp.where(flat, 1.0, dv)
+    upper = jnp.min(jnp.where(kept & ~flat & (dv > 0), bound, jnp.inf), axis=1)
+    lower = jnp.max(jnp.where(kept & ~flat & (dv < 0), bound, -jnp.inf), axis=1)
+    row_ok = jnp.all(~(kept & flat) | (du * (v - sv) >= 0), axis=1)
+    return jnp.where(row_ok, lower, jnp.inf), jnp.where(row_ok, upper, -jnp.inf)
 
 
 def counts(corners: jax.Array, poses: jax.Array, live: jax.Array, T_wc: jax.Array, intrinsics: Intrinsics,
