@@ -116,11 +116,16 @@ def _projected_hull(cam: jax.Array, intrinsics: Intrinsics) -> tuple[jax.Array, 
 
 
 def _signed_distance(pixels: jax.Array, start: jax.Array, direction: jax.Array, kept: jax.Array) -> jax.Array:
-    """[P] pixels: the distance of each pixel inside the hull to its nearest edge (negative outside)."""
-    rel = pixels[:, None, :] - start[None]
-    cross = direction[None, :, 0] * rel[..., 1] - direction[None, :, 1] * rel[..., 0]
-    distance = safe_div(cross, safe_norm(direction)[None])
-    return jnp.min(jnp.where(kept[None], distance, jnp.inf), axis=1)
+    """[P] pixels: the distance of each pixel inside the hull to its nearest edge (negative outside).
+
+    Each kept edge is a line n . x + c = 0 with its unit normal n pointing inwards."""
+    length = safe_norm(direction)
+    normal = jnp.stack([-direction[:, 1], direction[:, 0]], axis=-1) / jnp.where(length > 0, length, 1.0)[:, None]
+    offset = jnp.where(kept & (length > 0), -jnp.sum(normal * start, axis=-1), jnp.inf)
+    distance = jnp.full(pixels.shape[0], jnp.inf, pixels.dtype)
+    for e in range(start.shape[0]):  # unrolled: a running minimum, no [P, E] array in memory
+        distance = jnp.minimum(distance, pixels[:, 0] * normal[e, 0] + pixels[:, 1] * normal[e, 1] + offset[e])
+    return distance
 
 
 def _segment_depth(cam: jax.Array) -> jax.Array:
