@@ -212,8 +212,9 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", default="registration", help="a path or a shipped config name")
     parser.add_argument("--out", help="append the tables to this Markdown file")
-    parser.add_argument("--parts", nargs="+", choices=("recovery", "scenes"), default=["recovery", "scenes"],
-                        help="parts to run; the other one's records are read back from out_dir/results.json")
+    parser.add_argument("--parts", nargs="*", choices=("recovery", "scenes"), default=["recovery", "scenes"],
+                        help="parts to run; the others' records are read back from out_dir/results.json (none: "
+                             "only the tables)")
     parser.add_argument("overrides", nargs="*")
     args = parser.parse_intermixed_args(argv)
     config = load_config(RegistrationConfig, args.config, args.overrides)
@@ -224,8 +225,9 @@ def main(argv: list[str] | None = None) -> None:
     cases = (recovery(config, next(iter(classifiers.values()))) if "recovery" in args.parts
              else previous.get("recovery", []))
     scene_records = in_scene(config, classifiers) if "scenes" in args.parts else previous.get("in_scene", [])
-    io.write_json(out / "results.json", {"config": dataclasses.asdict(config), "recovery": cases,
-                                            "in_scene": scene_records})
+    if args.parts:
+        io.write_json(out / "results.json", {"config": dataclasses.asdict(config), "recovery": cases,
+                                                "in_scene": scene_records})
 
     def recovered(r):  # the object's own model, within 5 degrees (modulo symmetry) and 5 mm
         return r["model"] == r["instance"] and r["angle"] <= ANGLE and r["shift"] <= SHIFT
@@ -300,7 +302,37 @@ def main(argv: list[str] | None = None) -> None:
              "fixed: wrong, truth in top 3", "broken: right before GR"), rows,
             intro=f"{config.scenes} held-out synthetic scenes, one random path each; every segment of a target "
                   f"object; GR variant {first!r}, known library (every held-out instance)."), args.out)
+    if scene_records:
+        _uncertainty_table(scene_records, config, argv, args.out)
     print(json.dumps({"out_dir": str(out)}))
+
+
+def _uncertainty_table(records: list[dict], config: RegistrationConfig, argv, out) -> None:
+    """Which per-segment uncertainty predicts a wrong refined class (for the uncertainty-weighted NBV
+    policy): AUROC of each score, over the in-scene records of every set of weights."""
+    from sklearn.metrics import roc_auc_score
+
+    rows = []
+    for name in config.weights:
+        for aware in (False, True):
+            key, refined = ("rho_aware", "refined_aware") if aware else ("rho", "refined")
+            mine = [r for r in records if r["weights"] == name]
+            wrong = np.array([r[refined] != r["true"] for r in mine])
+            rho = np.array([r[key] for r in mine])
+            best = np.sort(rho, axis=1)
+            p = np.clip(np.array([r["probs"] for r in mine]), 1e-9, 1.0)
+            scores = {"1 - (best rho - second)": 1 - (best[:, -1] - best[:, -2]),
+                      "entropy of the top-3 scores": -np.sum(p * np.log(p), axis=1),
+                      "1 - best rho": 1 - best[:, -1]}
+            if 0 < wrong.sum() < len(wrong):
+                rows.append((name, "visibility-aware" if aware else "plain", len(mine), int(wrong.sum()),
+                             *(f"{roc_auc_score(wrong, v):.3f}" for v in scores.values())))
+    report.publish(report.section(
+        "Which uncertainty predicts a wrong refined class (for the uncertainty-weighted view policy)", argv,
+        ("weights", "rho", "segments", "wrong after GR", "AUROC: 1 - rho margin", "AUROC: entropy",
+         "AUROC: 1 - best rho"), rows,
+        intro="In-scene records of part 2 (all view counts); higher = the score ranks wrong segments above "
+              "right ones better."), out)
 
 
 if __name__ == "__main__":

@@ -167,7 +167,8 @@ def _boxes(spec):
                         for hx, hy, h, _, _ in spec]).astype(np.float32)
     poses = np.tile(np.eye(4, dtype=np.float32), (len(spec), 1, 1))
     poses[:, 0, 3], poses[:, 1, 3] = [s[3] for s in spec], [s[4] for s in spec]
-    return nbv.Belief(corners=jnp.asarray(corners), poses=jnp.asarray(poses), live=jnp.ones(len(spec), bool))
+    return nbv.Belief(corners=jnp.asarray(corners), poses=jnp.asarray(poses), live=jnp.ones(len(spec), bool),
+                      uncertainty=jnp.ones(len(spec)))
 
 
 def _ring(count=24, elevation=0.35, radius=1.0):
@@ -231,3 +232,30 @@ def test_degenerate_inputs_give_documented_choices():
     assert int(nbv.choose_jit(nbv.policy("random"), everywhere, dead, jax.random.key(1), SMALL)) != 5
     with pytest.raises(ValueError, match="unknown policy"):
         nbv.policy("oracle")
+
+
+def test_the_uncertainty_weighted_policy_turns_to_the_unsure_object():
+    """Tall box recognised, the small one behind it unsure: vis_occl_hist_unc moves to a view that shows the
+    small one; with the roles swapped it takes the view that shows the tall one best. ``uncertainty``'s kinds
+    on known inputs."""
+    belief = _boxes([(0.06, 0.06, 0.45, 0.0, 0.0), (0.03, 0.03, 0.06, 0.15, 0.0)])
+    ring = _ring(24, elevation=0.15)
+    views = nbv.Views.start(ring, 12)
+    config = nbv.NBVConfig(radius=0.6, visibility=vis.VisibilityConfig(scale=1.0))  # SMALL is 160 x 120
+    unsure_small = belief.replace(uncertainty=jnp.array([0.0, 1.0]))
+    nxt = int(nbv.choose_jit(nbv.VisOcclHistUnc(), views, unsure_small, jax.random.key(0), SMALL, config))
+    assert np.asarray(visibility_counts(belief, ring[nxt:nxt + 1], "paper"))[0, 1] > 0
+    unsure_tall = belief.replace(uncertainty=jnp.array([1.0, 0.0]))
+    nxt = int(nbv.choose_jit(nbv.VisOcclHistUnc(), views, unsure_tall, jax.random.key(0), SMALL, config))
+    index, ok = nbv.candidates(views, config)
+    tall = np.asarray(vis.counts_jit(belief.corners, belief.poses, belief.live, ring[np.asarray(index)], SMALL,
+                                     config.visibility))[:, 0]
+    weight = np.asarray(nbv.history_weight(views, index, config))
+    assert nxt == int(np.asarray(index)[np.argmax(np.where(np.asarray(ok), weight * tall / tall.max(), -1))])
+    with pytest.raises(ValueError, match="uncertainty"):
+        nbv.choose(nbv.VisOcclHistUnc(), views, belief.replace(uncertainty=None), jax.random.key(0), SMALL)
+    rho = jnp.array([[0.9, 0.2, 0.1], [0.5, 0.45, 0.0]])
+    probs = jnp.array([[1.0, 0.0, 0.0, 0.0], [0.25, 0.25, 0.25, 0.25]])
+    np.testing.assert_allclose(nbv.uncertainty(rho, probs), [0.3, 0.95], atol=1e-6)
+    np.testing.assert_allclose(nbv.uncertainty(rho, probs, "entropy"), [0.0, 1.0], atol=1e-5)
+    np.testing.assert_allclose(nbv.uncertainty(rho, probs, "one_minus_rho"), [0.1, 0.5], atol=1e-6)
