@@ -221,7 +221,7 @@ def visibility_counts(belief, T, mode):
 
 def test_degenerate_inputs_give_documented_choices():
     ring = _ring()
-    dead = _boxes([(0.05, 0.05, 0.1, 0.0, 0.0)]).replace(live=jnp.zeros(1, bool))
+    dead = _boxes([(0.05, 0.05, 0.1, 0.0, 0.0)]).replace(live=jnp.zeros(1, bool), volume=_half_seen_volume())
     views = nbv.Views.start(ring, 0)
     for name in nbv.POLICIES:
         nxt = int(nbv.choose_jit(nbv.policy(name), views, dead, jax.random.key(1), SMALL))
@@ -259,3 +259,34 @@ def test_the_uncertainty_weighted_policy_turns_to_the_unsure_object():
     np.testing.assert_allclose(nbv.uncertainty(rho, probs), [0.3, 0.95], atol=1e-6)
     np.testing.assert_allclose(nbv.uncertainty(rho, probs, "entropy"), [0.0, 1.0], atol=1e-5)
     np.testing.assert_allclose(nbv.uncertainty(rho, probs, "one_minus_rho"), [0.1, 0.5], atol=1e-6)
+
+
+def _half_seen_volume():
+    """A 0.6 m cube whose x < 0 half is observed free space with an observed surface (a wall) at x ~ 0; the
+    x > 0 half was never seen."""
+    from jaxcls.perception import tsdf
+
+    volume = tsdf.create_volume(np.array([0.0, 0.0, 0.3]), 0.6, 64)
+    x = np.asarray(volume.origin)[0] + np.arange(64) * volume.voxel_size
+    weight = np.zeros((64,) * 3, np.float32)
+    value = np.ones((64,) * 3, np.float32)
+    weight[x < 0] = 1.0
+    value[(x > -0.03) & (x < 0)] = -0.5
+    return volume.replace(weight=jnp.asarray(weight), tsdf=jnp.asarray(value))
+
+
+def test_info_gain_prefers_the_side_not_yet_seen():
+    from jaxcls.planning import information
+
+    volume = _half_seen_volume()
+    ring = _ring(12, elevation=0.5)
+    g = np.asarray(information.gain_jit(volume, ring, K))
+    assert g[6] == 0 and g[0] == g.max() and g[0] > 1000  # from -x the wall hides everything unseen
+    np.testing.assert_allclose(g[1:6], g[11:6:-1], rtol=1e-3)  # mirror-symmetric about the x axis
+    belief = _boxes([(0.05, 0.05, 0.1, 0.0, 0.0)]).replace(volume=volume)
+    views = nbv.Views.start(ring, 6)  # on the seen side
+    nxt = int(nbv.choose_jit(nbv.policy("info_gain"), views, belief, jax.random.key(0), SMALL,
+                             nbv.NBVConfig(radius=3.0)))
+    assert nxt in (0, 1, 11)
+    with pytest.raises(ValueError, match="volume"):
+        nbv.choose(nbv.InfoGain(), views, belief.replace(volume=None), jax.random.key(0), SMALL)

@@ -19,7 +19,9 @@ pure function ``(config, views, belief, key) -> view index``:
 - ``vis_occl``: with the z-buffer (``visibility`` "paper" mode), without history;
 - ``vis_occl_hist``: with both (the paper's VisOcclHist);
 - ``vis_occl_hist_unc`` (beyond the paper): VisOcclHist with each segment's pixels weighted by its
-  ``uncertainty`` (by default 1 - the margin of its best rho over the second).
+  ``uncertainty`` (by default 1 - the margin of its best rho over the second);
+- ``info_gain`` (beyond the paper): the unobserved voxels of the TSDF a view would reach, times the history
+  weight.
 
 Documented choices for degenerate inputs (never NaN, never a crash inside jit): no live segment or nothing
 visible at any candidate -> O is 0 everywhere: the history policies take U = W (the least visited direction),
@@ -40,7 +42,8 @@ from flax import struct
 from jaxcls.config import bounded, check_bounds
 from jaxcls.geometry import Intrinsics
 from jaxcls.math import safe_div
-from jaxcls.planning import visibility
+from jaxcls.perception.tsdf import TSDFVolume
+from jaxcls.planning import information, visibility
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,8 +82,18 @@ class VisOcclHistUnc:
     name: ClassVar[str] = "vis_occl_hist_unc"
 
 
-Policy = Random | VisNoOccl | VisOccl | VisOcclHist | VisOcclHistUnc
-POLICIES: dict[str, type] = {p.name: p for p in (Random, VisNoOccl, VisOccl, VisOcclHist, VisOcclHistUnc)}
+@dataclasses.dataclass(frozen=True)
+class InfoGain:
+    """Beyond the paper: volumetric information gain on the TSDF (``information.gain``: unobserved voxels
+    the view's rays reach before an observed surface), normalised over the candidates, times the history
+    weight (Eq. 6)."""
+
+    name: ClassVar[str] = "info_gain"
+    gain: information.GainConfig = dataclasses.field(default_factory=information.GainConfig)
+
+
+Policy = Random | VisNoOccl | VisOccl | VisOcclHist | VisOcclHistUnc | InfoGain
+POLICIES: dict[str, type] = {p.name: p for p in (Random, VisNoOccl, VisOccl, VisOcclHist, VisOcclHistUnc, InfoGain)}
 
 
 def policy(name: str) -> Policy:
@@ -129,13 +142,15 @@ class Belief(struct.PyTreeNode):
     """What the planner knows of the scene: each segment's aligned model cuboid and how sure it is.
 
     corners: [N, 8, 3] model frame (m); poses: [N, 4, 4] model-to-world (refinement's Eq. 4); live: [N] bool;
-    uncertainty: [N] in [0, 1] (``uncertainty``; only ``vis_occl_hist_unc`` reads it).
+    uncertainty: [N] in [0, 1] (``uncertainty``; only ``vis_occl_hist_unc`` reads it); volume: the fused
+    TSDF (only ``info_gain`` reads it).
     """
 
     corners: jax.Array
     poses: jax.Array
     live: jax.Array
     uncertainty: jax.Array | None = None
+    volume: TSDFVolume | None = None
 
 
 UNCERTAINTY = ("rho_margin", "entropy", "one_minus_rho")
@@ -188,6 +203,12 @@ def utilities(policy_config: Policy, views: Views, belief: Belief, index: jax.Ar
               config: NBVConfig) -> jax.Array:
     """[K] Eq. 7 at the viewpoints ``index`` for a visibility policy (0 where nothing is seen anywhere and
     no history counts)."""
+    if isinstance(policy_config, InfoGain):
+        if belief.volume is None:
+            raise ValueError("nbv: info_gain needs Belief.volume (the fused TSDF)")
+        g = information.gain(belief.volume, views.T_wc[index], intrinsics, policy_config.gain)
+        weight = history_weight(views, index, config)
+        return jnp.where(jnp.max(g) > 0, weight * safe_div(g, jnp.max(g)), weight)
     mode = "no_occlusion" if isinstance(policy_config, VisNoOccl) else "paper"
     seen = visibility.counts(belief.corners, belief.poses, belief.live, views.T_wc[index], intrinsics,
                              dataclasses.replace(config.visibility, mode=mode))
