@@ -1,6 +1,7 @@
 """Scoring a move's candidate views (paper Eq. 5): ~20 candidates x 5 aligned model cuboids, ours (hard
-"paper", "exact", soft; one jitted call) against a NumPy version of the paper's count (project the 8
-corners, fill the hull, paint near to far) in the same run.
+"paper", "exact", soft; one jitted call; and the volumetric information gain on a 128^3 TSDF) against a
+NumPy version of the paper's count (project the 8 corners, fill the hull, paint near to far) in the same
+run.
 
     python benchmarks/nbv.py [--rounds 20] [--scenes 5] [--batch 4096] [--out BENCHMARKS.md]
 
@@ -79,6 +80,14 @@ def main(argv: list[str] | None = None) -> None:
                   for name, config in configs.items()}
     soft = vis.VisibilityConfig(scale=args.scale)
     contenders["jaxcls soft (differentiable)"] = lambda c, p, T: vis.soft_counts_jit(c, p, live, T, K, soft)
+    from jaxcls.perception import tsdf
+    from jaxcls.planning import information
+
+    volume = tsdf.create_volume(np.array([0.0, 0.0, 0.3]), 0.6, 128)  # the loop's 128^3 cube, half observed
+    half = np.asarray(volume.origin)[0] + np.arange(128) * volume.voxel_size < 0
+    volume = volume.replace(weight=volume.weight.at[half].set(1.0))
+    contenders["jaxcls info_gain (128^3 volume, 40x30 rays per view)"] = (
+        lambda c, p, T: information.gain_jit(volume, T, K))
     contenders["NumPy/SciPy: hull of the projected corners, painted near to far"] = (
         lambda c, p, T: numpy_paper(c, p, T, small))
     for fn in contenders.values():  # compile
