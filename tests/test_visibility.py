@@ -290,3 +290,24 @@ def test_info_gain_prefers_the_side_not_yet_seen():
     assert nxt in (0, 1, 11)
     with pytest.raises(ValueError, match="volume"):
         nbv.choose(nbv.InfoGain(), views, belief.replace(volume=None), jax.random.key(0), SMALL)
+
+
+def test_the_continuous_policy_ends_at_least_as_high_as_the_best_candidate():
+    """Gradient ascent of the soft utility from the best discrete candidates ends at or above the best
+    candidate's utility in >= 90% of random scenes, and the snapped choice is a real, other viewpoint."""
+    rng = np.random.default_rng(3)
+    T = hemisphere_viewpoints(np.zeros(3), 100).astype(np.float32)
+    policy = nbv.Continuous(steps=10)
+    config = nbv.NBVConfig(visibility=vis.VisibilityConfig(scale=1.0))
+    view = jax.jit(nbv.continuous_view, static_argnames=("policy_config", "intrinsics", "config"))
+    wins = []
+    for _ in range(10):
+        corners, poses, _, _ = _scene(rng)
+        belief = nbv.Belief(corners=jnp.asarray(corners), poses=jnp.asarray(poses), live=jnp.ones(5, bool))
+        views = nbv.Views.start(T, int(rng.integers(100)))
+        _, value, best = view(policy, views, belief, SMALL, config)
+        assert np.isfinite(float(value)) and np.isfinite(float(best))
+        wins.append(float(value) >= float(best) - 1e-3)
+    assert np.mean(wins) >= 0.9, wins
+    nxt = int(nbv.choose_jit(policy, views, belief, jax.random.key(0), SMALL, config))
+    assert 0 <= nxt < 100 and nxt != int(views.current)

@@ -21,7 +21,9 @@ pure function ``(config, views, belief, key) -> view index``:
 - ``vis_occl_hist_unc`` (beyond the paper): VisOcclHist with each segment's pixels weighted by its
   ``uncertainty`` (by default 1 - the margin of its best rho over the second);
 - ``info_gain`` (beyond the paper): the unobserved voxels of the TSDF a view would reach, times the history
-  weight.
+  weight;
+- ``continuous`` (beyond the paper): gradient ascent of the soft utility over the view sphere from the best
+  candidates, snapped to the nearest viewpoint.
 
 Documented choices for degenerate inputs (never NaN, never a crash inside jit): no live segment or nothing
 visible at any candidate -> O is 0 everywhere: the history policies take U = W (the least visited direction),
@@ -92,8 +94,24 @@ class InfoGain:
     gain: information.GainConfig = dataclasses.field(default_factory=information.GainConfig)
 
 
-Policy = Random | VisNoOccl | VisOccl | VisOcclHist | VisOcclHistUnc | InfoGain
-POLICIES: dict[str, type] = {p.name: p for p in (Random, VisNoOccl, VisOccl, VisOcclHist, VisOcclHistUnc, InfoGain)}
+@dataclasses.dataclass(frozen=True)
+class Continuous:
+    """Beyond the paper: gradient ascent of the soft utility (``visibility.soft_counts`` times the history
+    weight, normalised by the best soft candidate) over the camera's place on the view sphere (azimuth,
+    elevation; it looks at the sphere's centre), from the ``starts`` best discrete candidates; the best
+    iterate is kept (so it never ends below its start), then snapped to the nearest viewpoint (``snap``;
+    ``continuous_view`` gives the unsnapped pose, for views rendered on demand)."""
+
+    name: ClassVar[str] = "continuous"
+    steps: int = 20
+    step_size: float = 0.05  # rad per normalised gradient step
+    starts: int = 3
+    snap: bool = True
+
+
+Policy = Random | VisNoOccl | VisOccl | VisOcclHist | VisOcclHistUnc | InfoGain | Continuous
+POLICIES: dict[str, type] = {p.name: p for p in (Random, VisNoOccl, VisOccl, VisOcclHist, VisOcclHistUnc, InfoGain,
+                                                 Continuous)}
 
 
 def policy(name: str) -> Policy:
@@ -224,6 +242,75 @@ def utilities(policy_config: Policy, views: Views, belief: Belief, index: jax.Ar
     return normalised
 
 
+def _sphere(views: Views) -> tuple[jax.Array, jax.Array]:
+    """(centre [3], radius []) of the view sphere: the point nearest every viewpoint's optical axis."""
+    o, d = views.T_wc[:, :3, 3], views.T_wc[:, :3, 2]
+    P = jnp.eye(3)[None] - d[:, :, None] * d[:, None, :]  # projectors orthogonal to each axis
+    centre = jnp.linalg.solve(jnp.sum(P, axis=0) + 1e-9 * jnp.eye(3), jnp.einsum("vij,vj->i", P, o))
+    return centre, jnp.mean(jnp.linalg.norm(o - centre, axis=-1))
+
+
+def _camera(angles: jax.Array, centre: jax.Array, radius: jax.Array) -> jax.Array:
+    """[4, 4] T_wc of a camera at (azimuth, elevation) on the view sphere, looking at its centre (OpenCV
+    axes, image down along -z as ``geometry.look_at``)."""
+    a, e = angles[0], angles[1]
+    eye = centre + radius * jnp.stack([jnp.cos(e) * jnp.cos(a), jnp.cos(e) * jnp.sin(a), jnp.sin(e)])
+    forward = (centre - eye) / radius
+    right = jnp.cross(forward, jnp.array([0.0, 0.0, 1.0]))
+    right = right / jnp.maximum(jnp.linalg.norm(right), 1e-9)
+    down = jnp.cross(forward, right)
+    return jnp.eye(4).at[:3, 0].set(right).at[:3, 1].set(down).at[:3, 2].set(forward).at[:3, 3].set(eye)
+
+
+def continuous_view(policy_config: Continuous, views: Views, belief: Belief, intrinsics: Intrinsics,
+                    config: NBVConfig = NBVConfig()) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """The continuous policy's view before snapping: (T_wc [4, 4], its soft utility [], the best discrete
+    candidate's soft utility []), utilities normalised by the best candidate's soft count."""
+    index, ok = candidates(views, config)
+    centre, radius = _sphere(views)
+    soft = dataclasses.replace(config.visibility, mode="paper")
+    seen = jnp.sum(visibility.soft_counts(belief.corners, belief.poses, belief.live, views.T_wc[index], intrinsics,
+                                          soft), axis=1)
+    scale = jnp.maximum(jnp.max(jnp.where(ok, seen, 0.0)), 1e-6)
+    position = views.T_wc[:, :3, 3]
+    sigma = config.radius / 2
+
+    def utility(angles):
+        T = _camera(angles, centre, radius)
+        count = jnp.sum(visibility.soft_counts(belief.corners, belief.poses, belief.live, T[None], intrinsics, soft))
+        d2 = jnp.sum((position - T[:3, 3]) ** 2, axis=-1)
+        weight = 1.0 - jnp.max(jnp.where(views.visited, jnp.exp(-d2 / (2 * sigma**2)), 0.0))
+        return weight * count / scale
+
+    discrete = history_weight(views, index, config) * seen / scale
+    discrete = jnp.where(ok, discrete, -jnp.inf)
+    S = min(policy_config.starts, index.shape[0])
+    best_start = index[jax.lax.top_k(discrete, S)[1]]
+    rel = position[best_start] - centre
+    starts = jnp.stack([jnp.arctan2(rel[:, 1], rel[:, 0]),
+                        jnp.arcsin(jnp.clip(rel[:, 2] / radius, -1.0, 1.0))], axis=-1)
+    value_and_grad = jax.value_and_grad(utility)
+
+    def ascend(angles):
+        def step(carry, _):
+            x, best_x, best_u = carry
+            u, g = value_and_grad(x)
+            better = u > best_u
+            best_x, best_u = jnp.where(better, x, best_x), jnp.where(better, u, best_u)
+            g = jnp.nan_to_num(g)
+            x = x + policy_config.step_size * g / jnp.maximum(jnp.linalg.norm(g), 1e-12)
+            x = x.at[1].set(jnp.clip(x[1], 0.02, jnp.pi / 2 - 0.02))
+            return (x, best_x, best_u), None
+
+        (x, best_x, best_u), _ = jax.lax.scan(step, (angles, angles, -jnp.inf), None, length=policy_config.steps)
+        u = utility(x)
+        return jnp.where(u > best_u, x, best_x), jnp.maximum(u, best_u)
+
+    ends, values = jax.vmap(ascend)(starts)
+    k = jnp.argmax(values)
+    return _camera(ends[k], centre, radius), values[k], jnp.max(discrete)
+
+
 def choose(policy_config: Policy, views: Views, belief: Belief, key: jax.Array, intrinsics: Intrinsics,
            config: NBVConfig = NBVConfig()) -> jax.Array:
     """[] i32: the next viewpoint (Eq. 8, or the policy's own rule); see the module docstring for the
@@ -240,6 +327,10 @@ def choose(policy_config: Policy, views: Views, belief: Belief, key: jax.Array, 
         fallback = jnp.where(jnp.isfinite(jnp.min(unvisited)), jnp.argmin(unvisited),
                              index[jnp.argmax(jnp.where(ok, draw, -1.0))])
         return jnp.where(jnp.any(fresh), pick, jnp.where(jnp.any(ok), fallback, nearest_other)).astype(jnp.int32)
+    if isinstance(policy_config, Continuous):
+        T, _, _ = continuous_view(policy_config, views, belief, intrinsics, config)
+        d = jnp.linalg.norm(position - T[:3, 3], axis=-1).at[views.current].set(jnp.inf)
+        return jnp.argmin(d).astype(jnp.int32)
     U = utilities(policy_config, views, belief, index, intrinsics, config)
     best = index[jnp.argmax(jnp.where(ok, U, -jnp.inf))]  # ties: the nearest candidate (index is sorted)
     return jnp.where(jnp.any(ok), best, nearest_other).astype(jnp.int32)
