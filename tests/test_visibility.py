@@ -20,14 +20,15 @@ K = Intrinsics.kinect_v1(1.0)
 
 
 def _scene(rng: np.random.Generator, n: int = 5):
-    """n boxes upright on a table within 0.25 m of the origin (random sizes and yaws), and 20 cameras on a
-    hemisphere of radius 0.7-1.1 m around them."""
+    """n boxes upright on a table, apart as objects on a table are (on a ring of radius 0.2 m; random sizes
+    and yaws), and 20 cameras on a hemisphere of radius 0.7-1.1 m around them."""
     half = rng.uniform([0.02, 0.02, 0.03], [0.06, 0.06, 0.10], (n, 3))
     corners = np.stack([np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (0, 2)]) * h
                         for h in half]).astype(np.float32)
     poses = np.tile(np.eye(4), (n, 1, 1))
     poses[:, :3, :3] = Rotation.from_euler("z", rng.uniform(-np.pi, np.pi, (n, 1))).as_matrix()
-    poses[:, :2, 3] = rng.uniform(-0.2, 0.2, (n, 2))
+    ring = 2 * np.pi * np.arange(n) / n + rng.uniform(0, 2 * np.pi)
+    poses[:, 0, 3], poses[:, 1, 3] = 0.2 * np.cos(ring), 0.2 * np.sin(ring)
     azimuth, elevation = rng.uniform(0, 2 * np.pi, 20), rng.uniform(0.2, 1.3, 20)
     radius = rng.uniform(0.7, 1.1, 20)[:, None]
     eye = radius * np.stack([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
@@ -94,8 +95,9 @@ def _mujoco_counts(corners, poses, half, T_wc, intrinsics):
 
 
 def test_per_pixel_count_matches_mujoco_ray_casting_of_the_boxes():
-    """The exact mode against MuJoCo's C ray caster: within 2% of the pixels per view; the paper's
-    whole-segment order differs from it only where one box is partly in front of another."""
+    """The hard counts against MuJoCo's C ray caster on the same boxes: within 2% of the pixels per view,
+    object by object, for the per-pixel z-buffer and the paper's whole-segment order alike (boxes apart, as
+    objects on a table are; interpenetrating boxes have no whole-segment order)."""
     rng = np.random.default_rng(1)
     for _ in range(2):
         corners, poses, T_wc, half = _scene(rng)
@@ -105,7 +107,7 @@ def test_per_pixel_count_matches_mujoco_ray_casting_of_the_boxes():
         total = np.maximum(theirs.sum(axis=1), 1)
         assert np.all(np.abs(ours - theirs).sum(axis=1) / total <= 0.02), np.abs(ours - theirs).sum(axis=1) / total
         paper = np.asarray(vis.counts_jit(corners, poses, live, T_wc, K, vis.VisibilityConfig(scale=0.25)))
-        np.testing.assert_allclose(paper.sum(axis=1), ours.sum(axis=1), rtol=0.02)  # the same union of boxes
+        assert np.all(np.abs(paper - theirs).sum(axis=1) / total <= 0.02), np.abs(paper - theirs).sum(axis=1) / total
 
 
 def test_soft_count_tends_to_the_hard_one_and_has_true_gradients():
