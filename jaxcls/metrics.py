@@ -116,3 +116,141 @@ def pose_error(estimate: np.ndarray, truth: np.ndarray, symmetry: int = 1) -> tu
         relative = (R_true @ turn).T @ R_est
         angles.append(np.degrees(np.arccos(np.clip((np.trace(relative) - 1) / 2, -1.0, 1.0))))
     return float(min(angles)), translation
+
+
+# --- Episode scores (the paper's Sec. 4 protocol) --------------------------------------------------------
+
+MATCH_DISTANCE = 0.1  # m: a segment farther than this from an object's centroid is no match for it
+
+
+def match_objects(segment_centroids: np.ndarray, segment_valid: np.ndarray, object_centroids: np.ndarray,
+                  max_distance: float = MATCH_DISTANCE) -> np.ndarray:
+    """[K] i64: the segment matched to each object (-1: none), by Hungarian assignment on centroid distance
+    (``scipy.optimize.linear_sum_assignment``). Every object takes part (clutter too, so that a clutter
+    segment never stands in for a target); pairs farther apart than ``max_distance`` are no match.
+
+    segment_centroids: [N, 3] m; segment_valid: [N] bool; object_centroids: [K, 3] m."""
+    from scipy.optimize import linear_sum_assignment
+
+    seg = np.asarray(segment_centroids, np.float64)
+    obj = np.asarray(object_centroids, np.float64)
+    valid = np.asarray(segment_valid, bool)
+    if seg.ndim != 2 or seg.shape[1:] != (3,) or valid.shape != seg.shape[:1] or obj.ndim != 2 or obj.shape[1] != 3:
+        raise ValueError(f"match_objects: need segment_centroids [N, 3], segment_valid [N], object_centroids "
+                         f"[K, 3]; got {seg.shape}, {valid.shape}, {obj.shape}")
+    out = np.full(len(obj), -1, np.int64)
+    live = np.flatnonzero(valid)
+    if not len(live) or not len(obj):
+        return out
+    cost = np.linalg.norm(obj[:, None, :] - seg[None, live, :], axis=-1)
+    rows, cols = linear_sum_assignment(cost)
+    keep = cost[rows, cols] <= max_distance
+    out[rows[keep]] = live[cols[keep]]
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class Scores:
+    """Classification of target objects, macro-averaged over the classes as the paper does.
+
+    accuracy: one-vs-all accuracy, (TP + TN) / n per class, averaged (the paper's "Accuracy"; it runs far
+    above ``plain_accuracy``); precision, recall, f1: scikit-learn's macro averages (zero_division=0);
+    plain_accuracy: the share of objects labelled right; count: objects scored.
+    """
+
+    accuracy: float
+    precision: float
+    recall: float
+    f1: float
+    plain_accuracy: float
+    count: int
+
+
+def classification_scores(true: np.ndarray, predicted: np.ndarray, num_classes: int) -> Scores:
+    """Scores of labels ``predicted: [n]`` (class indices; -1 = the object was not matched by any segment,
+    which counts as wrong) against ``true: [n]`` over classes 0..num_classes-1."""
+    from sklearn.metrics import confusion_matrix, precision_recall_fscore_support
+
+    true, predicted = np.asarray(true, np.int64), np.asarray(predicted, np.int64)
+    if true.shape != predicted.shape or true.ndim != 1:
+        raise ValueError(f"classification_scores: need true [n] and predicted [n], got {true.shape}, {predicted.shape}")
+    if len(true) == 0:
+        return Scores(0.0, 0.0, 0.0, 0.0, 0.0, 0)
+    if true.min() < 0 or true.max() >= num_classes or predicted.max() >= num_classes or predicted.min() < -1:
+        raise ValueError(f"classification_scores: labels must lie in [0, {num_classes}) (predicted may be -1)")
+    labels = np.arange(num_classes)
+    precision, recall, f1, _ = precision_recall_fscore_support(true, predicted, labels=labels, average="macro",
+                                                               zero_division=0)
+    # One-vs-all accuracy per class from the confusion matrix (an unmatched object is a false negative).
+    cm = confusion_matrix(true, np.where(predicted < 0, num_classes, predicted), labels=np.arange(num_classes + 1))
+    n = len(true)
+    tp = np.diag(cm)[:num_classes]
+    fp = cm[:, :num_classes].sum(axis=0) - tp
+    fn = cm[:num_classes].sum(axis=1) - tp
+    accuracy = float(np.mean((n - fp - fn) / n))
+    return Scores(accuracy, float(precision), float(recall), float(f1), float(np.mean(true == predicted)), n)
+
+
+def _pooled(per_scene: Sequence[tuple[np.ndarray, np.ndarray]], picks: np.ndarray, num_classes: int,
+            statistic: str) -> float:
+    true = np.concatenate([per_scene[int(i)][0] for i in picks])
+    predicted = np.concatenate([per_scene[int(i)][1] for i in picks])
+    return getattr(classification_scores(true, predicted, num_classes), statistic)
+
+
+def scene_interval(per_scene: Sequence[tuple[np.ndarray, np.ndarray]], num_classes: int, statistic: str = "f1",
+                   confidence: float = 0.95, resamples: int = 2000, seed: int = 0) -> tuple[float, float, float]:
+    """(estimate, low, high): a ``statistic`` of ``Scores`` over all scenes and its percentile bootstrap
+    interval, resampling whole scenes (objects of one scene share occlusions and a camera path;
+    ``scipy.stats.bootstrap``). per_scene: [(true [n_s], predicted [n_s])] per scene."""
+    from scipy.stats import bootstrap
+
+    index = np.arange(len(per_scene))
+    estimate = _pooled(per_scene, index, num_classes, statistic)
+    if len(per_scene) < 2:
+        return estimate, estimate, estimate
+    result = bootstrap((index,), lambda picks: _pooled(per_scene, picks, num_classes, statistic),
+                       vectorized=False, confidence_level=confidence, n_resamples=resamples, method="percentile",
+                       rng=np.random.default_rng(seed))
+    return estimate, float(result.confidence_interval.low), float(result.confidence_interval.high)
+
+
+def paired_difference(per_scene_a: Sequence[tuple[np.ndarray, np.ndarray]],
+                      per_scene_b: Sequence[tuple[np.ndarray, np.ndarray]], num_classes: int, statistic: str = "f1",
+                      confidence: float = 0.95, resamples: int = 2000, seed: int = 0) -> tuple[float, float, float]:
+    """(estimate, low, high) of statistic(a) - statistic(b) for two policies run on the same scenes, with a
+    paired bootstrap: each resample draws scenes and scores both policies on them."""
+    from scipy.stats import bootstrap
+
+    if len(per_scene_a) != len(per_scene_b):
+        raise ValueError(f"paired_difference: {len(per_scene_a)} and {len(per_scene_b)} scenes; pair the same ones")
+
+    def diff(picks):
+        return (_pooled(per_scene_a, picks, num_classes, statistic)
+                - _pooled(per_scene_b, picks, num_classes, statistic))
+
+    index = np.arange(len(per_scene_a))
+    estimate = diff(index)
+    if len(index) < 2:
+        return estimate, estimate, estimate
+    result = bootstrap((index,), diff, vectorized=False, confidence_level=confidence, n_resamples=resamples,
+                       method="percentile", rng=np.random.default_rng(seed))
+    return estimate, float(result.confidence_interval.low), float(result.confidence_interval.high)
+
+
+def surface_coverage(model_points: np.ndarray, fused_points: np.ndarray, radius: float = 0.005) -> float:
+    """The share of an object's posed surface samples (``model_points: [S, 3]`` world, m) within ``radius``
+    of the fused surface (``fused_points: [P, 3]``): how much of it the reconstruction has seen."""
+    model_points, fused_points = np.asarray(model_points, np.float64), np.asarray(fused_points, np.float64)
+    if not len(model_points):
+        return 0.0
+    if not len(fused_points):
+        return 0.0
+    distance, _ = cKDTree(fused_points).query(model_points, distance_upper_bound=radius)
+    return float(np.mean(np.isfinite(distance)))
+
+
+def path_length(positions: np.ndarray) -> float:
+    """Metres travelled through the camera positions ``[T, 3]`` in order."""
+    positions = np.asarray(positions, np.float64)
+    return float(np.sum(np.linalg.norm(np.diff(positions, axis=0), axis=-1))) if len(positions) > 1 else 0.0

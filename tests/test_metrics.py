@@ -114,3 +114,57 @@ def test_in_scene_evaluation_records_scored_segments():
     assert {r["views"] for r in records} == {1, 2}
     assert all(0 <= r["confidence"] <= 1 and 0 < r["purity"] <= 1 and r["size"] > 0 for r in records)
     assert len([r for r in records if r["views"] == 2]) >= 4  # most of the 5 objects are segmented
+
+
+def test_classification_scores_match_a_hand_computed_example_and_scikit_learn():
+    """true 0 0 1 1 2 2, predicted 0 1 1 (unmatched) 2 0: per class TP 1 1 1, FP 1 1 0, FN 1 1 1."""
+    from sklearn.metrics import f1_score
+
+    true, predicted = np.array([0, 0, 1, 1, 2, 2]), np.array([0, 1, 1, -1, 2, 0])
+    s = metrics.classification_scores(true, predicted, 3)
+    assert s.accuracy == pytest.approx((4 / 6 + 4 / 6 + 5 / 6) / 3)
+    assert s.precision == pytest.approx((0.5 + 0.5 + 1.0) / 3)
+    assert s.recall == pytest.approx(0.5)
+    assert s.f1 == pytest.approx((0.5 + 0.5 + 2 / 3) / 3)
+    assert s.plain_accuracy == pytest.approx(0.5) and s.count == 6
+    assert s.f1 == pytest.approx(f1_score(true, predicted, labels=[0, 1, 2], average="macro", zero_division=0))
+    with pytest.raises(ValueError, match="labels"):
+        metrics.classification_scores(np.array([0, 3]), np.array([0, 0]), 3)
+
+
+def test_objects_are_matched_to_segments_by_hungarian_assignment():
+    objects = np.array([[0.0, 0.0, 0.05], [0.2, 0.0, 0.05], [0.0, 0.2, 0.05]])
+    segments = np.array([[0.19, 0.01, 0.05], [0.01, 0.0, 0.05], [0.5, 0.5, 0.0], [0.0, 0.0, 0.0]])
+    valid = np.array([True, True, True, False])
+    # Object 2 has no segment within 0.1 m (the one at (0.5, 0.5) is left over); the invalid one never counts.
+    np.testing.assert_array_equal(metrics.match_objects(segments, valid, objects), [1, 0, -1])
+    # One segment per object, at the least total distance.
+    crowded = np.array([[0.05, 0.0, 0.0], [0.06, 0.0, 0.0]])
+    pair = np.array([[0.0, 0, 0], [0.1, 0, 0]])
+    np.testing.assert_array_equal(metrics.match_objects(crowded, np.ones(2, bool), pair), [0, 1])
+    assert np.all(metrics.match_objects(segments, np.zeros(4, bool), objects) == -1)
+
+
+def test_scene_bootstrap_intervals_and_the_paired_difference():
+    rng = np.random.default_rng(0)
+
+    def scenes(count, error):
+        out = []
+        for _ in range(count):
+            true = rng.integers(0, 4, 5)
+            out.append((true, np.where(rng.random(5) < error, (true + 1) % 4, true)))
+        return out
+
+    few, many = scenes(8, 0.2), scenes(60, 0.2)
+    f1, low, high = metrics.scene_interval(few, 4)
+    assert low <= f1 <= high
+    _, low_many, high_many = metrics.scene_interval(many, 4)
+    assert high_many - low_many < high - low  # more scenes, a narrower interval
+    better = [(t, t.copy()) for t, _ in many]  # a perfect policy on the same scenes
+    diff, low, high = metrics.paired_difference(better, many, 4)
+    assert diff > 0 and low > 0  # the difference is significant
+    same, low, high = metrics.paired_difference(many, many, 4)
+    assert same == 0 and low == 0 and high == 0
+    assert metrics.path_length(np.array([[0, 0, 0], [3, 4, 0], [3, 4, 1.0]])) == pytest.approx(6.0)
+    square = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.0]])
+    assert metrics.surface_coverage(square, square[:2] + 0.001, radius=0.005) == pytest.approx(0.5)
