@@ -146,6 +146,12 @@ def pixel_rays(intrinsics: Intrinsics) -> np.ndarray:
     return np.stack([uu, vv, np.ones_like(uu)], axis=-1)
 
 
+def invert_rigid(T: jax.Array) -> jax.Array:
+    """The inverse of a rigid transform ``T: [4, 4]`` in closed form (R^T, -R^T t)."""
+    R, t = T[:3, :3], T[:3, 3]
+    return jnp.eye(4, dtype=T.dtype).at[:3, :3].set(R.T).at[:3, 3].set(-R.T @ t)
+
+
 def transform_points(T: jnp.ndarray, points: jnp.ndarray) -> jnp.ndarray:
     """Apply ``T: [..., 4, 4]`` to ``points: [..., P, 3]``."""
     return jnp.einsum("...ij,...pj->...pi", T[..., :3, :3], points) + T[..., None, :3, 3]

@@ -39,6 +39,7 @@ from flax import struct
 from scipy.spatial import cKDTree
 
 from jaxcls.config import bounded, check_bounds
+from jaxcls.geometry import invert_rigid
 from jaxcls.math import safe_div
 from jaxcls.perception.foreground import compact
 
@@ -276,9 +277,9 @@ def align(source: jax.Array, mask: jax.Array, target: Target, T_init: jax.Array,
         inliers = jnp.where(done, inliers, now)
         return (T_new, done | (moved < config.tolerance), steps + (~done).astype(jnp.int32), inliers), None
 
-    start = (_invert(T_init), ~valid, jnp.int32(0), jnp.int32(0))
+    start = (invert_rigid(T_init), ~valid, jnp.int32(0), jnp.int32(0))
     (T_mw, _, steps, inliers), _ = jax.lax.scan(body, start, None, length=config.iterations)
-    return Alignment(pose=jnp.where(valid, _invert(T_mw), T_init), iterations=steps, valid=valid,
+    return Alignment(pose=jnp.where(valid, invert_rigid(T_mw), T_init), iterations=steps, valid=valid,
                      fitness=jnp.where(valid, safe_div(inliers, jnp.sum(mask)), 0.0))
 
 
@@ -319,7 +320,7 @@ def registration_ratio(source: jax.Array, mask: jax.Array, target: Target, pose:
     ``neighbours`` reads only that many of each sample's nearest (a cheaper, lower estimate of O_R).
     Returns rho, segment_fraction, model_fraction, matched ([S] bool: O_R), rmse (m, of S_R).
     """
-    T_mw = _invert(pose)
+    T_mw = invert_rigid(pose)
     p = _apply(T_mw, jnp.where(mask[:, None], source, 0.0))
     index, dist = closest(target, p)
     inlier = mask & (dist <= inlier_distance)
@@ -348,10 +349,6 @@ def subsample(source: jax.Array, mask: jax.Array, count: int) -> tuple[jax.Array
         return jnp.where(mask[:, None], source, 0.0), mask
     return compact(jnp.where(mask[:, None], source, 0.0), mask, count)
 
-
-def _invert(T: jax.Array) -> jax.Array:
-    R, t = T[:3, :3], T[:3, 3]
-    return jnp.eye(4, dtype=T.dtype).at[:3, :3].set(R.T).at[:3, 3].set(-R.T @ t)
 
 
 def _orthonormalise(T: jax.Array) -> jax.Array:

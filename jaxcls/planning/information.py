@@ -15,9 +15,10 @@ import math
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxcls.config import bounded, check_bounds
-from jaxcls.geometry import Intrinsics
+from jaxcls.geometry import Intrinsics, pixel_rays
 from jaxcls.math import safe_div
 from jaxcls.perception.tsdf import TSDFVolume
 from jaxcls.planning.visibility import scaled
@@ -36,18 +37,10 @@ class GainConfig:
         check_bounds(self, "gain.")
 
 
-def _rays(intrinsics: Intrinsics) -> jax.Array:
-    """[R, 3] unit ray directions in the camera frame through the pixel centres."""
-    v, u = jnp.meshgrid(jnp.arange(intrinsics.height, dtype=jnp.float32),
-                        jnp.arange(intrinsics.width, dtype=jnp.float32), indexing="ij")
-    d = jnp.stack([(u.reshape(-1) - intrinsics.cx) / intrinsics.fx, (v.reshape(-1) - intrinsics.cy) / intrinsics.fy,
-                   jnp.ones(u.size)], axis=-1)
-    return d / jnp.linalg.norm(d, axis=-1, keepdims=True)
-
-
 def gain(volume: TSDFVolume, T_wc: jax.Array, intrinsics: Intrinsics, config: GainConfig = GainConfig()) -> jax.Array:
     """[V] f32: the unobserved samples each candidate view's rays would reach (see the module docstring)."""
-    rays = _rays(scaled(intrinsics, config.rays_scale))
+    rays = pixel_rays(scaled(intrinsics, config.rays_scale)).reshape(-1, 3)
+    rays = jnp.asarray(rays / np.linalg.norm(rays, axis=-1, keepdims=True), jnp.float32)  # unit: t in metres
     shape = jnp.array(volume.tsdf.shape)
     lo = volume.origin - 0.5 * volume.voxel_size
     hi = lo + shape * volume.voxel_size

@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxcls.config import bounded, check_bounds
-from jaxcls.geometry import Intrinsics
+from jaxcls.geometry import Intrinsics, invert_rigid, pixel_rays
 from jaxcls.math import safe_div, safe_norm
 
 HIGHEST = jax.lax.Precision.HIGHEST
@@ -74,7 +74,7 @@ def _pixels(intrinsics: Intrinsics) -> jax.Array:
 
 def _camera_corners(corners: jax.Array, poses: jax.Array, T_wc: jax.Array) -> jax.Array:
     """[N, 8, 3] the cuboids' corners in the camera frame of ``T_wc`` [4, 4]."""
-    T_cm = jnp.einsum("ij,njk->nik", _invert(T_wc), poses, precision=HIGHEST)
+    T_cm = jnp.einsum("ij,njk->nik", invert_rigid(T_wc), poses, precision=HIGHEST)
     return jnp.einsum("nij,nkj->nki", T_cm[:, :3, :3], corners, precision=HIGHEST) + T_cm[:, None, :3, 3]
 
 
@@ -154,10 +154,8 @@ def _slab_depth(rays: jax.Array, corners: jax.Array, pose_cm: jax.Array) -> jax.
 def _counts_one_view(corners: jax.Array, poses: jax.Array, live: jax.Array, T_wc: jax.Array, intrinsics: Intrinsics,
                      mode: Mode) -> jax.Array:
     if mode == "exact":
-        pixels = _pixels(intrinsics)
-        rays = jnp.concatenate([(pixels - jnp.array([intrinsics.cx, intrinsics.cy])) /
-                                jnp.array([intrinsics.fx, intrinsics.fy]), jnp.ones((pixels.shape[0], 1))], -1)
-        T_cm = jnp.einsum("ij,njk->nik", _invert(T_wc), poses, precision=HIGHEST)
+        rays = jnp.asarray(pixel_rays(intrinsics).reshape(-1, 3), jnp.float32)  # z = 1: t is the z-depth
+        T_cm = jnp.einsum("ij,njk->nik", invert_rigid(T_wc), poses, precision=HIGHEST)
         depth = jax.vmap(lambda m, T: _slab_depth(rays, m, T))(corners, T_cm)  # [N, P]
         depth = jnp.where(live[:, None], depth, jnp.inf)
         owner = jnp.argmin(depth, axis=0)
@@ -232,10 +230,6 @@ def soft_counts(corners: jax.Array, poses: jax.Array, live: jax.Array, T_wc: jax
 
     return jax.vmap(one_view)(jnp.asarray(T_wc))
 
-
-def _invert(T: jax.Array) -> jax.Array:
-    R, t = T[:3, :3], T[:3, 3]
-    return jnp.eye(4, dtype=T.dtype).at[:3, :3].set(R.T).at[:3, 3].set(-R.T @ t)
 
 
 counts_jit = jax.jit(counts, static_argnames=("intrinsics", "config"))
