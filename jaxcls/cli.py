@@ -42,6 +42,18 @@ def _export() -> Command:
     return export.COMMAND
 
 
+def _run_command() -> Command:
+    from jaxcls.commands import run
+
+    return run.COMMAND
+
+
+def _demo() -> Command:
+    from jaxcls.commands import run
+
+    return run.DEMO
+
+
 @dataclasses.dataclass(frozen=True)
 class Entry:
     """A subcommand in the registry: its summary for ``jaxcls --help`` and the loader of its ``Command``."""
@@ -51,6 +63,8 @@ class Entry:
 
 
 COMMANDS: dict[str, Entry] = {
+    "demo": Entry("the main job on the built-in default: one cluttered scene, VisOcclHist with GR, a report", _demo),
+    "run": Entry("run one active episode (a scene, a dataset file or a recording; one policy)", _run_command),
     "show": Entry("save a PNG of a scene: depth of a few views and the view hemisphere", _show),
     "dataset": Entry("render scenes x all viewpoints to disk (resumable)", _dataset),
     "train": Entry("train the PointNet classifier (resumes an interrupted run)", _train),

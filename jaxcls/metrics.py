@@ -168,7 +168,8 @@ class Scores:
 
 def classification_scores(true: np.ndarray, predicted: np.ndarray, num_classes: int) -> Scores:
     """Scores of labels ``predicted: [n]`` (class indices; -1 = the object was not matched by any segment,
-    which counts as wrong) against ``true: [n]`` over classes 0..num_classes-1."""
+    which counts as wrong) against ``true: [n]``, macro-averaged over the classes (of 0..num_classes-1)
+    that occur in ``true`` or ``predicted`` (scikit-learn's default label set; -1 is no class)."""
     from sklearn.metrics import confusion_matrix, precision_recall_fscore_support
 
     true, predicted = np.asarray(true, np.int64), np.asarray(predicted, np.int64)
@@ -178,15 +179,17 @@ def classification_scores(true: np.ndarray, predicted: np.ndarray, num_classes: 
         return Scores(0.0, 0.0, 0.0, 0.0, 0.0, 0)
     if true.min() < 0 or true.max() >= num_classes or predicted.max() >= num_classes or predicted.min() < -1:
         raise ValueError(f"classification_scores: labels must lie in [0, {num_classes}) (predicted may be -1)")
-    labels = np.arange(num_classes)
+    # The classes that occur (in the truth or the predictions), as scikit-learn's own default: a class absent
+    # from both would score 0 under zero_division=0 and drag the mean of a small sample down.
+    labels = np.union1d(true, predicted[predicted >= 0])
     precision, recall, f1, _ = precision_recall_fscore_support(true, predicted, labels=labels, average="macro",
                                                                zero_division=0)
     # One-vs-all accuracy per class from the confusion matrix (an unmatched object is a false negative).
     cm = confusion_matrix(true, np.where(predicted < 0, num_classes, predicted), labels=np.arange(num_classes + 1))
     n = len(true)
-    tp = np.diag(cm)[:num_classes]
-    fp = cm[:, :num_classes].sum(axis=0) - tp
-    fn = cm[:num_classes].sum(axis=1) - tp
+    tp = np.diag(cm)[labels]
+    fp = cm[:, labels].sum(axis=0) - tp
+    fn = cm[labels].sum(axis=1) - tp
     accuracy = float(np.mean((n - fp - fn) / n))
     return Scores(accuracy, float(precision), float(recall), float(f1), float(np.mean(true == predicted)), n)
 

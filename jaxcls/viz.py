@@ -126,6 +126,74 @@ def reliability(calibrations: dict) -> Figure:
     return figure
 
 
+_CUBOID_EDGES = [(a, b) for a in range(8) for b in range(a + 1, 8) if bin(a ^ b).count("1") == 1]  # bit corners
+
+
+def episode_move(title: str, depth: np.ndarray, pixels: np.ndarray, pixel_labels: Sequence[str],
+                 cuboids: np.ndarray, cuboid_labels: Sequence[str], points: np.ndarray, point_labels: Sequence[str],
+                 viewpoints: np.ndarray, path: Sequence[int], chosen: int, classes: Sequence[str]) -> Figure:
+    """One move of an episode in four panels: the depth frame; the segments over it, coloured by refined
+    class; the segments and their aligned model cuboids in 3D; the view hemisphere with the path and the
+    chosen next view.
+
+    depth: [H, W] m (0 = no return); pixels: [Q, 2] (u, v) of segment points in the frame, pixel_labels: [Q]
+    their class names; cuboids: [N, 8, 3] world corners (corner i has bits x, y, z), cuboid_labels: [N];
+    points: [P, 3] world segment points, point_labels: [P]; viewpoints: [V, 4, 4] T_wc; path: views fused in
+    order; chosen: the next view; classes: every class name (fixes the colours)."""
+    colours = class_colours(classes)
+    figure = Figure(figsize=(15, 4.2))
+    ax = figure.add_subplot(1, 4, 1)
+    ax.imshow(np.where(depth > 0, depth, np.nan), cmap="viridis")
+    ax.set_title("depth (m)", fontsize=9)
+    ax.axis("off")
+    ax = figure.add_subplot(1, 4, 2)
+    ax.imshow(np.where(depth > 0, depth, np.nan), cmap="Greys", alpha=0.5)
+    if len(pixels):
+        ax.scatter(pixels[:, 0], pixels[:, 1], s=1, c=[colours[c] for c in pixel_labels])
+    ax.set_xlim(0, depth.shape[1])
+    ax.set_ylim(depth.shape[0], 0)
+    ax.set_title("segments by refined class", fontsize=9)
+    ax.axis("off")
+    ax.legend(handles=[Patch(color=colours[c], label=c) for c in sorted(set(cuboid_labels))], fontsize=7,
+              loc="lower right")
+    ax = figure.add_subplot(1, 4, 3, projection="3d")
+    if len(points):
+        ax.scatter(*np.asarray(points).T, s=0.5, c=[colours[c] for c in point_labels])
+    for corners, label in zip(cuboids, cuboid_labels, strict=True):
+        for a, b in _CUBOID_EDGES:
+            ax.plot(*np.stack([corners[a], corners[b]]).T, color=colours[label], lw=1)
+    ax.set_box_aspect((1, 1, 0.6))
+    ax.set_title("aligned models (cuboids)", fontsize=9)
+    ax = figure.add_subplot(1, 4, 4, projection="3d")
+    eyes = np.asarray(viewpoints)[:, :3, 3]
+    ax.scatter(*eyes.T, s=5, c="lightgrey")
+    ax.plot(*eyes[list(path)].T, "-o", color="tab:blue", ms=3, lw=1, label="visited")
+    ax.scatter(*eyes[path[-1]], s=40, c="tab:blue")
+    ax.scatter(*eyes[chosen], s=60, c="tab:red", marker="*", label="next")
+    ax.set_box_aspect((1, 1, 0.5))
+    ax.legend(fontsize=7, loc="upper left")
+    ax.set_title("views", fontsize=9)
+    figure.suptitle(title, fontsize=10)
+    figure.tight_layout()
+    return figure
+
+
+def episode_curves(curves: dict[str, Sequence[float]], ylabel: str = "score") -> Figure:
+    """Scores over moves: ``curves`` maps a label ("refined F1", ...) to one value per move (moves from 1)."""
+    figure = Figure(figsize=(5, 3.5))
+    ax = figure.add_subplot(1, 1, 1)
+    for label, values in curves.items():
+        ax.plot(np.arange(1, len(values) + 1), values, "-o", ms=3, label=label)
+    ax.set_xlabel("moves (views fused)")
+    ax.set_ylabel(ylabel)
+    ax.set_ylim(0, 1.02)
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    figure.tight_layout()
+    return figure
+
+
 def save(figure: Figure, path: str | Path, dpi: int = 80) -> Path:
     """Write ``figure`` as a PNG atomically."""
     from jaxcls import io

@@ -132,6 +132,21 @@ def test_classification_scores_match_a_hand_computed_example_and_scikit_learn():
         metrics.classification_scores(np.array([0, 3]), np.array([0, 0]), 3)
 
 
+def test_classes_absent_from_a_sample_are_not_averaged_in():
+    """Five objects of five classes out of eight, all right: every score is 1 (classes 5-7 occur nowhere);
+    one wrong label brings its predicted class in, as scikit-learn's default label set does."""
+    from sklearn.metrics import precision_recall_fscore_support
+
+    true = np.arange(5)
+    s = metrics.classification_scores(true, true, 8)
+    assert (s.accuracy, s.precision, s.recall, s.f1) == (1.0, 1.0, 1.0, 1.0)
+    predicted = np.array([0, 1, 2, 3, 6])
+    s = metrics.classification_scores(true, predicted, 8)
+    p, r, f, _ = precision_recall_fscore_support(true, predicted, average="macro", zero_division=0)
+    assert (s.precision, s.recall, s.f1) == pytest.approx((p, r, f))
+    assert s.f1 == pytest.approx(4 / 6) and s.accuracy == pytest.approx((4 * 1 + 2 * 4 / 5) / 6)
+
+
 def test_objects_are_matched_to_segments_by_hungarian_assignment():
     objects = np.array([[0.0, 0.0, 0.05], [0.2, 0.0, 0.05], [0.0, 0.2, 0.05]])
     segments = np.array([[0.19, 0.01, 0.05], [0.01, 0.0, 0.05], [0.5, 0.5, 0.0], [0.0, 0.0, 0.0]])

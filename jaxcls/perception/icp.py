@@ -332,8 +332,10 @@ def registration_ratio(source: jax.Array, mask: jax.Array, target: Target, pose:
     if seen_from is not None:
         cams = _apply(T_mw, jnp.nan_to_num(seen_from))  # cameras in the model frame
         ok = jnp.all(jnp.isfinite(seen_from), axis=-1)
-        facing = jnp.einsum("sk,csk->cs", normals, cams[:, None, :] - points[None]) > 0
-        considered = considered & jnp.any(facing & ok[:, None], axis=0)
+        # n . (cam - x) > 0 as one [S, 3] x [3, C] product (a batched einsum over [C, S, 3] is ~2x slower
+        # under vmap on the CPU).
+        facing = normals @ cams.T > jnp.sum(normals * points, axis=-1, keepdims=True)  # [S, C]
+        considered = considered & jnp.any(facing & ok[None, :], axis=1)
     segment_fraction = safe_div(jnp.sum(inlier), jnp.sum(mask))
     model_fraction = safe_div(jnp.sum(matched & considered), jnp.sum(considered))
     rmse = jnp.sqrt(safe_div(jnp.sum(jnp.where(inlier, dist**2, 0.0)), jnp.sum(inlier)))

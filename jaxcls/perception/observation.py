@@ -35,6 +35,7 @@ class Observation:
     surface: the volume's zero crossings (``tsdf.Surface``): points, normals [P, 3], mask [P].
     segments: N segments of the surface (``Segments``): points, normals [N, Ps, 3], mask [N, Ps], labels [P].
     probs: [N, M] f32 class probabilities of each segment (paper Eq. 1's softmax); M = 0 without a classifier.
+    yaw: [N, M] f32 rad the yaw head's estimate per segment and class (``pointnet.predict``; 0 without a head).
     frames: [] i32 number of frames fused.
     """
 
@@ -42,6 +43,7 @@ class Observation:
     surface: tsdf.Surface
     segments: Segments
     probs: jax.Array
+    yaw: jax.Array
     frames: jax.Array
 
 
@@ -60,7 +62,8 @@ def init_state(spec: Spec) -> Observation:
     segments = Segments(points=jnp.zeros((N, Ps, 3)), normals=jnp.zeros((N, Ps, 3)), mask=jnp.zeros((N, Ps), bool),
                         labels=jnp.full(P, -1, jnp.int32))
     return Observation(volume=empty_volume(spec), surface=surface, segments=segments,
-                       probs=jnp.full((N, M), 1.0 / max(M, 1), jnp.float32), frames=jnp.zeros((), jnp.int32))
+                       probs=jnp.full((N, M), 1.0 / max(M, 1), jnp.float32), yaw=jnp.zeros((N, M), jnp.float32),
+                       frames=jnp.zeros((), jnp.int32))
 
 
 def fuse(spec: Spec, volume: tsdf.TSDFVolume, depth: jax.Array, T_wc: jax.Array) -> tsdf.TSDFVolume:
@@ -70,21 +73,48 @@ def fuse(spec: Spec, volume: tsdf.TSDFVolume, depth: jax.Array, T_wc: jax.Array)
                           T_wc)
 
 
-def classify_segments(spec: Spec, segments: Segments) -> jax.Array:
-    """[N, M] class probabilities of the segments; [N, 0] when the spec has no classifier."""
+def classify_segments(spec: Spec, segments: Segments) -> tuple[jax.Array, jax.Array]:
+    """([N, M] class probabilities, [N, M] yaw estimates, rad) of the segments in one PointNet pass
+    (``pointnet.predict``); [N, 0] both when the spec has no classifier."""
     if spec.classifier is None:
-        return jnp.zeros((spec.num_segments, 0), jnp.float32)
-    return pointnet.classify(spec.classifier, segments.points, segments.mask)
+        empty = jnp.zeros((spec.num_segments, 0), jnp.float32)
+        return empty, empty
+    return pointnet.predict(spec.classifier, segments.points, segments.mask)
 
 
-def _perceive(spec: Spec, state: Observation, depth: jax.Array, T_wc: jax.Array, segment_fn=segment_jax
-              ) -> Observation:
-    """The composition itself (``segment_fn``: ``segment_jax``, or the host ``segment``)."""
+# The move's perception in stages, each ``(spec, state, depth, T_wc) -> state``: ``observe`` folds over them;
+# the episode's timed path runs them one by one with the same functions (``STAGES``).
+
+def reconstruct(spec: Spec, state: Observation, depth: jax.Array, T_wc: jax.Array) -> Observation:
+    """Stage 1, reconstruction: the frame fused into the TSDF and the surface extracted."""
     volume = fuse(spec, state.volume, depth, T_wc)
-    surface = tsdf.extract_surface(volume, spec.config.shapes.surface_points)
-    segments = segment_fn(spec, surface.points, surface.normals, surface.mask)
-    return Observation(volume=volume, surface=surface, segments=segments, probs=classify_segments(spec, segments),
-                       frames=state.frames + 1)
+    return state.replace(volume=volume, surface=tsdf.extract_surface(volume, spec.config.shapes.surface_points),
+                         frames=state.frames + 1)
+
+
+def segmentation(spec: Spec, state: Observation, depth: jax.Array | None = None,
+                 T_wc: jax.Array | None = None) -> Observation:
+    """Stage 2, segmentation of the surface: the JAX twin, or scikit-learn on the host (``"reference"``,
+    not traceable)."""
+    segment_fn = segment if spec.config.segmenter == "reference" else segment_jax
+    return state.replace(segments=segment_fn(spec, state.surface.points, state.surface.normals, state.surface.mask))
+
+
+def classification(spec: Spec, state: Observation, depth: jax.Array | None = None,
+                   T_wc: jax.Array | None = None) -> Observation:
+    """Stage 3, classification: PointNet's calibrated scores (and yaw estimates) of the segments."""
+    probs, yaw = classify_segments(spec, state.segments)
+    return state.replace(probs=probs, yaw=yaw)
+
+
+STAGES = (("reconstruction", reconstruct), ("segmentation", segmentation), ("classification", classification))
+
+
+def _perceive(spec: Spec, state: Observation, depth: jax.Array, T_wc: jax.Array) -> Observation:
+    """The composition itself: the ``STAGES`` in order."""
+    for _, stage in STAGES:
+        state = stage(spec, state, depth, T_wc)
+    return state
 
 
 def check_observation_inputs(spec: Spec, depth: np.ndarray | jax.Array, T_wc: np.ndarray | jax.Array) -> None:
@@ -111,4 +141,4 @@ def observe(spec: Spec, state: Observation, depth: jax.Array, T_wc: jax.Array) -
     # hand-wired chain was, while one XLA program of foreground + integration is ~1.8 ms slower there
     # (benchmarks/ab_move.py). Under the caller's jit/vmap they trace into one program (the GPU's shape).
     check_observation_inputs(spec, depth, T_wc)
-    return _perceive(spec, state, depth, T_wc, segment if reference else segment_jax)
+    return _perceive(spec, state, depth, T_wc)

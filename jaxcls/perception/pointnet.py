@@ -209,9 +209,8 @@ class Classifier:
                              "matching weights")
 
 
-@jax.jit
-def logits(classifier: Classifier, points: jax.Array, mask: jax.Array) -> jax.Array:
-    """[N, M] the network's uncalibrated class scores of segments (``classify``'s input; see there)."""
+def _forward(classifier: Classifier, points: jax.Array, mask: jax.Array) -> tuple:
+    """The network's outputs (logits, feature transform, yaw head or None) on segments, shapes checked."""
     points_shape, mask_shape = tuple(np.shape(points)), tuple(np.shape(mask))
     if len(points_shape) != 3 or points_shape[-1] != 3:
         raise ValueError(f"classify: points must be [N, P, 3] (N segments of P points), got shape {points_shape}")
@@ -220,7 +219,13 @@ def logits(classifier: Classifier, points: jax.Array, mask: jax.Array) -> jax.Ar
                          f"{mask_shape}")
     points, mask = normalise(jnp.asarray(points, jnp.float32), jnp.asarray(mask, bool))
     model = make_model(len(classifier.classes), classifier.config)
-    return model.apply(classifier.variables, points, mask, train=False)[0]
+    return model.apply(classifier.variables, points, mask, train=False)
+
+
+@jax.jit
+def logits(classifier: Classifier, points: jax.Array, mask: jax.Array) -> jax.Array:
+    """[N, M] the network's uncalibrated class scores of segments (``classify``'s input; see there)."""
+    return _forward(classifier, points, mask)[0]
 
 
 @jax.jit
@@ -230,9 +235,11 @@ def estimate_yaw(classifier: Classifier, points: jax.Array, mask: jax.Array) -> 
     mask: [N, P]. The yaw is that of the class's canonical model frame (``pose.initial_poses`` takes it)."""
     if not classifier.config.yaw_head:
         raise ValueError("estimate_yaw: these weights have no yaw head (train with model.yaw_head=true)")
-    points, mask = normalise(jnp.asarray(points, jnp.float32), jnp.asarray(mask, bool))
-    model = make_model(len(classifier.classes), classifier.config)
-    head = model.apply(classifier.variables, points, mask, train=False)[2]
+    return _yaw_angles(classifier, _forward(classifier, points, mask)[2])
+
+
+def _yaw_angles(classifier: Classifier, head: jax.Array) -> jax.Array:
+    """[N, M] rad from the yaw head's [N, M, 2] (cos, sin) of order x yaw."""
     order = jnp.asarray(classifier.yaw_orders, jnp.float32)
     angle = jnp.arctan2(head[..., 1], head[..., 0]) / jnp.maximum(order, 1.0)
     return jnp.where(order > 0, angle, 0.0)
@@ -250,6 +257,13 @@ def yaw_orders(class_symmetries: Sequence[Sequence[int]]) -> tuple[int, ...]:
     return tuple(orders)
 
 
+def _calibrated(classifier: Classifier, scores: jax.Array, points: jax.Array, mask: jax.Array) -> jax.Array:
+    """softmax(scores / temperature); the uniform 1/M for a segment with no real (finite, masked) point."""
+    probs = jax.nn.softmax(scores / classifier.temperature, axis=-1)
+    has_points = jnp.any(jnp.asarray(mask, bool) & jnp.all(jnp.isfinite(jnp.asarray(points)), axis=-1), axis=-1)
+    return jnp.where(has_points[:, None], probs, 1.0 / len(classifier.classes))
+
+
 @jax.jit
 def classify(classifier: Classifier, points: jax.Array, mask: jax.Array) -> jax.Array:
     """Class probabilities of segments (paper Eq. 1's softmax), calibrated: softmax(logits / temperature).
@@ -259,9 +273,16 @@ def classify(classifier: Classifier, points: jax.Array, mask: jax.Array) -> jax.
     are a ValueError naming them (checked while tracing: shapes are static). Deterministic: the same
     input gives the same output. ``logits`` gives the uncalibrated scores.
     """
-    probs = jax.nn.softmax(logits(classifier, points, mask) / classifier.temperature, axis=-1)
-    has_points = jnp.any(jnp.asarray(mask, bool) & jnp.all(jnp.isfinite(jnp.asarray(points)), axis=-1), axis=-1)
-    return jnp.where(has_points[:, None], probs, 1.0 / len(classifier.classes))
+    return _calibrated(classifier, logits(classifier, points, mask), points, mask)
+
+
+@jax.jit
+def predict(classifier: Classifier, points: jax.Array, mask: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """(probs [N, M] as ``classify``, yaw [N, M] rad as ``estimate_yaw``, zeros without a yaw head) from
+    ONE forward pass: what a move needs for refinement with learned yaws."""
+    scores, _, head = _forward(classifier, points, mask)
+    yaw = _yaw_angles(classifier, head) if head is not None else jnp.zeros(scores.shape, jnp.float32)
+    return _calibrated(classifier, scores, points, mask), yaw
 
 
 def fit_temperature(scores: np.ndarray, labels: np.ndarray) -> float:

@@ -53,12 +53,21 @@ class RefineConfig:
     yaw_source: YawSource = "hypotheses"
     yaw_spread: float = bounded(0.5, gt=0.0)  # rad between the rings of learned hypotheses
     prune_after: int = bounded(3, ge=1)  # iterations on every hypothesis before the best goes on (= iterations: none)
+    # What the best hypothesis is kept per: "model" = each (segment, model) goes on with its best yaw (every
+    # instance of a candidate class finishes), "class" = each (segment, candidate class) goes on with its best
+    # (model, yaw): J times fewer full registrations with J models per class (the episode's choice).
+    prune_per: Literal["model", "class"] = "model"
+    # The pruning rho reads this many of each sample's nearest samples (``icp.registration_ratio``'s
+    # ``neighbours``; None: all of ``icp.neighbours``): a cheaper, lower estimate that ranks hypotheses alike.
+    prune_neighbours: int | None = None
     # Which models stand for a class: "known" = the instances the scenes are drawn from (the paper's "a CAD
     # model for each object class"), "category" = the training instances only (the scene's shapes unseen).
     library: LibraryKind = "known"
 
     def __post_init__(self) -> None:
         check_bounds(self, "refine.")
+        if self.prune_per not in ("model", "class"):
+            raise ValueError(f"refine.prune_per must be 'model' or 'class', got {self.prune_per!r}")
         if self.yaw_source not in ("hypotheses", "learned"):
             raise ValueError(f"refine.yaw_source must be 'hypotheses' or 'learned', got {self.yaw_source!r}")
         if self.prune_after > self.icp.iterations:
@@ -154,41 +163,63 @@ def refine(points: jax.Array, mask: jax.Array, probs: jax.Array, library: ModelL
     models = library.class_models[candidates]  # [N, k, J]
     model_ok = library.class_mask[candidates]
     first = dataclasses.replace(config.icp, iterations=config.prune_after)
-    remaining = config.icp.iterations - first.iterations
+    remaining = dataclasses.replace(config.icp, iterations=config.icp.iterations - config.prune_after)
 
-    def one_model(n, c, m):
-        """Every hypothesis of model ``m`` (class ``c``) on segment ``n``, pruned to the best, then refined:
-        (rho, pose)."""
+    def hypotheses(n, c, m):
+        """Every initial yaw of model ``m`` (class ``c``) on segment ``n`` after ``prune_after`` iterations:
+        (poses [H, 4, 4], rho [H], valid [H])."""
         p, mk = points[n], mask[n]
         yaws = (pose.learned_yaws(yaw[n, c], yaw_orders[c], config.hypotheses, config.yaw_spread) if learned
                 else pose.even_yaws(config.hypotheses))
         inits = pose.initial_poses(p, mk, library.centroid[m], table_height, yaws)
         tgt = library.targets.select(m)
         stage = jax.vmap(lambda T: icp.align(p, mk, tgt, T, first))(inits)
-        score = jax.vmap(lambda T: icp.registration_ratio(p, mk, tgt, T, config.icp.inlier_distance, seen_from)
-                         ["rho"])(stage.pose)  # "best rho kept": fitness alone saturates on partial views
-        best = jax.tree.map(lambda a: a[jnp.argmax(score)], stage)
-        if remaining:
-            done = icp.icp(p, mk, tgt, best.pose, dataclasses.replace(config.icp, iterations=remaining), seen_from)
-            return done.rho, done.pose, done.valid
-        ratio = icp.registration_ratio(p, mk & best.valid, tgt, best.pose, config.icp.inlier_distance, seen_from)
-        return ratio["rho"], best.pose, best.valid
+        # "best rho kept": fitness alone saturates on partial views
+        score = jax.vmap(lambda T: icp.registration_ratio(p, mk, tgt, T, config.icp.inlier_distance, seen_from,
+                                                          config.prune_neighbours)["rho"])(stage.pose)
+        return stage.pose, score, stage.valid
+
+    def finish(n, m, T, ok):
+        """The best hypothesis of model ``m`` on segment ``n`` (pose ``T``) registered to the end: (rho, pose)."""
+        p, mk, tgt = points[n], mask[n], library.targets.select(m)
+        if remaining.iterations:
+            done = icp.icp(p, mk, tgt, T, remaining, seen_from)
+            return done.rho, done.pose, done.valid & ok
+        return icp.registration_ratio(p, mk & ok, tgt, T, config.icp.inlier_distance, seen_from)["rho"], T, ok
 
     # One flat vmap over the (segment, candidate, model) pairs: nested vmaps made XLA's CPU gathers ~1.6x
     # slower (benchmarks/refine.py).
-    N = points.shape[0]
-    pair_segment = jnp.repeat(jnp.arange(N), models.size // N)
+    N, J = points.shape[0], models.shape[2]
+    pair_segment = jnp.repeat(jnp.arange(N), k * J)
     pair_class = jnp.broadcast_to(candidates[..., None], models.shape).reshape(-1)
-    rho, poses, valid = jax.vmap(one_model)(pair_segment, pair_class, models.reshape(-1))
-    rho, poses, valid = rho.reshape(models.shape), poses.reshape(*models.shape, 4, 4), valid.reshape(models.shape)
-    rho = jnp.where(model_ok & valid, rho, -1.0)
-    j = jnp.argmax(rho, axis=2)  # the best model of each candidate class
-    class_rho = jnp.maximum(jnp.take_along_axis(rho, j[..., None], axis=2)[..., 0], 0.0)  # [N, k]
+    poses, score, valid = jax.vmap(hypotheses)(pair_segment, pair_class, models.reshape(-1))  # [N k J, H]
+    score = jnp.where(valid & model_ok.reshape(-1)[:, None], score, -1.0)
+    n = jnp.arange(N)
+    if config.prune_per == "model":
+        h = jnp.argmax(score, axis=1)
+        pick = jnp.arange(score.shape[0])
+        rho, poses, valid = jax.vmap(finish)(pair_segment, models.reshape(-1), poses[pick, h], valid[pick, h])
+        rho, poses, valid = rho.reshape(models.shape), poses.reshape(*models.shape, 4, 4), valid.reshape(models.shape)
+        rho = jnp.where(model_ok & valid, rho, -1.0)
+        j = jnp.argmax(rho, axis=2)  # the best model of each candidate class
+        class_rho = jnp.maximum(jnp.take_along_axis(rho, j[..., None], axis=2)[..., 0], 0.0)  # [N, k]
+        class_pose = jnp.take_along_axis(poses, j[..., None, None, None], axis=2)[:, :, 0]  # [N, k, 4, 4]
+        class_valid = jnp.any(valid & model_ok, axis=2)
+    else:  # the best (model, yaw) of each (segment, candidate class) goes on alone
+        H = score.shape[1]
+        flat = score.reshape(N * k, J * H)
+        best = jnp.argmax(flat, axis=1)
+        j = (best // H).reshape(N, k)
+        chosen = poses.reshape(N * k, J * H, 4, 4)[jnp.arange(N * k), best]
+        ok = valid.reshape(N * k, J * H)[jnp.arange(N * k), best] & (jnp.max(flat, axis=1) >= 0)
+        rho, class_pose, class_valid = jax.vmap(finish)(jnp.repeat(n, k), jnp.take_along_axis(
+            models, j[..., None], axis=2).reshape(-1), chosen, ok)
+        class_rho = jnp.where(class_valid, rho, 0.0).reshape(N, k)
+        class_pose, class_valid = class_pose.reshape(N, k, 4, 4), class_valid.reshape(N, k)
     c = jnp.argmax(class_rho, axis=1)  # Eq. 3 (ties: the higher PointNet score, the earlier candidate)
-    segment_valid = jnp.any(valid & model_ok, axis=(1, 2))
+    segment_valid = jnp.any(class_valid, axis=1)
     chosen_j = jnp.take_along_axis(j, c[:, None], axis=1)[:, 0]
-    n = jnp.arange(points.shape[0])
-    chosen_pose = poses[n, c, chosen_j]
+    chosen_pose = class_pose[n, c]
     prior = candidates[:, 0]
     return Refinement(prior=prior, candidates=candidates, rho=jnp.where(segment_valid[:, None], class_rho, 0.0),
                       refined=jnp.where(segment_valid, candidates[n, c], prior),

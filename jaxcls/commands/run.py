@@ -1,0 +1,206 @@
+"""``jaxcls run``: one active episode (one scene or a recorded sequence, one policy), each move printed, and
+a report folder; ``jaxcls demo`` is the same on the embedded default (``configs/demo.yaml``), with pictures.
+
+Sources (``source``): "" draws scene ``seed`` of the config's world and renders it on demand; a
+``scene_NNN.npz`` of ``jaxcls dataset`` (or a dataset folder with ``scene_index``); a recording folder
+(``world.recording``'s format: the real-robot path). The report folder (written whole at the end, never
+half; an existing one is kept and the run goes beside it, see ``show.free_folder``)::
+
+    <out_dir>/
+      config.yaml     the resolved config
+      episode.json    every move's record (``episode.runner``) and the scene's objects
+      report.md       the final per-object table against the truth, the per-move table
+      curves.png      F1 and accuracy over moves, prior and refined (with a scene to score against)
+      moves/move_NN.png   with ``pictures``: depth, segments by refined class, aligned cuboids, the views
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jaxcls.commands import Argument, Command
+from jaxcls.config import bounded, check_bounds
+from jaxcls.episode.setup import ActiveConfig
+from jaxcls.world.setup import WorldConfig
+
+
+@dataclasses.dataclass(frozen=True)
+class RunConfig(ActiveConfig, WorldConfig):
+    """``jaxcls run`` / ``jaxcls demo``: the world (a scene drawn and rendered on demand) or a ``source`` file,
+    the episode's blocks (``ActiveConfig``), where it starts and where the report goes."""
+
+    source: str = ""  # "": render scene `seed`; a dataset scene .npz or folder; a recording folder
+    scene_index: int = bounded(0, ge=0)  # the scene of a dataset folder
+    seed: int = 0  # the scene drawn (source "") and the episode's key
+    start: int = bounded(0, ge=0)  # the first viewpoint
+    out_dir: str = "runs/run"
+    pictures: bool = False  # a picture per move in <out_dir>/moves
+
+    def __post_init__(self) -> None:
+        check_bounds(self)
+
+
+def open_source(config: RunConfig, object_set):
+    """The ``ViewSource`` of ``config.source`` (errors name the file or folder and what is wrong)."""
+    import jax
+
+    from jaxcls.episode import sources
+    from jaxcls.world.dataset import scene_file
+    from jaxcls.world.setup import make_world
+
+    if not config.source:
+        world = make_world(config.world_config(), config.seed, object_set=object_set)
+        return sources.Rendered(world, jax.random.PRNGKey(config.seed))
+    path = Path(config.source)
+    if path.is_file():
+        return sources.dataset_source(path, config.objects, config.camera.intrinsics())
+    if (path / "meta.json").is_file() or (path / "depth").is_dir():
+        return sources.recording_source(path, config.objects)
+    if (path / "config.yaml").is_file():
+        return sources.dataset_source(scene_file(path, config.scene_index), config.objects, config.camera.intrinsics())
+    raise ValueError(f"source: {config.source} is neither a scene file (.npz), a dataset folder (config.yaml) nor "
+                     "a recording folder (meta.json)")
+
+
+def _figure_data(episode, state, depth: np.ndarray, T_wc: np.ndarray) -> dict[str, Any]:
+    """What a move's picture needs, taken from the state as the move ends (host arrays)."""
+    classes = episode.spec.classifier.classes
+    seg, r = state.observation.segments, state.refinement
+    valid = np.asarray(r.valid)
+    refined = [classes[c] for c in np.asarray(r.refined)]
+    mask = np.asarray(seg.mask) & valid[:, None]
+    points = np.asarray(seg.points)[mask]
+    labels = [refined[n] for n in np.nonzero(mask)[0]]
+    corners = np.asarray(episode.corners)[np.maximum(np.asarray(r.model), 0)]
+    pose = np.asarray(r.pose)
+    cuboids = np.einsum("nij,nkj->nki", pose[:, :3, :3], corners) + pose[:, None, :3, 3]
+    T_cw = np.linalg.inv(np.asarray(T_wc, np.float64))
+    cam = points @ T_cw[:3, :3].T + T_cw[:3, 3]
+    intr = episode.spec.intrinsics
+    front = cam[:, 2] > 1e-6
+    pixels = np.stack([intr.fx * cam[front, 0] / cam[front, 2] + intr.cx,
+                       intr.fy * cam[front, 1] / cam[front, 2] + intr.cy], axis=-1)
+    return {"depth": np.asarray(depth), "pixels": pixels, "pixel_labels": [lb for lb, f in zip(labels, front,
+                                                                                                  strict=True) if f],
+            "cuboids": cuboids[valid], "cuboid_labels": [refined[n] for n in np.flatnonzero(valid)],
+            "points": points, "point_labels": labels, "path": [int(v) for v in np.asarray(state.path) if v >= 0],
+            "chosen": int(state.next_view)}
+
+
+def _object_table(log) -> list[tuple]:
+    """The final move's label of each scene object against the truth."""
+    last = log.moves[-1]
+    rows = []
+
+    def name(c: int) -> str:
+        return log.classes[c] if c >= 0 else "(no segment)"
+
+    for k, obj in enumerate(log.objects):
+        prior, refined = last["labels"]["prior"][k], last["labels"]["refined"][k]
+        rows.append((obj["name"], obj["class"], "target" if obj["target"] else "clutter", name(prior), name(refined),
+                     ("yes" if refined >= 0 and log.classes[refined] == obj["class"] else "no") if obj["target"]
+                     else "", f"{last['coverage'][k]:.2f}"))
+    return rows
+
+
+def _table(header, rows) -> str:
+    lines = ["| " + " | ".join(header) + " |", "| " + " | ".join("---" for _ in header) + " |"]
+    return "\n".join(lines + ["| " + " | ".join(str(c) for c in row) + " |" for row in rows])
+
+
+def run_command(config: RunConfig, overwrite: bool = False, echo=print) -> tuple[Path, Any]:
+    """Run the episode of ``config``, ``echo`` each move, write the report folder; returns (folder, log).
+    Every input is checked before the first move (source, classifier, start view)."""
+    import jax
+
+    from jaxcls import io, viz
+    from jaxcls.commands.show import free_folder
+    from jaxcls.config import save_config
+    from jaxcls.episode import active, runner, scoring, setup
+    from jaxcls.world.objects import object_set_from_config
+
+    object_set = object_set_from_config(config.objects)
+    source = open_source(config, object_set)
+    classifier = setup.load_classifier(config.classifier, object_set, "key 'classifier'")
+    if config.start >= len(source.viewpoints):
+        raise ValueError(f"start: view {config.start} is outside 0..{len(source.viewpoints) - 1} "
+                         f"({len(source.viewpoints)} viewpoints in {source.name})")
+    episode = setup.make_episode(config.active_config(), object_set, source.intrinsics, source.table_height,
+                                 classifier, config.scene.split)
+    truth = scoring.Truth.from_scene(source.scene, object_set) if source.scene is not None else None
+    figures = []
+
+    def on_move(record, state, depth, T_wc):
+        echo(runner.describe(record))
+        if config.pictures:
+            figures.append((record, _figure_data(episode, state, depth, T_wc)))
+
+    echo(f"episode: {source.name}, policy {config.episode.policy}, GR {'on' if config.episode.refinement else 'off'}, "
+         f"start view {config.start}, up to {config.episode.moves} moves (the first move compiles)")
+    log = runner.run(episode, source, config.start, jax.random.PRNGKey(config.seed), truth, on_move=on_move)
+    summary = {"moves": len(log.moves), "path_length_m": round(runner.path_length(log, source.viewpoints), 4),
+               "median_ms_per_move_after_the_first": {k: float(np.median([m["times_ms"][k] for m in log.moves[1:]]))
+                                                      for k in active.MODULES} if len(log.moves) > 1 else {}}
+    out = free_folder(config.out_dir, overwrite)
+    with io.atomic_folder(out) as tmp:
+        save_config(config, tmp / "config.yaml")
+        io.write_json(tmp / "episode.json", {**log.to_dict(), "summary": summary})
+        report = [f"# Episode: {source.name}", "",
+                  f"policy `{log.policy}`, GR {'on' if log.refinement else 'off'}, start view {log.start}, "
+                  f"{len(log.moves)} moves, path {summary['path_length_m']:.2f} m", ""]
+        if truth is not None:
+            report += ["## Objects after the last move", "", _table(
+                ("object", "class", "role", "prior", "refined", "right", "coverage"), _object_table(log)), ""]
+            viz.save(viz.episode_curves({"F1 refined": log.curve("refined"), "F1 prior": log.curve("prior"),
+                                         "accuracy refined": log.curve("refined", "accuracy"),
+                                         "accuracy prior": log.curve("prior", "accuracy")}), tmp / "curves.png")
+        report += ["## Moves", "", _table(
+            ("move", "view", "next", *(f"{k} ms" for k in active.MODULES),
+             *(("F1 prior", "F1 refined") if truth is not None else ())),
+            [(m["move"], m["view"], m["next_view"], *(f"{m['times_ms'][k]:.1f}" for k in active.MODULES),
+              *((f"{m['scores']['prior']['f1']:.3f}", f"{m['scores']['refined']['f1']:.3f}")
+                if truth is not None else ())) for m in log.moves])]
+        io.write_text(tmp / "report.md", "\n".join(report) + "\n")
+        for record, data in figures:
+            title = (f"move {record['move']}: view {record['view']} -> next {record['next_view']}"
+                     + (f"   F1 refined {record['scores']['refined']['f1']:.2f}" if "scores" in record else ""))
+            viz.save(viz.episode_move(title, **data, viewpoints=source.viewpoints, classes=log.classes),
+                     tmp / "moves" / f"move_{record['move']:02d}.png")
+    return out, log
+
+
+def _run(config: RunConfig, args: argparse.Namespace) -> str:
+    out, log = run_command(config, overwrite=args.overwrite, echo=lambda line: print(line, flush=True))
+    final = log.moves[-1]
+    score = ""
+    if "scores" in final:
+        score = (f"; final F1 {final['scores']['prior']['f1']:.3f} (prior) -> {final['scores']['refined']['f1']:.3f} "
+                 "(refined)")
+    print(f"{len(log.moves)} moves{score}", file=sys.stderr)
+    return f"wrote {out}"
+
+
+_OVERWRITE = Argument(("--overwrite",), {"action": "store_true", "help": "write into out_dir even if not empty"})
+
+COMMAND = Command(
+    description="Run one active episode: a scene rendered on demand, a dataset scene file or a recording folder "
+                "(source=...), one policy (episode.policy=...), GR on or off (episode.refinement=...). Prints each "
+                "move (segments, prior -> refined labels, rho, chosen view, module times) and writes <out_dir>: "
+                "config.yaml, episode.json, report.md, curves.png (and moves/*.png with pictures=true).",
+    schema=RunConfig, run=_run, default_config="run", example="episode.policy=random seed=3 start=17",
+    arguments=(_OVERWRITE,),
+)
+
+DEMO = Command(
+    description="The main job on the embedded default: built-in objects, the shipped weights, one cluttered "
+                "scene rendered on the CPU, VisOcclHist with GR. Prints each move and writes <out_dir> "
+                "(runs/demo): the per-object table, the F1 curve, a picture per move.",
+    schema=RunConfig, run=_run, default_config="demo", example="seed=4 episode.moves=5",
+    arguments=(_OVERWRITE,),
+)

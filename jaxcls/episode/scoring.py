@@ -1,0 +1,59 @@
+"""An episode scored against its scene (the paper's Sec. 4 protocol): segments matched to the scene's objects
+by Hungarian assignment on centroids (``metrics.match_objects``), the target objects' labels scored with
+macro one-vs-all accuracy, precision, recall and F1 (``metrics.classification_scores``; clutter is never
+scored, an unmatched target counts as wrong), and how much of each object the fused surface covers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from jaxcls import metrics
+from jaxcls.world.objects import ObjectSet
+from jaxcls.world.scenes import Scene, scene_models
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Truth:
+    """What the scene holds, K objects: centroid [K, 3] m (of the posed surface samples); label [K] class
+    index; target [K] bool (False: clutter, never scored); surface: K arrays [S_k, 3] posed surface samples
+    (world, m); names: the instances."""
+
+    centroid: np.ndarray
+    label: np.ndarray
+    target: np.ndarray
+    surface: tuple[np.ndarray, ...]
+    names: tuple[str, ...]
+
+    @classmethod
+    def from_scene(cls, scene: Scene, object_set: ObjectSet) -> Truth:
+        models = scene_models(scene, object_set)
+        poses = scene.object_poses()
+        surface = tuple(np.asarray(m.surface_points, np.float64) @ T[:3, :3].T + T[:3, 3]
+                        for m, T in zip(models, poses, strict=True))
+        return cls(centroid=np.stack([s.mean(axis=0) for s in surface]),
+                   label=np.array([object_set.class_index(o.class_name) for o in scene.objects]),
+                   target=np.array([o.target for o in scene.objects], bool), surface=surface,
+                   names=tuple(o.name for o in scene.objects))
+
+
+def object_labels(truth: Truth, centroid: np.ndarray, valid: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """[K] the label of the segment matched to each object (-1: no segment matched it).
+
+    centroid: [N, 3] segment centroids (m); valid: [N] bool; labels: [N] class index per segment."""
+    match = metrics.match_objects(centroid, valid, truth.centroid)
+    return np.where(match >= 0, np.asarray(labels)[np.maximum(match, 0)], -1)
+
+
+def move_scores(truth: Truth, centroid: np.ndarray, valid: np.ndarray, labels: np.ndarray,
+                num_classes: int) -> metrics.Scores:
+    """The target objects' ``metrics.Scores`` for one move's segment labels."""
+    predicted = object_labels(truth, centroid, valid, labels)
+    return metrics.classification_scores(truth.label[truth.target], predicted[truth.target], num_classes)
+
+
+def coverage(truth: Truth, fused_points: np.ndarray) -> np.ndarray:
+    """[K] the share of each object's surface samples within 5 mm of the fused surface points [P, 3]."""
+    return np.array([metrics.surface_coverage(s, fused_points) for s in truth.surface])

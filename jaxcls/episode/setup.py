@@ -1,0 +1,82 @@
+"""An episode built from a run's settings: the one owner of the wiring spec + classifier + model library ->
+``active.Episode`` (commands, experiments, benchmarks, tests and notebooks build episodes here).
+
+    settings = ActiveConfig(episode=EpisodeConfig(policy="vis_occl"))
+    episode = make_episode(settings, object_set, intrinsics, table_height)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+from jaxcls.episode.active import Episode, EpisodeConfig
+from jaxcls.geometry import Intrinsics
+from jaxcls.perception import pointnet
+from jaxcls.perception.refine import ModelLibrary, RefineConfig, library_models
+from jaxcls.perception.settings import PerceptionConfig, ShapeConfig, Spec
+from jaxcls.planning.nbv import NBVConfig
+from jaxcls.world.objects import ObjectSet
+
+
+def episode_perception() -> PerceptionConfig:
+    """Perception as a move runs it: segments of 512 points into PointNet (strided from the segment), as
+    accurate as 1024 on in-scene segments (0.874 against 0.872, experiments/classify_stability.py) and half
+    the time."""
+    return PerceptionConfig(shapes=ShapeConfig(points_per_segment=512))
+
+
+def episode_refine() -> RefineConfig:
+    """GR as a move runs it: 3 yaws around the yaw head's estimate ((b) + 2: as accurate as 8 even yaws on
+    the recovery cases, RESULTS.md), the best (model, yaw) of each candidate class finished alone, pruning's
+    rho from 8 neighbours per sample: ~3x less work than ``RefineConfig()`` with 4 models per class
+    (BENCHMARKS.md, the move)."""
+    return RefineConfig(yaw_source="learned", hypotheses=3, prune_per="class", prune_neighbours=8)
+
+
+@dataclasses.dataclass(frozen=True)
+class ActiveConfig:
+    """The blocks of an active run besides the world: ``episode``, ``perception``, ``refine``, ``nbv`` and the
+    classifier's weights (``classifier``: a ``.msgpack`` path, "" = the shipped weights)."""
+
+    classifier: str = ""
+    episode: EpisodeConfig = dataclasses.field(default_factory=EpisodeConfig)
+    perception: PerceptionConfig = dataclasses.field(default_factory=episode_perception)
+    refine: RefineConfig = dataclasses.field(default_factory=episode_refine)
+    nbv: NBVConfig = dataclasses.field(default_factory=NBVConfig)
+
+    def active_config(self) -> ActiveConfig:
+        """Just these blocks of a command's config (whose schema extends this one)."""
+        return ActiveConfig(**{f.name: getattr(self, f.name) for f in dataclasses.fields(ActiveConfig)})
+
+
+@functools.lru_cache(maxsize=8)
+def _library(object_set: ObjectSet, kind: str, split: str, icp_config) -> ModelLibrary:
+    return ModelLibrary.build(library_models(object_set, kind, split), object_set.classes, icp_config)
+
+
+def model_library(object_set: ObjectSet, refine: RefineConfig, scene_split: str = "test") -> ModelLibrary:
+    """GR's models for ``object_set`` (``refine.library``: the scenes' instances or the training ones),
+    built once per set and settings in a process."""
+    return _library(object_set, refine.library, scene_split, refine.icp)
+
+
+def load_classifier(path: str, object_set: ObjectSet, source: str = "classifier") -> pointnet.Classifier:
+    """The weights at ``path`` ("" = shipped), refused (ValueError naming the file) unless trained on
+    ``object_set``'s classes."""
+    classifier = pointnet.load_classifier(path or None)
+    try:
+        classifier.check_classes(object_set.classes, f"object set {object_set.name!r}")
+    except ValueError as e:
+        raise ValueError(f"{path or 'shipped weights'} ({source}): {e}") from None
+    return classifier
+
+
+def make_episode(settings: ActiveConfig, object_set: ObjectSet, intrinsics: Intrinsics, table_height: float,
+                 classifier: pointnet.Classifier | None = None, scene_split: str = "test") -> Episode:
+    """The episode of ``settings`` for scenes of ``object_set`` seen by ``intrinsics`` over a table at
+    ``table_height`` (m). ``classifier`` skips loading ``settings.classifier``."""
+    classifier = classifier or load_classifier(settings.classifier, object_set)
+    spec = Spec.create(settings.perception, intrinsics, table_height, classifier)
+    return Episode.create(spec, model_library(object_set, settings.refine, scene_split), settings.episode,
+                          settings.refine, settings.nbv)
