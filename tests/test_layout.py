@@ -21,6 +21,7 @@ FORBIDDEN = {
     "jaxcls.planning": ("jaxcls.world", "jaxcls.episode", "jaxcls.active", "jaxcls.learn", "jaxcls.commands",
                         "jaxcls.cli", "jaxcls.viz", "jaxcls.report"),
     "jaxcls.learn": ("jaxcls.commands", "jaxcls.cli", "jaxcls.episode", "jaxcls.active"),
+    "jaxcls.episode": ("jaxcls.commands", "jaxcls.cli", "jaxcls.learn"),
     # The shared helpers at the top sit below every layer.
     **{f"jaxcls.{m}": ("jaxcls.world", "jaxcls.perception", "jaxcls.learn", "jaxcls.commands", "jaxcls.cli")
        for m in ("geometry", "math", "config", "io", "report", "viz")},
@@ -88,8 +89,14 @@ _WIRING_OWNERS = {"jaxcls/perception/foreground.py", "jaxcls/perception/observat
                   "benchmarks/ab_move.py"}  # its A side is the old revision's hand-wired chain, on purpose
 
 
-@pytest.mark.parametrize("pattern, owners", [(_SETUP, _SETUP_OWNERS), (_WIRING, _WIRING_OWNERS)],
-                         ids=["world set-up", "perception chain"])
+# An episode (spec + classifier + model library + settings) is wired by episode.setup.make_episode.
+_EPISODE = re.compile(r"Episode\.create\(")
+_EPISODE_OWNERS = {"jaxcls/episode/setup.py", "jaxcls/episode/active.py"}
+
+
+@pytest.mark.parametrize("pattern, owners", [(_SETUP, _SETUP_OWNERS), (_WIRING, _WIRING_OWNERS),
+                                             (_EPISODE, _EPISODE_OWNERS)],
+                         ids=["world set-up", "perception chain", "episode"])
 def test_one_owner(pattern, owners):
     files = [*PACKAGE.rglob("*.py"), *(ROOT / "benchmarks").glob("*.py"), *(ROOT / "experiments").glob("*.py"),
              *(ROOT / "tests").glob("*.py"), *(ROOT / "notebooks").glob("*.ipynb")]

@@ -1,0 +1,221 @@
+"""The active episode: reset/step are deterministic, the vmapped step is the sequential one, the timed host
+path and the scanned rollout give the same episode as the jitted step, the adaptive stop, ``jaxcls run`` on
+a recorded sequence, ``jaxcls demo`` (reduced), and bad inputs refused before anything is written."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxcls import cli
+from jaxcls.config import ConfigError, load_config
+from jaxcls.episode import active, runner, scoring, setup, sources
+from jaxcls.geometry import CameraConfig
+from jaxcls.perception.settings import PerceptionConfig, ShapeConfig
+from jaxcls.world import recording
+from jaxcls.world.dataset import SceneViews
+from jaxcls.world.scenes import SceneConfig
+from jaxcls.world.setup import WorldConfig, make_world
+
+CAMERA = CameraConfig.kinect_v1(0.5)
+SHAPES = ShapeConfig(surface_points=8192, points_per_segment=256)
+WORLD = WorldConfig(camera=CAMERA, scene=SceneConfig(num_objects=3), backend="mujoco",
+                    viewpoints=dataclasses.replace(WorldConfig().viewpoints, count=40))
+MOVES = 3
+# The same world and shapes on the command line (one set of compiled programs for the whole file).
+SMALL = [*(f"camera.{f.name}={getattr(CAMERA, f.name)}" for f in dataclasses.fields(CAMERA)),
+         f"perception.shapes.surface_points={SHAPES.surface_points}",
+         f"perception.shapes.points_per_segment={SHAPES.points_per_segment}", "scene.num_objects=3",
+         "viewpoints.count=40", "backend=mujoco"]
+
+
+def _settings(**episode) -> setup.ActiveConfig:
+    return setup.ActiveConfig(episode=active.EpisodeConfig(moves=MOVES, **episode),
+                              perception=PerceptionConfig(shapes=SHAPES))
+
+
+@pytest.fixture(scope="module")
+def world():
+    return make_world(WORLD, seed=1)
+
+
+@pytest.fixture(scope="module")
+def frames(world):
+    """Every viewpoint's frame in memory (a dataset scene's ``Preloaded`` source)."""
+    depth, T_wc, _, _ = world.measure(jax.random.PRNGKey(0), np.arange(len(world.viewpoints)))
+    return sources.Preloaded(depth=depth, T_wc=T_wc, intrinsics=world.intrinsics, table_height=world.table_height,
+                             scene=world.scene, name="test scene")
+
+
+@pytest.fixture(scope="module")
+def episode(world):
+    return setup.make_episode(_settings(), world.object_set, world.intrinsics, world.table_height)
+
+
+def _strip_times(log: runner.EpisodeLog) -> list[dict]:
+    return [{k: v for k, v in m.items() if k != "times_ms"} for m in log.moves]
+
+
+def test_same_seed_same_episode(episode, world, frames):
+    truth = scoring.Truth.from_scene(world.scene, world.object_set)
+    a = runner.run(episode, frames, 5, jax.random.PRNGKey(3), truth)
+    b = runner.run(episode, frames, 5, jax.random.PRNGKey(3), truth)
+    assert len(a.moves) == MOVES and a.path[0] == 5 and len(set(a.path)) == MOVES  # never fuses a view twice
+    assert _strip_times(a) == _strip_times(b)
+    assert set(a.moves[0]["times_ms"]) == set(active.MODULES)
+    assert all(m["segments"] for m in a.moves) and all(0 <= m["scores"]["refined"]["f1"] <= 1 for m in a.moves)
+    # The record's scores are the metrics of its labels against the scene.
+    last = a.moves[-1]
+    assert 0 < np.mean(last["coverage"]) <= 1
+
+
+def _assert_states_equal(a, b, atol=1e-5, rho_atol=0.0):
+    """Same state: integers exact, floats close. With ``rho_atol`` > 0 (a vmapped program: XLA orders its
+    reductions otherwise, and ICP can settle a losing candidate in another of two near-equal minima), rho
+    may move by that much, and a segment whose two best candidates lie within it (a tie) may take either:
+    its label, model, pose and stability are not compared."""
+    rho_a, rho_b = np.asarray(a.refinement.rho), np.asarray(b.refinement.rho)
+    np.testing.assert_allclose(rho_a, rho_b, atol=rho_atol + 1e-6)
+    top = np.sort(rho_b, axis=1)
+    tie = (top[:, -1] - top[:, -2] <= 2 * rho_atol) if rho_atol > 0 else np.zeros(len(top), bool)
+    assert (~tie).sum() >= 2, "fewer than two untied segments: the comparison says little"
+
+    def untied(state):
+        r = state.refinement
+        keep = jnp.asarray(~tie)
+        return state.replace(stable=jnp.where(keep, state.stable, 0), refinement=r.replace(
+            rho=0, refined=jnp.where(keep, r.refined, 0), model=jnp.where(keep, r.model, 0),
+            pose=jnp.where(keep[:, None, None], r.pose, 0)))
+
+    for x, y in zip(jax.tree.leaves(untied(a)), jax.tree.leaves(untied(b)), strict=True):
+        x, y = np.asarray(x), np.asarray(y)
+        if x.dtype.kind in "biu":
+            np.testing.assert_array_equal(x, y)
+        else:
+            np.testing.assert_allclose(x, y, atol=atol, rtol=1e-4)
+
+
+def test_the_timed_host_path_and_the_jitted_step_agree(episode, frames):
+    key = jax.random.PRNGKey(0)
+    jitted = timed = active.reset(episode, frames.viewpoints, 7, key)
+    for _ in range(2):
+        depth, T_wc = frames.frame(int(jitted.next_view))
+        jitted = active.step_jit(episode, jitted, depth, T_wc.astype(np.float32))
+        timed, times = active.timed_step(episode, timed, depth, T_wc.astype(np.float32))
+        _assert_states_equal(jitted, timed)
+        assert all(t > 0 for t in times.values())
+
+
+def test_vmapped_step_equals_the_sequential_one(episode, frames):
+    """Two episodes (other starts, other keys) stepped together under vmap give what stepping each gives,
+    move after move (each move from the same states)."""
+    starts, keys = [3, 21], [jax.random.PRNGKey(1), jax.random.PRNGKey(2)]
+    alone = [active.reset(episode, frames.viewpoints, s, k) for s, k in zip(starts, keys, strict=True)]
+    vstep = jax.jit(jax.vmap(active.step, in_axes=(None, 0, 0, 0)))
+    for _ in range(MOVES):
+        views = [int(s.next_view) for s in alone]
+        depth = np.stack([frames.frame(v)[0] for v in views])
+        T_wc = np.stack([frames.frame(v)[1] for v in views]).astype(np.float32)
+        batch = vstep(episode, jax.tree.map(lambda *a: jnp.stack(a), *alone), depth, T_wc)
+        alone = [active.step_jit(episode, s, d, T) for s, d, T in zip(alone, depth, T_wc, strict=True)]
+        for i, s in enumerate(alone):
+            _assert_states_equal(jax.tree.map(lambda a, i=i: a[i], batch), s, atol=1e-4, rho_atol=0.02)
+    assert [int(s.path[0]) for s in alone] == starts
+
+
+def test_the_scanned_rollout_is_the_host_run(episode, frames):
+    """The whole episode under one lax.scan on the frames in memory visits the views the host run visits
+    and ends with the same labels."""
+    log = runner.run(episode, frames, 11, jax.random.PRNGKey(4))
+    state = active.reset(episode, frames.viewpoints, 11, jax.random.PRNGKey(4))
+    final, trace = active.rollout_jit(episode, state, frames.depth, frames.T_wc.astype(np.float32))
+    assert np.asarray(trace.view).tolist() == log.path
+    assert np.asarray(final.path).tolist() == log.path
+    refined = [log.classes.index(s["refined"]) for s in log.moves[-1]["segments"]]
+    assert np.asarray(final.refinement.refined)[np.asarray(final.refinement.valid)].tolist() == refined
+    assert bool(final.done) and not np.asarray(trace.done).any()
+
+
+def test_gr_off_keeps_the_prior_and_the_adaptive_stop_ends_early(world, frames):
+    off = setup.make_episode(_settings(refinement=False), world.object_set, world.intrinsics, world.table_height)
+    log = runner.run(off, frames, 2, jax.random.PRNGKey(0))
+    assert all(s["prior"] == s["refined"] and s["rho"] == [0.0] * len(s["rho"]) for m in log.moves
+               for s in m["segments"])
+    stop = setup.make_episode(_settings(stop=active.StopConfig(stable_moves=1, min_rho=0.0)), world.object_set,
+                              world.intrinsics, world.table_height)
+    log = runner.run(stop, frames, 2, jax.random.PRNGKey(0))
+    assert len(log.moves) == 1 and log.moves[0]["stop"]  # every class has held for one move: stop at once
+
+
+def test_run_accepts_a_recorded_sequence_and_scores_it(tmp_path, world, frames, capsys):
+    folder = recording.write_recording(tmp_path / "rec", recording.Recording(
+        depth=frames.depth[:12], T_wc=frames.T_wc[:12], intrinsics=world.intrinsics, table_height=world.table_height,
+        scene=world.scene.to_dict()))
+    out = tmp_path / "out"
+    assert cli.main(["run", *SMALL, f"source={folder}", "start=4", "episode.moves=2", f"out_dir={out}"]) == 0
+    printed = capsys.readouterr().out
+    assert "move  1  view   4 -> next" in printed and "move  2" in printed
+    log = json.loads((out / "episode.json").read_text())
+    assert log["start"] == 4 and len(log["moves"]) == 2 and all(0 <= m["next_view"] < 12 for m in log["moves"])
+    assert "scores" in log["moves"][0] and (out / "report.md").is_file() and (out / "curves.png").is_file()
+
+
+def test_demo_runs_reduced(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert cli.main(["demo", *SMALL, "episode.moves=2", f"out_dir={out}"]) == 0
+    assert sorted(p.name for p in (out / "moves").iterdir()) == ["move_01.png", "move_02.png"]
+    report = (out / "report.md").read_text()
+    assert "## Objects after the last move" in report and "vis_occl_hist" in report
+    assert "segment" in capsys.readouterr().out
+
+
+# --- bad inputs: clear errors naming the file or key, nothing written -----------------------------------------
+
+def test_moves_zero_and_unknown_policy_are_config_errors():
+    from jaxcls.commands.run import RunConfig
+
+    with pytest.raises(ConfigError, match=r"episode\.moves"):
+        load_config(RunConfig, None, ["episode.moves=0"])
+    with pytest.raises(ConfigError, match="unknown policy 'best'"):
+        load_config(RunConfig, None, ["episode.policy=best"])
+
+
+def test_a_dataset_file_of_another_object_set_or_camera_is_refused(tmp_path, world, frames):
+    views = SceneViews(scene=world.scene, intrinsics=world.intrinsics, depth=frames.depth[:2],
+                       object_id=np.zeros(frames.depth[:2].shape, np.int16), T_wc=frames.T_wc[:2],
+                       T_wc_true=frames.T_wc[:2])
+    path = views.save(tmp_path / "scene_000.npz")
+    other = dataclasses.replace(world.config.objects, seed=1)  # another draw of the built-in families
+    with pytest.raises(ValueError, match=r"scene_000.npz: the scene was drawn from objects"):
+        sources.dataset_source(path, other, world.intrinsics)
+    with pytest.raises(ValueError, match=r"scene_000.npz: key 'intrinsics'"):
+        sources.dataset_source(path, world.config.objects, CameraConfig().intrinsics())
+
+
+def test_bad_runs_write_nothing(tmp_path, world, frames, capsys):
+    """A start view out of range, a classifier of other classes, a recording with a frame missing."""
+    folder = recording.write_recording(tmp_path / "rec", recording.Recording(
+        depth=frames.depth[:3], T_wc=frames.T_wc[:3], intrinsics=world.intrinsics, table_height=world.table_height))
+    out = tmp_path / "out"
+    assert cli.main(["run", *SMALL, f"source={folder}", "start=3", f"out_dir={out}"]) == 2
+    assert "start: view 3 is outside 0..2" in capsys.readouterr().err
+    (folder / "depth" / "000001.png").unlink()
+    assert cli.main(["run", *SMALL, f"source={folder}", f"out_dir={out}"]) == 2
+    assert "000001.png" in capsys.readouterr().err
+    weights = tmp_path / "w.msgpack"
+    from jaxcls.perception import pointnet
+
+    shipped = pointnet.load_classifier()
+    pointnet.save_classifier(weights, dataclasses.replace(shipped, classes=tuple(f"c{i}" for i in shipped.classes)))
+    assert cli.main(["run", *SMALL, f"classifier={weights}", f"out_dir={out}"]) == 2
+    err = capsys.readouterr().err
+    assert "w.msgpack" in err and "trained on classes" in err
+    assert not out.exists()
+    with pytest.raises(ValueError, match=r"start view 40 is outside 0\.\.39"):
+        active.reset(setup.make_episode(_settings(), world.object_set, world.intrinsics, world.table_height),
+                     world.viewpoints, 40, jax.random.PRNGKey(0))
