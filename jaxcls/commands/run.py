@@ -68,31 +68,6 @@ def open_source(config: RunConfig, object_set):
                      "a recording folder (meta.json)")
 
 
-def _figure_data(episode, state, depth: np.ndarray, T_wc: np.ndarray) -> dict[str, Any]:
-    """What a move's picture needs, taken from the state as the move ends (host arrays)."""
-    classes = episode.spec.classifier.classes
-    seg, r = state.observation.segments, state.refinement
-    valid = np.asarray(r.valid)
-    refined = [classes[c] for c in np.asarray(r.refined)]
-    mask = np.asarray(seg.mask) & valid[:, None]
-    points = np.asarray(seg.points)[mask]
-    labels = [refined[n] for n in np.nonzero(mask)[0]]
-    corners = np.asarray(episode.corners)[np.maximum(np.asarray(r.model), 0)]
-    pose = np.asarray(r.pose)
-    cuboids = np.einsum("nij,nkj->nki", pose[:, :3, :3], corners) + pose[:, None, :3, 3]
-    T_cw = np.linalg.inv(np.asarray(T_wc, np.float64))
-    cam = points @ T_cw[:3, :3].T + T_cw[:3, 3]
-    intr = episode.spec.intrinsics
-    front = cam[:, 2] > 1e-6
-    pixels = np.stack([intr.fx * cam[front, 0] / cam[front, 2] + intr.cx,
-                       intr.fy * cam[front, 1] / cam[front, 2] + intr.cy], axis=-1)
-    return {"depth": np.asarray(depth), "pixels": pixels, "pixel_labels": [lb for lb, f in zip(labels, front,
-                                                                                                  strict=True) if f],
-            "cuboids": cuboids[valid], "cuboid_labels": [refined[n] for n in np.flatnonzero(valid)],
-            "points": points, "point_labels": labels, "path": [int(v) for v in np.asarray(state.path) if v >= 0],
-            "chosen": int(state.next_view)}
-
-
 def _object_table(log) -> list[tuple]:
     """The final move's label of each scene object against the truth."""
     last = log.moves[-1]
@@ -139,7 +114,7 @@ def run_command(config: RunConfig, overwrite: bool = False, echo=print) -> tuple
     def on_move(record, state, depth, T_wc):
         echo(runner.describe(record))
         if config.pictures:
-            figures.append((record, _figure_data(episode, state, depth, T_wc)))
+            figures.append((record, runner.picture_data(episode, state, depth, T_wc)))
 
     echo(f"episode: {source.name}, policy {config.episode.policy}, GR {'on' if config.episode.refinement else 'off'}, "
          f"start view {config.start}, up to {config.episode.moves} moves (the first move compiles)")

@@ -140,4 +140,31 @@ def describe(record: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["EpisodeLog", "describe", "move_record", "path_length", "run"]
+def picture_data(episode: active.Episode, state: active.EpisodeState, depth: np.ndarray, T_wc: np.ndarray
+                 ) -> dict[str, Any]:
+    """What a move's picture (``viz.episode_move``) needs but the views and classes, from the state as the move
+    ends and its frame (depth [H, W] m, T_wc [4, 4]): host arrays, keyword arguments of ``viz.episode_move``."""
+    classes = episode.spec.classifier.classes
+    seg, r = state.observation.segments, state.refinement
+    valid = np.asarray(r.valid)
+    refined = [classes[c] for c in np.asarray(r.refined)]
+    mask = np.asarray(seg.mask) & valid[:, None]
+    points = np.asarray(seg.points)[mask]
+    labels = [refined[n] for n in np.nonzero(mask)[0]]
+    corners = np.asarray(episode.corners)[np.maximum(np.asarray(r.model), 0)]
+    pose = np.asarray(r.pose)
+    cuboids = np.einsum("nij,nkj->nki", pose[:, :3, :3], corners) + pose[:, None, :3, 3]
+    T_cw = np.linalg.inv(np.asarray(T_wc, np.float64))
+    cam = points @ T_cw[:3, :3].T + T_cw[:3, 3]
+    intr = episode.spec.intrinsics
+    front = cam[:, 2] > 1e-6
+    pixels = np.stack([intr.fx * cam[front, 0] / cam[front, 2] + intr.cx,
+                       intr.fy * cam[front, 1] / cam[front, 2] + intr.cy], axis=-1)
+    return {"depth": np.asarray(depth), "pixels": pixels, "pixel_labels": [lb for lb, f in zip(labels, front,
+                                                                                                  strict=True) if f],
+            "cuboids": cuboids[valid], "cuboid_labels": [refined[n] for n in np.flatnonzero(valid)],
+            "points": points, "point_labels": labels, "path": [int(v) for v in np.asarray(state.path) if v >= 0],
+            "chosen": int(state.next_view)}
+
+
+__all__ = ["EpisodeLog", "describe", "move_record", "path_length", "picture_data", "run"]

@@ -20,18 +20,24 @@ from jaxcls.world.objects import ObjectSet
 
 
 def episode_perception() -> PerceptionConfig:
-    """Perception as a move runs it: segments of 512 points into PointNet (strided from the segment), as
-    accurate as 1024 on in-scene segments (0.874 against 0.872, experiments/classify_stability.py) and half
-    the time."""
-    return PerceptionConfig(shapes=ShapeConfig(points_per_segment=512))
+    """Perception as a move runs it: segments of 256 points into PointNet (strided from the segment; GR reads
+    256 too), as accurate as 1024 on in-scene segments (0.876 against 0.872, experiments/classify_stability.py,
+    BENCHMARKS.md) at a quarter of the time."""
+    return PerceptionConfig(shapes=ShapeConfig(points_per_segment=256))
 
 
 def episode_refine() -> RefineConfig:
-    """GR as a move runs it: 3 yaws around the yaw head's estimate ((b) + 2: as accurate as 8 even yaws on
-    the recovery cases, RESULTS.md), the best (model, yaw) of each candidate class finished alone, pruning's
-    rho from 8 neighbours per sample: ~3x less work than ``RefineConfig()`` with 4 models per class
-    (BENCHMARKS.md, the move)."""
-    return RefineConfig(yaw_source="learned", hypotheses=3, prune_per="class", prune_neighbours=8)
+    """GR as a move runs it: 2 yaws from the yaw head's estimate (its symmetric copy or one ring), the best
+    (model, yaw) of each candidate class finished alone, pruning's rho from 8 neighbours per sample: ~4x less
+    work than ``RefineConfig()`` with 4 models per class (BENCHMARKS.md, the move). The classes it gives are
+    checked against ``RefineConfig()`` in RESULTS.md (the move's settings)."""
+    return RefineConfig(yaw_source="learned", hypotheses=2, prune_per="class", prune_neighbours=8)
+
+
+def episode_nbv() -> NBVConfig:
+    """View choice as a move runs it: the 16 nearest viewpoints as candidates (about 12 of the paper's 100 lie
+    within r = 0.5 m; the others are masked anyway), half the visibility work of 32."""
+    return NBVConfig(max_candidates=16)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -43,7 +49,7 @@ class ActiveConfig:
     episode: EpisodeConfig = dataclasses.field(default_factory=EpisodeConfig)
     perception: PerceptionConfig = dataclasses.field(default_factory=episode_perception)
     refine: RefineConfig = dataclasses.field(default_factory=episode_refine)
-    nbv: NBVConfig = dataclasses.field(default_factory=NBVConfig)
+    nbv: NBVConfig = dataclasses.field(default_factory=episode_nbv)
 
     def active_config(self) -> ActiveConfig:
         """Just these blocks of a command's config (whose schema extends this one)."""
