@@ -152,6 +152,24 @@ def test_gr_off_keeps_the_prior_and_the_adaptive_stop_ends_early(world, frames):
     assert len(log.moves) == 1 and log.moves[0]["stop"]  # every class has held for one move: stop at once
 
 
+def test_the_continuous_policy_goes_off_the_fixed_viewpoints(world, frames):
+    """With off_grid, the second frame is rendered where the continuous policy's ascent ended (not at a
+    viewpoint); the nearest viewpoint keeps the books. A source of recorded frames cannot do that."""
+    off = setup.make_episode(_settings(policy="continuous", off_grid=True), world.object_set, world.intrinsics,
+                             world.table_height)
+    log = runner.run(off, sources.Rendered(world, jax.random.PRNGKey(0)), 2, jax.random.PRNGKey(0))
+    first, second = log.moves[0], log.moves[1]
+    np.testing.assert_allclose(first["camera"], world.viewpoints[2, :3, 3], atol=1e-4)
+    assert second["camera"] == first["next_camera"]
+    grid = np.linalg.norm(world.viewpoints[:, :3, 3] - np.asarray(second["camera"]), axis=-1)
+    assert grid.min() > 1e-3 and second["view"] == int(grid.argmin())  # off the grid; its nearest viewpoint
+    assert second["segments"]
+    with pytest.raises(ValueError, match="off_grid"):
+        runner.run(off, frames, 2, jax.random.PRNGKey(0))
+    with pytest.raises(ValueError, match=r"off_grid needs episode\.policy=continuous"):
+        active.EpisodeConfig(off_grid=True)
+
+
 def test_run_accepts_a_recorded_sequence_and_scores_it(tmp_path, world, frames, capsys):
     folder = recording.write_recording(tmp_path / "rec", recording.Recording(
         depth=frames.depth[:12], T_wc=frames.T_wc[:12], intrinsics=world.intrinsics, table_height=world.table_height,

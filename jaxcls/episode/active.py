@@ -60,10 +60,15 @@ class EpisodeConfig:
     policy: str = "vis_occl_hist"  # a name of ``planning.nbv.POLICIES``
     refinement: bool = True  # GR (Eq. 2-4); off: the prior class, the model upright under the centroid
     uncertainty: str = "rho_margin"  # what vis_occl_hist_unc weights segments by (``nbv.UNCERTAINTY``)
+    # With the continuous policy: go to the view it found, off the fixed viewpoints (a source that renders
+    # any pose, ``sources.Rendered``); the nearest viewpoint stands for it in the candidates and the history.
+    off_grid: bool = False
     stop: StopConfig = dataclasses.field(default_factory=StopConfig)
 
     def __post_init__(self) -> None:
         check_bounds(self, "episode.")
+        if self.off_grid and self.policy != "continuous":
+            raise ValueError(f"episode.off_grid needs episode.policy=continuous, got {self.policy!r}")
         if self.policy not in nbv.POLICIES:
             raise ValueError(f"episode.policy: unknown policy {self.policy!r}; choose one of {sorted(nbv.POLICIES)}")
         if self.uncertainty not in nbv.UNCERTAINTY:
@@ -121,7 +126,9 @@ class EpisodeState:
     observation: perception's state (TSDF, surface, segments, probs, yaw); refinement: each segment's
     prior class, candidates, rho, refined class and pose (``Refinement``); views: the viewpoints, those
     fused (``visited``) and the last one (``current``); path: [T] i32 the views fused, in order (-1 =
-    not yet); next_view: [] i32 where the policy sends the camera (the next frame's view); stable: [N] i32
+    not yet); cameras: [T, 3] m where the frames were taken (NaN = not yet); next_view: [] i32 where the
+    policy sends the camera (the next frame's view; with ``off_grid``, the viewpoint nearest it); next_pose:
+    [4, 4] T_wc the next frame is taken from (the viewpoint's, or the continuous policy's own); stable: [N] i32
     moves each segment's refined class has held; done: [] bool no further move (T reached or the adaptive
     stop); key: the episode's PRNG key (split by each view choice).
     """
@@ -130,7 +137,9 @@ class EpisodeState:
     refinement: Refinement
     views: nbv.Views
     path: jax.Array
+    cameras: jax.Array
     next_view: jax.Array
+    next_pose: jax.Array
     stable: jax.Array
     done: jax.Array
     key: jax.Array
@@ -164,7 +173,9 @@ def reset(episode: Episode, viewpoints: jax.Array, start: int | jax.Array, key: 
     start = jnp.asarray(start, jnp.int32)
     views = nbv.Views(T_wc=viewpoints, visited=jnp.zeros(viewpoints.shape[0], bool), current=start)
     return EpisodeState(observation=observation.init_state(episode.spec), refinement=empty_refinement(N, k),
-                        views=views, path=jnp.full(episode.config.moves, -1, jnp.int32), next_view=start,
+                        views=views, path=jnp.full(episode.config.moves, -1, jnp.int32),
+                        cameras=jnp.full((episode.config.moves, 3), jnp.nan, jnp.float32), next_view=start,
+                        next_pose=viewpoints[start],
                         stable=jnp.zeros(N, jnp.int32), done=jnp.zeros((), bool), key=key)
 
 
@@ -180,16 +191,19 @@ def _perception_stage(stage):
 
 def arrive(episode: Episode, state: EpisodeState, depth: jax.Array | None = None,
            T_wc: jax.Array | None = None) -> EpisodeState:
-    """The camera is at ``next_view``: it joins the visited views and the path (before its frame is fused)."""
+    """The camera is at ``next_view`` (the frame's ``T_wc``): it joins the visited views, the path and the
+    cameras (before its frame is fused)."""
     views = state.views.move(state.next_view)
-    return state.replace(views=views, path=state.path.at[state.observation.frames].set(state.next_view, mode="drop"))
+    t = state.observation.frames
+    position = jnp.asarray(T_wc, jnp.float32)[:3, 3] if T_wc is not None else views.T_wc[state.next_view, :3, 3]
+    return state.replace(views=views, path=state.path.at[t].set(state.next_view, mode="drop"),
+                         cameras=state.cameras.at[t].set(position, mode="drop"))
 
 
 def seen_from(state: EpisodeState) -> jax.Array:
     """[T, 3] world positions of the cameras fused so far (NaN rows: moves not made), for the
     visibility-aware rho (``icp.registration_ratio``)."""
-    position = state.views.T_wc[jnp.maximum(state.path, 0), :3, 3]
-    return jnp.where((state.path >= 0)[:, None], position, jnp.nan)
+    return state.cameras
 
 
 def prior_only(episode: Episode, obs: Observation) -> Refinement:
@@ -250,14 +264,21 @@ def planning(episode: Episode, state: EpisodeState, depth: jax.Array | None = No
              T_wc: jax.Array | None = None) -> EpisodeState:
     """Stage 5, next-best-view: the policy's next view (Eq. 5-8), and whether the episode is done."""
     key, sub = jax.random.split(state.key)
-    next_view = nbv.choose(episode.policy, state.views, belief(episode, state), sub, episode.spec.intrinsics,
-                           episode.nbv_config)
+    if episode.config.off_grid:  # the continuous policy's own view; its nearest viewpoint keeps the books
+        next_pose, _, _ = nbv.continuous_view(episode.policy, state.views, belief(episode, state),
+                                              episode.spec.intrinsics, episode.nbv_config)
+        position = state.views.T_wc[:, :3, 3]
+        next_view = jnp.argmin(jnp.linalg.norm(position - next_pose[:3, 3], axis=-1)).astype(jnp.int32)
+    else:
+        next_view = nbv.choose(episode.policy, state.views, belief(episode, state), sub, episode.spec.intrinsics,
+                               episode.nbv_config)
+        next_pose = state.views.T_wc[next_view]
     stop = episode.config.stop
     r = state.refinement
     settled = jnp.any(r.valid) & jnp.all(~r.valid | ((state.stable >= stop.stable_moves)
                                                      & (jnp.max(r.rho, axis=1) >= stop.min_rho)))
     done = (state.observation.frames >= episode.config.moves) | ((stop.stable_moves > 0) & settled)
-    return state.replace(next_view=next_view, done=done, key=key)
+    return state.replace(next_view=next_view, next_pose=next_pose, done=done, key=key)
 
 
 STAGES = (*((name, _perception_stage(fn)) for name, fn in observation.STAGES),
@@ -278,7 +299,7 @@ def step(episode: Episode, state: EpisodeState, depth: jax.Array, T_wc: jax.Arra
             isinstance(a, jax.core.Tracer) for a in jax.tree.leaves((state, depth, T_wc))):
         raise ValueError("episode: segmenter 'reference' runs on the host; it cannot be traced (use "
                          "perception.segmenter=jax, or episode.runner.run, which runs the stages one by one)")
-    new = arrive(episode, state)
+    new = arrive(episode, state, depth, T_wc)
     for _, stage in STAGES:
         new = stage(episode, new, depth, T_wc)
     return jax.tree.map(lambda old, fresh: jnp.where(state.done, old, fresh), state, new)
@@ -308,7 +329,11 @@ def rollout(episode: Episode, state: EpisodeState, depth: jax.Array, T_wc: jax.A
     """A whole episode on frames in memory: depth [V, H, W] and T_wc [V, 4, 4] of every viewpoint (a
     dataset scene), ``episode.config.moves`` moves under one ``lax.scan``. Returns the final state and the
     per-move ``Trace``. ``rollout_jit`` is its jit; vmap it over episodes with ``in_axes=(None, 0, None,
-    None)`` (one scene, many starts) or ``(None, 0, 0, 0)``."""
+    None)`` (one scene, many starts) or ``(None, 0, 0, 0)``. Not with ``off_grid`` (frames off the fixed
+    viewpoints must be rendered)."""
+    if episode.config.off_grid:
+        raise ValueError("episode: off_grid views are rendered on demand; rollout indexes frames in memory "
+                         "(use runner.run with a sources.Rendered source)")
 
     def body(state, _):
         skipped = state.done
@@ -339,7 +364,7 @@ def timed_step(episode: Episode, state: EpisodeState, depth: jax.Array, T_wc: ja
     clock = clock or time.perf_counter
     if bool(state.done):
         return state, dict.fromkeys(MODULES, 0.0)
-    state = _arrive_jit(episode, state)
+    state = _arrive_jit(episode, state, depth, T_wc)
     times = {}
     for name, fn in STAGES:
         host = name == "segmentation" and episode.spec.config.segmenter == "reference"

@@ -73,6 +73,7 @@ def move_record(episode: active.Episode, state: active.EpisodeState, times: dict
         "pose": _round(pose[n], 5), "stable": int(stable[n])} for n in np.flatnonzero(valid)]
     moves = int(state.moves)
     record = {"move": moves, "view": int(np.asarray(state.path)[moves - 1]), "next_view": int(state.next_view),
+              "camera": _round(np.asarray(state.cameras)[moves - 1]), "next_camera": _round(state.next_pose[:3, 3]),
               "stop": bool(state.done) and moves < episode.config.moves,
               "times_ms": {k: round(v, 3) for k, v in times.items()}, "segments": segments}
     if truth is not None:
@@ -105,8 +106,16 @@ def run(episode: active.Episode, source: ViewSource, start: int, key: jax.Array,
     if truth is not None:
         log.objects = [{"name": n, "class": log.classes[c], "target": bool(t), "centroid": _round(x)}
                        for n, c, t, x in zip(truth.names, truth.label, truth.target, truth.centroid, strict=True)]
+    off_grid = episode.config.off_grid
+    if off_grid and not hasattr(source, "frame_at"):
+        raise ValueError(f"{source.name}: episode.off_grid renders views off the fixed viewpoints; this source "
+                         "only has its recorded ones (render the scene on demand: source \"\")")
     while not bool(state.done):
-        depth, T_wc = source.frame(int(state.next_view))
+        if off_grid:
+            T_wc = np.asarray(state.next_pose, np.float64)
+            depth = source.frame_at(T_wc, jax.random.fold_in(key, 1000 + int(state.moves)))
+        else:
+            depth, T_wc = source.frame(int(state.next_view))
         active.check_frame(episode, depth, T_wc)
         state, times = active.timed_step(episode, state, np.asarray(depth, np.float32), np.asarray(T_wc, np.float32))
         record = move_record(episode, state, times, truth)
