@@ -24,8 +24,16 @@ from jaxcls.perception.refine import RefineConfig
 from jaxcls.world import WorldConfig, make_world
 
 
-def variants() -> dict[str, RefineConfig]:
+def variants(which: str = "levers") -> dict[str, RefineConfig]:
     base = setup.episode_refine()
+    if which == "pruning":
+        return {"default": base, "prune on 128 points": dataclasses.replace(base, prune_points=128),
+                "prune after 2 iterations": dataclasses.replace(base, prune_after=2),
+                "both": dataclasses.replace(base, prune_points=128, prune_after=2)}
+    if which == "decision":
+        return {f"default ({base.decision})": base,
+                "decision: p x rho": dataclasses.replace(base, decision="product"),
+                "RefineConfig() with p x rho": RefineConfig(decision="product")}
     return {
         f"default: {base.hypotheses} learned yaws, per class, {base.prune_neighbours} neighbours": base,
         "3 learned yaws": dataclasses.replace(base, hypotheses=3),
@@ -41,10 +49,14 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", type=int, default=30)
     parser.add_argument("--moves", type=int, default=5)
+    parser.add_argument("--variants", choices=("levers", "decision", "pruning"), default="levers",
+                        help="levers: the pruning settings one by one; decision: Eq. 3 against p x rho; "
+                             "pruning: cheaper pruning")
     parser.add_argument("--out", help="append the table to this Markdown file")
     args = parser.parse_args(argv)
     episode_config = active.EpisodeConfig(moves=args.moves)
-    settings = {name: setup.ActiveConfig(episode=episode_config, refine=refine) for name, refine in variants().items()}
+    settings = {name: setup.ActiveConfig(episode=episode_config, refine=refine)
+                for name, refine in variants(args.variants).items()}
     when = {"after 1 move": 0, f"after {args.moves} moves": args.moves - 1}
     per_scene = {(name, w, label): [] for name in settings for w in when for label in ("prior", "refined")}
     times = {name: [] for name in settings}

@@ -171,3 +171,32 @@ def test_the_shipped_yaw_head_starts_refinement_at_the_objects_yaw(scene):
         angle, shift = metrics.pose_error(np.asarray(out.pose[n]), world.scene.object_poses()[truth.object[n]], 1)
         assert angle < 3.0 and shift < 0.005
     assert checked >= 1
+
+
+def test_the_moves_cheaper_settings_and_the_product_rule(scene):
+    """The episode's GR (learned yaws, the best (model, yaw) per class finished alone, a cheaper pruning rho)
+    still finds every object's class and instance here; ``decision="product"`` takes the candidate with the
+    best PointNet probability x rho."""
+    import dataclasses
+
+    from jaxcls.episode.setup import episode_refine
+
+    world, classifier, state, truth, library = scene
+    cameras = world.poses([0, 10, 20])[:, :3, 3].astype(np.float32)
+    fast = episode_refine()
+    orders = np.asarray(classifier.yaw_orders, np.int32)
+    out = refine.refine_jit(state.segments.points, state.segments.mask, state.probs, library, fast,
+                            world.table_height, cameras, yaw=state.yaw, yaw_orders=orders)
+    scored = [n for n in range(len(truth.object)) if truth.object[n] >= 0]
+    for n in scored:
+        obj = truth.object[n]
+        assert int(out.refined[n]) == classifier.classes.index(world.scene.objects[obj].class_name)
+        assert library.names[int(out.model[n])] == world.models[obj].name
+    product = refine.refine_jit(state.segments.points, state.segments.mask, state.probs, library,
+                                dataclasses.replace(fast, decision="product"), world.table_height, cameras,
+                                yaw=state.yaw, yaw_orders=orders)
+    p = np.take_along_axis(np.asarray(state.probs), np.asarray(product.candidates), axis=1)
+    best = np.argmax(np.asarray(product.rho) * p, axis=1)
+    valid = np.asarray(product.valid)
+    np.testing.assert_array_equal(np.asarray(product.refined)[valid],
+                                  np.asarray(product.candidates)[np.arange(len(best)), best][valid])

@@ -60,12 +60,21 @@ class RefineConfig:
     # The pruning rho reads this many of each sample's nearest samples (``icp.registration_ratio``'s
     # ``neighbours``; None: all of ``icp.neighbours``): a cheaper, lower estimate that ranks hypotheses alike.
     prune_neighbours: int | None = None
+    # The refined class: "rho" = argmax rho over the candidates (the paper's Eq. 3); "product" = argmax of
+    # PointNet's probability times rho (the prior's confidence weighs in: a partial segment that another
+    # class's model happens to fit as well no longer flips a confident prior).
+    decision: Literal["rho", "product"] = "rho"
+    # Pruning reads every k-th of the segment's ``icp.points`` points so that at most this many remain (None:
+    # all): the hypotheses are only ranked there, the survivors finish on all of them.
+    prune_points: int | None = None
     # Which models stand for a class: "known" = the instances the scenes are drawn from (the paper's "a CAD
     # model for each object class"), "category" = the training instances only (the scene's shapes unseen).
     library: LibraryKind = "known"
 
     def __post_init__(self) -> None:
         check_bounds(self, "refine.")
+        if self.decision not in ("rho", "product"):
+            raise ValueError(f"refine.decision must be 'rho' or 'product', got {self.decision!r}")
         if self.prune_per not in ("model", "class"):
             raise ValueError(f"refine.prune_per must be 'model' or 'class', got {self.prune_per!r}")
         if self.yaw_source not in ("hypotheses", "learned"):
@@ -164,6 +173,7 @@ def refine(points: jax.Array, mask: jax.Array, probs: jax.Array, library: ModelL
     model_ok = library.class_mask[candidates]
     first = dataclasses.replace(config.icp, iterations=config.prune_after)
     remaining = dataclasses.replace(config.icp, iterations=config.icp.iterations - config.prune_after)
+    prune_stride = -(-points.shape[1] // config.prune_points) if config.prune_points else 1
 
     def hypotheses(n, c, m):
         """Every initial yaw of model ``m`` (class ``c``) on segment ``n`` after ``prune_after`` iterations:
@@ -172,6 +182,7 @@ def refine(points: jax.Array, mask: jax.Array, probs: jax.Array, library: ModelL
         yaws = (pose.learned_yaws(yaw[n, c], yaw_orders[c], config.hypotheses, config.yaw_spread) if learned
                 else pose.even_yaws(config.hypotheses))
         inits = pose.initial_poses(p, mk, library.centroid[m], table_height, yaws)
+        p, mk = p[::prune_stride], mk[::prune_stride]
         tgt = library.targets.select(m)
         stage = jax.vmap(lambda T: icp.align(p, mk, tgt, T, first))(inits)
         # "best rho kept": fitness alone saturates on partial views
@@ -216,7 +227,10 @@ def refine(points: jax.Array, mask: jax.Array, probs: jax.Array, library: ModelL
             models, j[..., None], axis=2).reshape(-1), chosen, ok)
         class_rho = jnp.where(class_valid, rho, 0.0).reshape(N, k)
         class_pose, class_valid = class_pose.reshape(N, k, 4, 4), class_valid.reshape(N, k)
-    c = jnp.argmax(class_rho, axis=1)  # Eq. 3 (ties: the higher PointNet score, the earlier candidate)
+    if config.decision == "product":
+        c = jnp.argmax(class_rho * jnp.take_along_axis(probs, candidates, axis=1), axis=1)
+    else:
+        c = jnp.argmax(class_rho, axis=1)  # Eq. 3 (ties: the higher PointNet score, the earlier candidate)
     segment_valid = jnp.any(class_valid, axis=1)
     chosen_j = jnp.take_along_axis(j, c[:, None], axis=1)[:, 0]
     chosen_pose = class_pose[n, c]
