@@ -26,14 +26,16 @@ from jaxcls.world import WorldConfig, make_world
 
 def variants(which: str = "levers") -> dict[str, RefineConfig]:
     base = setup.episode_refine()
-    if which == "pruning":
-        return {"default": base, "prune on 128 points": dataclasses.replace(base, prune_points=128),
-                "prune after 2 iterations": dataclasses.replace(base, prune_after=2),
-                "both": dataclasses.replace(base, prune_points=128, prune_after=2)}
+    if which == "pruning":  # under Eq. 3, whose decisions show what the pruning changes
+        eq3 = dataclasses.replace(base, decision="rho")
+        return {"default, Eq. 3": eq3, "prune on 128 points": dataclasses.replace(eq3, prune_points=128),
+                "prune after 2 iterations": dataclasses.replace(eq3, prune_after=2),
+                "both": dataclasses.replace(eq3, prune_points=128, prune_after=2)}
     if which == "decision":
-        return {f"default ({base.decision})": base,
-                "decision: p x rho": dataclasses.replace(base, decision="product"),
+        return {"Eq. 3 (argmax rho)": dataclasses.replace(base, decision="rho"),
+                "p x rho": dataclasses.replace(base, decision="product"),
                 "RefineConfig() with p x rho": RefineConfig(decision="product")}
+    base = dataclasses.replace(base, decision="rho")  # the levers under Eq. 3, whose decisions show them
     return {
         f"default: {base.hypotheses} learned yaws, per class, {base.prune_neighbours} neighbours": base,
         "3 learned yaws": dataclasses.replace(base, hypotheses=3),
