@@ -1,0 +1,111 @@
+"""Whole episodes batched on one device: ``active.rollout`` (T moves under one ``lax.scan``) vmapped over
+episodes of one scene from different start views, as issue 23's larger runs will use it.
+
+    python benchmarks/episode_batched.py --save data/gpu/scene3.npz          # on a machine with MuJoCo
+    python benchmarks/episode_batched.py --frames data/gpu/scene3.npz --batch 1 16 64 [--out BENCHMARKS.md]
+
+Reports episodes/s and moves/s per batch size, the first call (compilation), and the final F1 of the
+target objects pooled over the batch (prior and refined); ``--trace FILE`` writes each episode's path and
+final labels (JSON) to compare with another device.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxcls import io, metrics, report
+from jaxcls.episode import active, scoring, setup
+from jaxcls.geometry import Intrinsics
+
+
+def save_frames(path: str, seed: int) -> None:
+    """Render scene ``seed`` of the default world from every viewpoint (depth in mm, uint16) to ``path``."""
+    from jaxcls.world import WorldConfig, make_world
+
+    world = make_world(WorldConfig(backend="mujoco"), seed=seed)
+    depth, T_wc, _, _ = world.measure(jax.random.PRNGKey(seed), np.arange(len(world.viewpoints)))
+    with io.atomic_write(path) as f:
+        np.savez_compressed(f, depth_mm=np.round(depth * 1000).astype(np.uint16), T_wc=T_wc,
+                            scene_json=np.array(json.dumps(world.scene.to_dict())))
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", default="data/gpu/scene3.npz")
+    parser.add_argument("--save", help="render the frames file here (needs MuJoCo) and stop")
+    parser.add_argument("--seed", type=int, default=3)
+    parser.add_argument("--batch", type=int, nargs="+", default=[1, 16, 64])
+    parser.add_argument("--moves", type=int, default=10)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--trace", help="write each episode's path and final labels (JSON) here")
+    parser.add_argument("--out", help="append the table to this Markdown file")
+    args = parser.parse_args(argv)
+    if args.save:
+        save_frames(args.save, args.seed)
+        print(f"wrote {args.save}")
+        return
+    if jax.default_backend() == "gpu":
+        jax.config.update("jax_default_matmul_precision", "highest")  # camera poses need it on GPUs
+
+    from jaxcls.world.objects import object_set_from_config
+    from jaxcls.world.scenes import Scene
+
+    with np.load(args.frames) as f:
+        depth = jnp.asarray(f["depth_mm"].astype(np.float32) / 1000.0)
+        T_wc = jnp.asarray(f["T_wc"], jnp.float32)
+        scene = Scene.from_dict(json.loads(str(f["scene_json"])), source=args.frames)
+    object_set = object_set_from_config(scene.object_set)
+    truth = scoring.Truth.from_scene(scene, object_set)
+    settings = setup.ActiveConfig(episode=active.EpisodeConfig(moves=args.moves))
+    episode = setup.make_episode(settings, object_set, Intrinsics.kinect_v1(), scene.table_height)
+    reset = jax.jit(jax.vmap(lambda s, k: active.reset(episode, T_wc, s, k)))
+    rollout = jax.jit(jax.vmap(active.rollout, in_axes=(None, 0, None, None)))
+    rows, traces = [], []
+    M = len(object_set.classes)
+    for B in args.batch:
+        starts = jnp.asarray(np.random.default_rng(B).integers(0, T_wc.shape[0], B), jnp.int32)
+        keys = jax.random.split(jax.random.PRNGKey(B), B)
+        t0 = time.perf_counter()
+        final, trace = jax.block_until_ready(rollout(episode, reset(starts, keys), depth, T_wc))
+        first = time.perf_counter() - t0
+        times = []
+        for _ in range(args.repeats):
+            t0 = time.perf_counter()
+            jax.block_until_ready(rollout(episode, reset(starts, keys), depth, T_wc))
+            times.append(time.perf_counter() - t0)
+        t = float(np.median(times))
+        scores = {}
+        for label in ("prior", "refined"):
+            true, predicted = [], []
+            for b in range(B):
+                r = jax.tree.map(lambda a, b=b: np.asarray(a[b]), final.refinement)
+                labels = r.prior if label == "prior" else r.refined
+                centroid = np.asarray(active.centroids(jax.tree.map(lambda a, b=b: a[b], final.observation)))
+                predicted.append(scoring.object_labels(truth, centroid, r.valid, labels)[truth.target])
+                true.append(truth.label[truth.target])
+            scores[label] = metrics.classification_scores(np.concatenate(true), np.concatenate(predicted), M).f1
+        rows.append((B, report.device_name(), f"{first:.1f}", f"{t * 1e3:.0f}", f"{B / t:.1f}",
+                     f"{B * args.moves / t:.0f}", f"{scores['prior']:.3f}", f"{scores['refined']:.3f}"))
+        print(rows[-1], flush=True)
+        traces += [{"batch": B, "start": int(starts[b]), "path": np.asarray(trace.view[b]).tolist(),
+                    "refined": np.asarray(final.refinement.refined[b]).tolist(),
+                    "valid": np.asarray(final.refinement.valid[b]).tolist()} for b in range(min(B, 16))]
+    if args.trace:
+        io.write_json(args.trace, traces)
+    report.publish(report.section(
+        f"Whole episodes batched ({args.moves} moves, 640x480, one scene)", argv,
+        ("episodes", "device", "first call s (compile)", "median ms per batch", "episodes/s", "moves/s",
+         "F1 prior (pooled)", "F1 refined (pooled)"), rows,
+        intro=f"`active.rollout` vmapped over episodes from random start views of scene {args.frames} (100 "
+              "viewpoints), the episode's defaults (`setup.ActiveConfig()`); frames in device memory."),
+        args.out)
+
+
+if __name__ == "__main__":
+    main()
