@@ -128,9 +128,11 @@ def _scene(seed: int, moves: int, classifier: pointnet.Classifier) -> Scene:
 class Peer:
     """The peer composition of a move (Open3D, scikit-learn, the same PointNet, Open3D ICP, NumPy)."""
 
-    def __init__(self, episode: active.Episode, models, refine_bench, nbv_bench):
+    def __init__(self, episode: active.Episode, models, refine_bench, nbv_bench, same_models: bool = False):
         import open3d as o3d
 
+        self.same_models = same_models
+        self.height = np.array([float(np.asarray(m.surface_points)[:, 2].max()) for m in models])
         self.o3d, self.episode, self.spec = o3d, episode, episode.spec
         self.refine_bench, self.nbv_bench = refine_bench, nbv_bench
         intr = self.spec.intrinsics
@@ -189,7 +191,8 @@ class Peer:
         return np.pad(points, pad), np.pad(normals, pad), mask
 
     def refine(self, points: np.ndarray, mask: np.ndarray, probs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(refined class [N], pose [N, 4, 4]) by Open3D ICP over every top-k class's models and yaws."""
+        """(refined class [N], pose [N, 4, 4]) by Open3D ICP over every top-k class's models and yaws (with
+        ``same_models``: only the models ours registers, those of each class nearest the segment in height)."""
         count = self.config.icp.points
         N = len(points)
         strided_points, strided_mask = np.zeros((N, count, 3), np.float32), np.zeros((N, count), bool)
@@ -197,8 +200,20 @@ class Peer:
             real = np.flatnonzero(mask[n])
             real = real[(np.arange(count) * len(real)) // count] if len(real) > count else real
             strided_points[n, :len(real)], strided_mask[n, :len(real)] = points[n, real], True
-        model, poses = self.refine_bench._open3d_move(strided_points, strided_mask, probs[:, self.model_class], None,
-                                                      self.targets, self.config, self.spec.table_height)
+        scores, config = probs[:, self.model_class], self.config
+        keep = self.episode.refine_config.models_per_class
+        if self.same_models and keep is not None:
+            top = np.array([points[n][mask[n], 2].max() if mask[n].any() else 0.0 for n in range(N)])
+            gap = np.abs(self.height[None, :] - (top - self.spec.table_height)[:, None])  # [N, L]
+            chosen = np.zeros_like(gap, bool)
+            for c in np.unique(self.model_class):
+                of_c = np.flatnonzero(self.model_class == c)
+                best = of_c[np.argsort(gap[:, of_c], axis=1)[:, :keep]]
+                np.put_along_axis(chosen, best, True, axis=1)
+            scores = np.where(chosen, scores, -1.0)
+            config = dataclasses.replace(config, top_k=self.episode.refine_config.top_k * keep)
+        model, poses = self.refine_bench._open3d_move(strided_points, strided_mask, scores, None,
+                                                      self.targets, config, self.spec.table_height)
         return self.model_class[model], poses
 
     def plan(self, corners: np.ndarray, poses: np.ndarray, views: np.ndarray, visited: np.ndarray,
@@ -261,6 +276,7 @@ def main(argv: list[str] | None = None) -> None:
     models = refine.library_models(scenes[0].object_set, episode.refine_config.library)
     assert tuple(m.name for m in models) == episode.library.names, "the peer's models are the episode's library"
     peer = Peer(episode, models, refine_bench, nbv_bench)
+    peer_same = Peer(episode, models, refine_bench, nbv_bench, same_models=True)
     start = time.perf_counter()
     jax.block_until_ready(active.step_jit(episode, scenes[0].states[1], *scenes[0].frames[1]))
     compile_fused = time.perf_counter() - start
@@ -282,31 +298,40 @@ def main(argv: list[str] | None = None) -> None:
     agree = {"next view": [0, 0]}
     found_log: list[dict] = []
 
-    def run_peer(scene: Scene, t: int) -> tuple[float, dict[str, float]]:
+    def run_peer(scene: Scene, t: int, peer: Peer = peer) -> tuple[float, dict[str, float]]:
         start = time.perf_counter()
         times, found = peer.move(*scene.frames[t], scene.states[t + 1])
         total = time.perf_counter() - start
-        found_log.append(found)
-        agree["next view"][0] += found["next_view"] == int(scene.states[t + 1].next_view)
-        agree["next view"][1] += 1
+        if not peer.same_models:
+            found_log.append(found)
+            agree["next view"][0] += found["next_view"] == int(scene.states[t + 1].next_view)
+            agree["next view"][1] += 1
         return 1e3 * total, times
+
+    def run_peer_same(scene: Scene, t: int) -> tuple[float, dict[str, float]]:
+        return run_peer(scene, t, peer_same)
 
     names = {"ours": "jaxcls `active.timed_step` (stage by stage, each module jitted)",
              "fused": "jaxcls `active.step_jit` (the move in one jit)",
-             "peer": "peer: Open3D TSDF + scikit-learn segmentation + PointNet + Open3D ICP + NumPy NBV"}
-    contenders = {"ours": run_ours, "fused": run_fused, "peer": run_peer}
+             "peer": "peer: Open3D TSDF + scikit-learn segmentation + PointNet + Open3D ICP (every model of the "
+                     "top-3 classes) + NumPy NBV",
+             "peer_same": "peer, registering only the models ours registers (of each class the nearest in height)"}
+    contenders = {"ours": run_ours, "fused": run_fused, "peer": run_peer, "peer_same": run_peer_same}
     for scene in scenes:  # warm-up of the peer's path (and of pointnet.classify's jit)
-        peer.reset(scene.episode)
-        peer.integrate(*scene.frames[0])
+        for p in (peer, peer_same):
+            p.reset(scene.episode)
+            p.integrate(*scene.frames[0])
         for t in range(1, args.moves):
             run_peer(scene, t)
+            run_peer_same(scene, t)
     agree["next view"], found_log[:] = [0, 0], []
     totals = {k: [[] for _ in range(args.rounds)] for k in contenders}
     modules = {k: {m: [] for m in active.MODULES} for k in contenders}
     for r in range(args.rounds):
         for s, scene in enumerate(scenes):
-            peer.reset(scene.episode)
-            peer.integrate(*scene.frames[0])  # move 1, not timed
+            for p in (peer, peer_same):
+                p.reset(scene.episode)
+                p.integrate(*scene.frames[0])  # move 1, not timed
             for t in range(1, args.moves):
                 order = list(contenders) if (r + s + t) % 2 == 0 else list(reversed(contenders))
                 for key in order:
@@ -324,10 +349,10 @@ def main(argv: list[str] | None = None) -> None:
         per_round = [statistics.median(r) for r in totals[key]]
         cells = [f"{statistics.median(modules[key][m]):.1f}" if modules[key][m] else "-" for m in active.MODULES]
         rows.append((names[key], cpu, *cells, f"{median[key]:.0f}", f"{min(per_round):.0f}-{max(per_round):.0f}",
-                     f"{median['peer'] / median[key]:.1f}x"))
+                     f"{median['peer'] / median[key]:.1f}x", f"{median['peer_same'] / median[key]:.1f}x"))
     paper = [f"{1e3 * PAPER[m]:.0f}" if m in PAPER else "not given" for m in active.MODULES]
     rows.append(("the paper (Sec. 5: averaged time between consecutive moves)", "Alienware Aurora desktop, i7",
-                 *paper, f"{1e3 * sum(PAPER.values()):.0f} (sum)", "-", "-"))
+                 *paper, f"{1e3 * sum(PAPER.values()):.0f} (sum)", "-", "-", "-"))
     timed = args.scenes * (args.moves - 1)
     segments = [f["segments"] for f in found_log]
     notes = [
@@ -340,7 +365,8 @@ def main(argv: list[str] | None = None) -> None:
         f"{statistics.median(f['candidates'] for f in found_log):.0f} per move; ours scores all "
         f"{episode.nbv_config.max_candidates}, masked); with our cuboids it picks our next view in "
         f"{agree['next view'][0]}/{agree['next view'][1]} moves.",
-        f"Ours: GR of {episode.refine_config.hypotheses} learned yaws from the yaw head's estimate, pruned per class "
+        f"Ours: GR of {episode.refine_config.hypotheses} learned yaws from the yaw head's estimate on "
+        f"{episode.refine_config.models_per_class or 'every'} model(s) per candidate class, pruned per class "
         "(`setup.episode_refine()`), PointNet's yaw head in the same pass as the scores (`pointnet.predict`); the "
         f"peer: the same number of even yaws ({peer.config.hypotheses}), every (model, yaw) for 30 iterations; "
         "its model samples and initial poses are NumPy (`pose.initial_poses` called "
@@ -349,7 +375,7 @@ def main(argv: list[str] | None = None) -> None:
     report.publish(report.section(
         f"One move of the active loop, ours against a peer composition, {datetime.date.today()}", argv,
         ("contender", "device", *(f"{COLUMNS[m]} ms" for m in active.MODULES), "median ms per move",
-         "range over rounds", "speed-up (peer / this)"), rows,
+         "range over rounds", "speed-up (peer / this)", "speed-up (peer, same models / this)"), rows,
         intro=f"{args.scenes} builtin scene{'s' * (args.scenes != 1)} (640x480, mujoco), episodes of {args.moves} "
               f"moves from view {START}: {timed} timed moves (all but each episode's first) x {args.rounds} "
               "interleaved rounds; frames rendered beforehand. JAX and Open3D share the machine's cores. "

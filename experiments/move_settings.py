@@ -31,6 +31,10 @@ def variants(which: str = "levers") -> dict[str, RefineConfig]:
         return {"default, Eq. 3": eq3, "prune on 128 points": dataclasses.replace(eq3, prune_points=128),
                 "prune after 2 iterations": dataclasses.replace(eq3, prune_after=2),
                 "both": dataclasses.replace(eq3, prune_points=128, prune_after=2)}
+    if which == "models":  # under Eq. 3
+        eq3 = dataclasses.replace(base, decision="rho")
+        return {"default, Eq. 3": eq3, "2 models per class (nearest height)": dataclasses.replace(
+            eq3, models_per_class=2), "1 model per class": dataclasses.replace(eq3, models_per_class=1)}
     if which == "decision":
         return {"Eq. 3 (argmax rho)": dataclasses.replace(base, decision="rho"),
                 "p x rho": dataclasses.replace(base, decision="product"),
@@ -51,9 +55,9 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", type=int, default=30)
     parser.add_argument("--moves", type=int, default=5)
-    parser.add_argument("--variants", choices=("levers", "decision", "pruning"), default="levers",
+    parser.add_argument("--variants", choices=("levers", "decision", "pruning", "models"), default="levers",
                         help="levers: the pruning settings one by one; decision: Eq. 3 against p x rho; "
-                             "pruning: cheaper pruning")
+                             "pruning: cheaper pruning; models: fewer models per class")
     parser.add_argument("--out", help="append the table to this Markdown file")
     args = parser.parse_args(argv)
     episode_config = active.EpisodeConfig(moves=args.moves)

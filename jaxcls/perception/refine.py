@@ -67,6 +67,9 @@ class RefineConfig:
     # Pruning reads every k-th of the segment's ``icp.points`` points so that at most this many remain (None:
     # all): the hypotheses are only ranked there, the survivors finish on all of them.
     prune_points: int | None = None
+    # Register only this many models of each candidate class (None: all): those whose height is nearest the
+    # segment's (its highest point above the table; the top of an upright object is seen from the hemisphere).
+    models_per_class: int | None = bounded(None, ge=1)
     # Which models stand for a class: "known" = the instances the scenes are drawn from (the paper's "a CAD
     # model for each object class"), "category" = the training instances only (the scene's shapes unseen).
     library: LibraryKind = "known"
@@ -171,6 +174,13 @@ def refine(points: jax.Array, mask: jax.Array, probs: jax.Array, library: ModelL
     _, candidates = jax.lax.top_k(probs, k)  # [N, k]
     models = library.class_models[candidates]  # [N, k, J]
     model_ok = library.class_mask[candidates]
+    if config.models_per_class is not None and config.models_per_class < models.shape[2]:
+        height = jnp.max(library.targets.points[..., 2], axis=1)  # [L] m, models stand on z = 0
+        top = jnp.max(jnp.where(mask, points[..., 2], -jnp.inf), axis=1) - table_height  # [N]
+        gap = jnp.where(model_ok, jnp.abs(height[models] - top[:, None, None]), jnp.inf)
+        keep = jnp.argsort(gap, axis=2)[..., :config.models_per_class]
+        models = jnp.take_along_axis(models, keep, axis=2)
+        model_ok = jnp.take_along_axis(model_ok, keep, axis=2)
     first = dataclasses.replace(config.icp, iterations=config.prune_after)
     remaining = dataclasses.replace(config.icp, iterations=config.icp.iterations - config.prune_after)
     prune_stride = -(-points.shape[1] // config.prune_points) if config.prune_points else 1
