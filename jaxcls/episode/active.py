@@ -233,7 +233,8 @@ def centroids(obs: Observation) -> jax.Array:
 def refinement(episode: Episode, state: EpisodeState, depth: jax.Array | None = None,
                T_wc: jax.Array | None = None) -> EpisodeState:
     """Stage 4, geometric refinement (Eq. 2-4) of every segment, or the prior alone with GR off; then how
-    many moves each segment's refined class has held (segments matched to last move's by centroid)."""
+    many moves each segment's refined class has held (a segment is last move's whose aligned model stands
+    within ``STABLE_DISTANCE`` in xy)."""
     obs = state.observation
     if episode.config.refinement:
         learned = episode.refine_config.yaw_source == "learned"
