@@ -80,16 +80,16 @@ def main(argv: list[str] | None = None) -> None:
             jax.block_until_ready(rollout(episode, reset(starts, keys), depth, T_wc))
             times.append(time.perf_counter() - t0)
         t = float(np.median(times))
-        scores = {}
-        for label in ("prior", "refined"):
-            true, predicted = [], []
-            for b in range(B):
-                r = jax.tree.map(lambda a, b=b: np.asarray(a[b]), final.refinement)
-                labels = r.prior if label == "prior" else r.refined
-                centroid = np.asarray(active.centroids(jax.tree.map(lambda a, b=b: a[b], final.observation)))
-                predicted.append(scoring.object_labels(truth, centroid, r.valid, labels)[truth.target])
-                true.append(truth.label[truth.target])
-            scores[label] = metrics.classification_scores(np.concatenate(true), np.concatenate(predicted), M).f1
+        true, predicted = [], []  # per episode: the targets' true and [prior, refined] labels
+        for b in range(B):
+            r = jax.tree.map(lambda a, b=b: np.asarray(a[b]), final.refinement)
+            centroid = np.asarray(active.centroids(jax.tree.map(lambda a, b=b: a[b], final.observation)))
+            labels = scoring.object_labels(truth, centroid, r.valid, np.stack([r.prior, r.refined]))
+            predicted.append(labels[:, truth.target])
+            true.append(truth.label[truth.target])
+        true, predicted = np.concatenate(true), np.concatenate(predicted, axis=1)
+        scores = {label: metrics.classification_scores(true, predicted[i], M).f1
+                  for i, label in enumerate(("prior", "refined"))}
         rows.append((B, report.device_name(), f"{first:.1f}", f"{t * 1e3:.0f}", f"{B / t:.1f}",
                      f"{B * args.moves / t:.0f}", f"{scores['prior']:.3f}", f"{scores['refined']:.3f}"))
         print(rows[-1], flush=True)

@@ -26,8 +26,7 @@ class PointOwners:
     """
 
     def __init__(self, scene: Scene, models: Sequence[ObjectModel], radius: float = OWNER_RADIUS):
-        samples = [(T[:3, :3] @ m.surface_points.T).T + T[:3, 3]
-                   for m, T in zip(models, scene.object_poses(), strict=True)]
+        samples = scene.posed_surfaces(models)
         self.owner = np.concatenate([np.full(len(s), i) for i, s in enumerate(samples)])
         self.tree = cKDTree(np.concatenate(samples))
         self.radius = radius

@@ -26,14 +26,19 @@ def publish(markdown: str, out: str | Path | None = None) -> None:
             f.write("\n" + markdown)
 
 
+def table(header: Sequence[str], rows: Sequence[Sequence[object]]) -> str:
+    """A Markdown table (no trailing newline)."""
+    lines = ["| " + " | ".join(header) + " |", "| " + " | ".join("---" for _ in header) + " |"]
+    return "\n".join(lines + ["| " + " | ".join(str(cell) for cell in row) + " |" for row in rows])
+
+
 def section(title: str, argv: Sequence[str] | None, header: Sequence[str], rows: Sequence[Sequence[object]],
             intro: str = "", notes: Sequence[str] = ()) -> str:
     """A Markdown section: ``### title``, the command that made it, an optional intro, the table, notes."""
     lines = [f"### {title}", "", f"`{command_line(argv)}`", ""]
     if intro:
         lines += [intro, ""]
-    lines += ["| " + " | ".join(header) + " |", "| " + " | ".join("---" for _ in header) + " |"]
-    lines += ["| " + " | ".join(str(cell) for cell in row) + " |" for row in rows]
+    lines.append(table(header, rows))
     if notes:
         lines += ["", *[f"- {note}" for note in notes]]
     return "\n".join(lines) + "\n"

@@ -84,17 +84,12 @@ def _object_table(log) -> list[tuple]:
     return rows
 
 
-def _table(header, rows) -> str:
-    lines = ["| " + " | ".join(header) + " |", "| " + " | ".join("---" for _ in header) + " |"]
-    return "\n".join(lines + ["| " + " | ".join(str(c) for c in row) + " |" for row in rows])
-
-
 def run_command(config: RunConfig, overwrite: bool = False, echo=print) -> tuple[Path, Any]:
     """Run the episode of ``config``, ``echo`` each move, write the report folder; returns (folder, log).
     Every input is checked before the first move (source, classifier, start view)."""
     import jax
 
-    from jaxcls import io, viz
+    from jaxcls import io, report, viz
     from jaxcls.commands.show import free_folder
     from jaxcls.config import save_config
     from jaxcls.episode import active, runner, scoring, setup
@@ -126,22 +121,22 @@ def run_command(config: RunConfig, overwrite: bool = False, echo=print) -> tuple
     with io.atomic_folder(out) as tmp:
         save_config(config, tmp / "config.yaml")
         io.write_json(tmp / "episode.json", {**log.to_dict(), "summary": summary})
-        report = [f"# Episode: {source.name}", "",
+        lines = [f"# Episode: {source.name}", "",
                   f"policy `{log.policy}`, GR {'on' if log.refinement else 'off'}, start view {log.start}, "
                   f"{len(log.moves)} moves, path {summary['path_length_m']:.2f} m", ""]
         if truth is not None:
-            report += ["## Objects after the last move", "", _table(
+            lines += ["## Objects after the last move", "", report.table(
                 ("object", "class", "role", "prior", "refined", "right", "coverage"), _object_table(log)), ""]
             viz.save(viz.episode_curves({"F1 refined": log.curve("refined"), "F1 prior": log.curve("prior"),
                                          "accuracy refined": log.curve("refined", "accuracy"),
                                          "accuracy prior": log.curve("prior", "accuracy")}), tmp / "curves.png")
-        report += ["## Moves", "", _table(
+        lines += ["## Moves", "", report.table(
             ("move", "view", "next", *(f"{k} ms" for k in active.MODULES),
              *(("F1 prior", "F1 refined") if truth is not None else ())),
             [(m["move"], m["view"], m["next_view"], *(f"{m['times_ms'][k]:.1f}" for k in active.MODULES),
               *((f"{m['scores']['prior']['f1']:.3f}", f"{m['scores']['refined']['f1']:.3f}")
                 if truth is not None else ())) for m in log.moves])]
-        io.write_text(tmp / "report.md", "\n".join(report) + "\n")
+        io.write_text(tmp / "report.md", "\n".join(lines) + "\n")
         for record, data in figures:
             title = (f"move {record['move']}: view {record['view']} -> next {record['next_view']}"
                      + (f"   F1 refined {record['scores']['refined']['f1']:.2f}" if "scores" in record else ""))

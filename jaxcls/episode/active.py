@@ -24,6 +24,7 @@ traced leaves.
 from __future__ import annotations
 
 import dataclasses
+import time
 
 import jax
 import jax.numpy as jnp
@@ -360,8 +361,6 @@ def timed_step(episode: Episode, state: EpisodeState, depth: jax.Array, T_wc: ja
                ) -> tuple[EpisodeState, dict[str, float]]:
     """``step`` run stage by stage from the host, each stage jitted on its own and waited for, so that
     each module's time (ms, ``MODULES``) is measured outside jit. Same result as ``step``."""
-    import time
-
     clock = clock or time.perf_counter
     if bool(state.done):
         return state, dict.fromkeys(MODULES, 0.0)

@@ -77,12 +77,10 @@ def move_record(episode: active.Episode, state: active.EpisodeState, times: dict
               "stop": bool(state.done) and moves < episode.config.moves,
               "times_ms": {k: round(v, 3) for k, v in times.items()}, "segments": segments}
     if truth is not None:
-        M = len(classes)
-        record["scores"] = {
-            name: dataclasses.asdict(scoring.move_scores(truth, centroid, valid, labels, M))
-            for name, labels in (("prior", prior), ("refined", refined))}
-        record["labels"] = {name: scoring.object_labels(truth, centroid, valid, labels).tolist()
-                            for name, labels in (("prior", prior), ("refined", refined))}
+        labels = scoring.object_labels(truth, centroid, valid, np.stack([prior, refined]))
+        record["scores"] = {name: dataclasses.asdict(scoring.target_scores(truth, lab, len(classes)))
+                            for name, lab in zip(("prior", "refined"), labels, strict=True)}
+        record["labels"] = {"prior": labels[0].tolist(), "refined": labels[1].tolist()}
         surface = obs.surface
         record["coverage"] = _round(scoring.coverage(truth, np.asarray(surface.points)[np.asarray(surface.mask)]), 3)
     return record

@@ -29,10 +29,7 @@ class Truth:
 
     @classmethod
     def from_scene(cls, scene: Scene, object_set: ObjectSet) -> Truth:
-        models = scene_models(scene, object_set)
-        poses = scene.object_poses()
-        surface = tuple(np.asarray(m.surface_points, np.float64) @ T[:3, :3].T + T[:3, 3]
-                        for m, T in zip(models, poses, strict=True))
+        surface = scene.posed_surfaces(scene_models(scene, object_set))
         return cls(centroid=np.stack([s.mean(axis=0) for s in surface]),
                    label=np.array([object_set.class_index(o.class_name) for o in scene.objects]),
                    target=np.array([o.target for o in scene.objects], bool), surface=surface,
@@ -40,18 +37,18 @@ class Truth:
 
 
 def object_labels(truth: Truth, centroid: np.ndarray, valid: np.ndarray, labels: np.ndarray) -> np.ndarray:
-    """[K] the label of the segment matched to each object (-1: no segment matched it).
+    """[..., K] the label of the segment matched to each object (-1: no segment matched it); the objects are
+    matched once, for every set of labels.
 
-    centroid: [N, 3] segment centroids (m); valid: [N] bool; labels: [N] class index per segment."""
+    centroid: [N, 3] segment centroids (m); valid: [N] bool; labels: [..., N] class index per segment (e.g.
+    [2, N]: the prior and the refined labels)."""
     match = metrics.match_objects(centroid, valid, truth.centroid)
-    return np.where(match >= 0, np.asarray(labels)[np.maximum(match, 0)], -1)
+    return np.where(match >= 0, np.asarray(labels)[..., np.maximum(match, 0)], -1)
 
 
-def move_scores(truth: Truth, centroid: np.ndarray, valid: np.ndarray, labels: np.ndarray,
-                num_classes: int) -> metrics.Scores:
-    """The target objects' ``metrics.Scores`` for one move's segment labels."""
-    predicted = object_labels(truth, centroid, valid, labels)
-    return metrics.classification_scores(truth.label[truth.target], predicted[truth.target], num_classes)
+def target_scores(truth: Truth, labels: np.ndarray, num_classes: int) -> metrics.Scores:
+    """The target objects' ``metrics.Scores`` of per-object labels ``labels: [K]`` (``object_labels``)."""
+    return metrics.classification_scores(truth.label[truth.target], np.asarray(labels)[truth.target], num_classes)
 
 
 def coverage(truth: Truth, fused_points: np.ndarray) -> np.ndarray:

@@ -86,6 +86,12 @@ class Scene:
         """[N, 4, 4] model-to-world transforms."""
         return np.stack([_pose(o.position, o.yaw, self.table_height) for o in self.objects])
 
+    def posed_surfaces(self, models: Sequence[ObjectModel]) -> tuple[np.ndarray, ...]:
+        """Each object's surface samples (``ObjectModel.surface_points``) placed in the world: [S_k, 3] f64 m,
+        ``models`` in scene order (``scene_models``)."""
+        return tuple(np.asarray(m.surface_points, np.float64) @ T[:3, :3].T + T[:3, 3]
+                     for m, T in zip(models, self.object_poses(), strict=True))
+
     def to_dict(self) -> dict:
         return {
             "format": SCENE_FORMAT,
