@@ -2,7 +2,7 @@
 ``active.step_jit``, one jit) against a peer composition of the libraries a practitioner would reach for,
 on the same frames and the same episode states, interleaved in one process.
 
-    python benchmarks/move.py [--scenes 3] [--moves 5] [--rounds 3] [--out BENCHMARKS.md]
+    python benchmarks/move.py [--scenes 3] [--moves 5] [--rounds 3] [--allocator retain] [--out BENCHMARKS.md]
 
 Scenes: builtin 5-object worlds (``make_world``, ``mujoco`` backend, Kinect v1 640x480, seeds 0..n-1), the
 episode of ``setup.ActiveConfig()`` with ``--moves`` moves from viewpoint 0. A warm-up episode per scene
@@ -23,6 +23,9 @@ from move to move), each from the same stored state and frame:
   (``benchmarks/nbv.py``'s ``numpy_paper``) over the move's candidates within the radius, with our state's
   aligned cuboids, at the planner's 0.25 scale, then Eq. 6-8 in NumPy.
 
+The process keeps freed memory for reuse (``jaxcls.allocator.retain_freed_memory``, as ``jaxcls``'s commands
+do) unless ``--allocator default``; the setting is process-wide, so ours and the peer always share it.
+
 Per-module columns are medians over the timed moves; "median ms per move" is the median of the moves'
 wall-clock totals; "range over rounds" spans the rounds' medians.
 """
@@ -41,7 +44,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from jaxcls import report
+from jaxcls import allocator, report
 from jaxcls.episode import active, setup, sources
 from jaxcls.perception import icp, pointnet, pose, refine, segment
 from jaxcls.planning import nbv, visibility
@@ -260,12 +263,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--scenes", type=int, default=3, help="builtin scenes (seeds 0..n-1), one episode each")
     parser.add_argument("--moves", type=int, default=5, help="moves per episode (all but the first are timed)")
     parser.add_argument("--rounds", type=int, default=3, help="rounds (each times every move of every scene)")
+    parser.add_argument("--allocator", choices=("retain", "default"), default="retain",
+                        help="retain: freed memory kept for reuse (jaxcls.allocator, as jaxcls's commands run); "
+                             "default: glibc's own thresholds")
     parser.add_argument("--out", help="append the table to this Markdown file")
     args = parser.parse_args(argv)
     if args.moves < 2:
         parser.error("--moves must be at least 2 (the first move is not timed)")
     import open3d as o3d
 
+    retained = args.allocator == "retain" and allocator.retain_freed_memory()
     refine_bench, nbv_bench = _sibling("refine"), _sibling("nbv")
     classifier = pointnet.load_classifier()
     start = time.perf_counter()
@@ -378,8 +385,10 @@ def main(argv: list[str] | None = None) -> None:
          "range over rounds", "speed-up (peer / this)", "speed-up (peer, same models / this)"), rows,
         intro=f"{args.scenes} builtin scene{'s' * (args.scenes != 1)} (640x480, mujoco), episodes of {args.moves} "
               f"moves from view {START}: {timed} timed moves (all but each episode's first) x {args.rounds} "
-              "interleaved rounds; frames rendered beforehand. JAX and Open3D share the machine's cores. "
-              "Per-module columns: medians over the timed moves; the total is each move's wall clock.",
+              "interleaved rounds; frames rendered beforehand. JAX and Open3D share the machine's cores"
+              + (" and its allocator, set to keep freed memory (`jaxcls.allocator`). " if retained else
+                 " and glibc's default allocator thresholds (`--allocator default`). ")
+              + "Per-module columns: medians over the timed moves; the total is each move's wall clock.",
         notes=notes), args.out)
 
 

@@ -8,8 +8,9 @@ The folders follow the pipeline (``docs/ARCHITECTURE.md``):
   ``pointnet``), composed by ``perception.observe``;
 - ``learn``: training clouds and the classifier's training;
 - at the top: ``geometry`` (cameras, poses as ``jaxlie.SE3``, viewpoints), ``math`` (NaN-safe norms and
-  divisions), ``config`` (YAML -> typed configs), ``io`` (atomic writes), ``viz`` (figures), ``report``
-  (Markdown tables) and ``cli`` with ``commands`` (the ``jaxcls`` command).
+  divisions), ``config`` (YAML -> typed configs), ``io`` (atomic writes), ``allocator`` (freed memory kept
+  for reuse), ``viz`` (figures), ``report`` (Markdown tables) and ``cli`` with ``commands`` (the ``jaxcls``
+  command).
 
 Imports run one way: world -> perception -> (planning -> episode) -> commands; learning reads the world
 and perception. Subpackages load on first use, so that training a classifier does not need MuJoCo.
