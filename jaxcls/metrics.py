@@ -165,56 +165,91 @@ class Scores:
     count: int
 
 
-def classification_scores(true: np.ndarray, predicted: np.ndarray, num_classes: int) -> Scores:
-    """Scores of labels ``predicted: [n]`` (class indices; -1 = the object was not matched by any segment,
-    which counts as wrong) against ``true: [n]``, macro-averaged over the classes (of 0..num_classes-1)
-    that occur in ``true`` or ``predicted`` (scikit-learn's default label set; -1 is no class)."""
-    from sklearn.metrics import confusion_matrix, precision_recall_fscore_support
-
+def confusion(true: np.ndarray, predicted: np.ndarray, num_classes: int) -> np.ndarray:
+    """[M + 1, M + 1] i64 counts of (true, predicted) labels; row/column M holds "no class" (-1 predicted:
+    the object was not matched by any segment). true: [n] in [0, M); predicted: [n] in [-1, M)."""
     true, predicted = np.asarray(true, np.int64), np.asarray(predicted, np.int64)
     if true.shape != predicted.shape or true.ndim != 1:
         raise ValueError(f"classification_scores: need true [n] and predicted [n], got {true.shape}, {predicted.shape}")
-    if len(true) == 0:
-        return Scores(0.0, 0.0, 0.0, 0.0, 0.0, 0)
-    if true.min() < 0 or true.max() >= num_classes or predicted.max() >= num_classes or predicted.min() < -1:
+    if len(true) and (true.min() < 0 or true.max() >= num_classes or predicted.max() >= num_classes
+                      or predicted.min() < -1):
         raise ValueError(f"classification_scores: labels must lie in [0, {num_classes}) (predicted may be -1)")
-    # The classes that occur (in the truth or the predictions), as scikit-learn's own default: a class absent
-    # from both would score 0 under zero_division=0 and drag the mean of a small sample down.
-    labels = np.union1d(true, predicted[predicted >= 0])
-    precision, recall, f1, _ = precision_recall_fscore_support(true, predicted, labels=labels, average="macro",
-                                                               zero_division=0)
-    # One-vs-all accuracy per class from the confusion matrix (an unmatched object is a false negative).
-    cm = confusion_matrix(true, np.where(predicted < 0, num_classes, predicted), labels=np.arange(num_classes + 1))
-    n = len(true)
-    tp = np.diag(cm)[labels]
-    fp = cm[:, labels].sum(axis=0) - tp
-    fn = cm[labels].sum(axis=1) - tp
-    accuracy = float(np.mean((n - fp - fn) / n))
-    return Scores(accuracy, float(precision), float(recall), float(f1), float(np.mean(true == predicted)), n)
+    cm = np.zeros((num_classes + 1, num_classes + 1), np.int64)
+    np.add.at(cm, (true, np.where(predicted < 0, num_classes, predicted)), 1)
+    return cm
 
 
-def _pooled(per_scene: Sequence[tuple[np.ndarray, np.ndarray]], picks: np.ndarray, num_classes: int,
-            statistic: str) -> float:
-    true = np.concatenate([per_scene[int(i)][0] for i in picks])
-    predicted = np.concatenate([per_scene[int(i)][1] for i in picks])
-    return getattr(classification_scores(true, predicted, num_classes), statistic)
+def confusion_scores(cm: np.ndarray) -> dict[str, np.ndarray]:
+    """``Scores``' statistics of confusion matrices ``cm: [..., M + 1, M + 1]`` (``confusion``), vectorised over
+    the leading axes (a bootstrap's resamples): each a [...] array. Macro averages run over the classes that
+    occur in the truth or the predictions of each matrix (scikit-learn's default label set, zero_division=0),
+    so that a class absent from both does not drag a small sample down."""
+    cm = np.asarray(cm, np.float64)
+    cls = cm[..., :-1, :-1]
+    tp = np.diagonal(cls, axis1=-2, axis2=-1)
+    true_count = cm[..., :-1, :].sum(axis=-1)  # objects of each class (unmatched ones too)
+    pred_count = cls.sum(axis=-2)  # objects labelled with each class
+    n = cm.sum(axis=(-2, -1))
+    occurs = (true_count > 0) | (pred_count > 0)
+    classes = np.maximum(occurs.sum(axis=-1), 1)
+
+    def ratio(a, b):
+        return np.divide(a, b, out=np.zeros_like(a), where=b > 0)
+
+    precision, recall = ratio(tp, pred_count), ratio(tp, true_count)
+    f1 = ratio(2 * precision * recall, precision + recall)
+    fp, fn = pred_count - tp, true_count - tp
+    one_vs_all = ratio(n[..., None] - fp - fn, np.broadcast_to(n[..., None], fp.shape))
+
+    def macro(x):
+        return np.where(occurs, x, 0.0).sum(axis=-1) / classes
+
+    return {"accuracy": macro(one_vs_all), "precision": macro(precision), "recall": macro(recall), "f1": macro(f1),
+            "plain_accuracy": ratio(tp.sum(axis=-1), n), "count": n}
+
+
+def classification_scores(true: np.ndarray, predicted: np.ndarray, num_classes: int) -> Scores:
+    """Scores of labels ``predicted: [n]`` (class indices; -1 = the object was not matched by any segment,
+    which counts as wrong) against ``true: [n]``, macro-averaged over the classes (of 0..num_classes-1)
+    that occur in ``true`` or ``predicted``: what scikit-learn's ``precision_recall_fscore_support(average=
+    "macro", zero_division=0)`` gives (checked in the tests), from the confusion matrix so that a bootstrap
+    can score thousands of resamples at once (``confusion_scores``)."""
+    cm = confusion(true, predicted, num_classes)
+    if not cm.sum():
+        return Scores(0.0, 0.0, 0.0, 0.0, 0.0, 0)
+    stats = confusion_scores(cm)
+    return Scores(**{k: float(v) for k, v in stats.items() if k != "count"}, count=int(stats["count"]))
+
+
+def _scene_confusions(per_scene: Sequence[tuple[np.ndarray, np.ndarray]], num_classes: int) -> np.ndarray:
+    """[S, M + 1, M + 1]: each scene's confusion matrix (resampled whole by the bootstraps)."""
+    return np.stack([confusion(t, p, num_classes) for t, p in per_scene]) if len(per_scene) else \
+        np.zeros((0, num_classes + 1, num_classes + 1), np.int64)
+
+
+def _interval(statistic_of, n: int, confidence: float, resamples: int, seed: int) -> tuple[float, float, float]:
+    """(estimate, low, high): the percentile bootstrap (``scipy.stats.bootstrap``) of ``statistic_of(picks
+    [..., S]) -> [...]`` over ``n`` scenes drawn with replacement."""
+    from scipy.stats import bootstrap
+
+    index = np.arange(n)
+    estimate = float(statistic_of(index))
+    if n < 2:
+        return estimate, estimate, estimate
+    result = bootstrap((index,), lambda picks, axis: statistic_of(picks), vectorized=True, axis=-1,
+                       confidence_level=confidence, n_resamples=resamples, method="percentile",
+                       rng=np.random.default_rng(seed))
+    return estimate, float(result.confidence_interval.low), float(result.confidence_interval.high)
 
 
 def scene_interval(per_scene: Sequence[tuple[np.ndarray, np.ndarray]], num_classes: int, statistic: str = "f1",
                    confidence: float = 0.95, resamples: int = 2000, seed: int = 0) -> tuple[float, float, float]:
-    """(estimate, low, high): a ``statistic`` of ``Scores`` over all scenes and its percentile bootstrap
+    """(estimate, low, high): a ``statistic`` of ``Scores`` over all scenes pooled and its percentile bootstrap
     interval, resampling whole scenes (objects of one scene share occlusions and a camera path;
     ``scipy.stats.bootstrap``). per_scene: [(true [n_s], predicted [n_s])] per scene."""
-    from scipy.stats import bootstrap
-
-    index = np.arange(len(per_scene))
-    estimate = _pooled(per_scene, index, num_classes, statistic)
-    if len(per_scene) < 2:
-        return estimate, estimate, estimate
-    result = bootstrap((index,), lambda picks: _pooled(per_scene, picks, num_classes, statistic),
-                       vectorized=False, confidence_level=confidence, n_resamples=resamples, method="percentile",
-                       rng=np.random.default_rng(seed))
-    return estimate, float(result.confidence_interval.low), float(result.confidence_interval.high)
+    cms = _scene_confusions(per_scene, num_classes)
+    return _interval(lambda picks: confusion_scores(cms[picks].sum(axis=-3))[statistic], len(cms), confidence,
+                     resamples, seed)
 
 
 def paired_difference(per_scene_a: Sequence[tuple[np.ndarray, np.ndarray]],
@@ -222,22 +257,12 @@ def paired_difference(per_scene_a: Sequence[tuple[np.ndarray, np.ndarray]],
                       confidence: float = 0.95, resamples: int = 2000, seed: int = 0) -> tuple[float, float, float]:
     """(estimate, low, high) of statistic(a) - statistic(b) for two policies run on the same scenes, with a
     paired bootstrap: each resample draws scenes and scores both policies on them."""
-    from scipy.stats import bootstrap
-
     if len(per_scene_a) != len(per_scene_b):
         raise ValueError(f"paired_difference: {len(per_scene_a)} and {len(per_scene_b)} scenes; pair the same ones")
-
-    def diff(picks):
-        return (_pooled(per_scene_a, picks, num_classes, statistic)
-                - _pooled(per_scene_b, picks, num_classes, statistic))
-
-    index = np.arange(len(per_scene_a))
-    estimate = diff(index)
-    if len(index) < 2:
-        return estimate, estimate, estimate
-    result = bootstrap((index,), diff, vectorized=False, confidence_level=confidence, n_resamples=resamples,
-                       method="percentile", rng=np.random.default_rng(seed))
-    return estimate, float(result.confidence_interval.low), float(result.confidence_interval.high)
+    a, b = _scene_confusions(per_scene_a, num_classes), _scene_confusions(per_scene_b, num_classes)
+    return _interval(lambda picks: (confusion_scores(a[picks].sum(axis=-3))[statistic]
+                                    - confusion_scores(b[picks].sum(axis=-3))[statistic]),
+                     len(a), confidence, resamples, seed)
 
 
 def surface_coverage(model_points: np.ndarray, fused_points: np.ndarray, radius: float = 0.005) -> float:
