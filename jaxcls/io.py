@@ -4,6 +4,8 @@ half-written result (a reader sees the old content or the new one, never a mix).
 - ``atomic_write(path)``: a file written to a hidden temporary sibling, flushed to disk and renamed into
   place (``os.replace`` is atomic on POSIX); ``write_text``/``write_bytes``/``write_json`` wrap it.
 - ``atomic_folder(folder)``: a folder built in a hidden temporary sibling and swapped into place.
+- ``append_jsonl(path, records)`` / ``read_jsonl(path)``: a log that grows a record per line, each append
+  flushed to disk; a line torn by an interruption is dropped on read and cut off before the next append.
 """
 
 from __future__ import annotations
@@ -86,3 +88,41 @@ def atomic_folder(folder: str | os.PathLike) -> Iterator[Path]:
             tmp.rename(folder)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def read_jsonl(path: str | os.PathLike) -> list[dict[str, Any]]:
+    """The records of a JSONL log (``append_jsonl``); [] if it does not exist. A last line without its
+    newline (torn by an interruption) is left out; a damaged line elsewhere is a ValueError naming it."""
+    path = Path(path)
+    if not path.exists():
+        return []
+    text = path.read_text()
+    lines = text.split("\n")
+    complete = lines[:-1]  # the piece after the last newline is empty, or torn
+    records = []
+    for number, line in enumerate(complete, 1):
+        if not line.strip():
+            continue
+        try:
+            records.append(json.loads(line))
+        except json.JSONDecodeError as e:
+            raise ValueError(f"{path}: line {number} is not a JSON record ({e})") from None
+    return records
+
+
+def append_jsonl(path: str | os.PathLike, records: list[dict[str, Any]]) -> Path:
+    """Append ``records`` to a JSONL log, one strict-JSON line each, flushed and fsync'ed; a torn last line
+    (no newline: an interrupted append) is cut off first, so that a rerun continues on a clean record."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    payload = "".join(json.dumps(r, allow_nan=False) + "\n" for r in records).encode()
+    if path.exists():
+        data = path.read_bytes()
+        if data and not data.endswith(b"\n"):
+            with open(path, "r+b") as f:
+                f.truncate(data.rfind(b"\n") + 1)
+    with open(path, "ab") as f:
+        f.write(payload)
+        f.flush()
+        os.fsync(f.fileno())
+    return path

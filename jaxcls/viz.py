@@ -178,6 +178,37 @@ def episode_move(title: str, depth: np.ndarray, pixels: np.ndarray, pixel_labels
     return figure
 
 
+def score_curves(panels: dict[str, dict[str, tuple[Sequence[float], Sequence[float], Sequence[float]]]],
+                 ylabel: str = "F1") -> Figure:
+    """Scores over moves with confidence bands, one panel per key of ``panels`` (e.g. per classifier): each
+    maps a row's label to (values, lows, highs), one per move (moves from 1). A row of one value (a single
+    view, or every view fused) is drawn as a horizontal line across the panel with its band."""
+    figure = Figure(figsize=(5.5 * len(panels), 4.2))
+    longest = max((len(v[0]) for rows in panels.values() for v in rows.values()), default=1)
+    colours = colormaps["tab20"].colors
+    for p, (title, rows) in enumerate(panels.items()):
+        ax = figure.add_subplot(1, len(panels), p + 1)
+        for i, (label, (values, lows, highs)) in enumerate(rows.items()):
+            colour = colours[i % len(colours)]
+            style = "--" if "GR" not in label else "-"
+            if len(values) == 1:
+                x = np.array([1, longest])
+                values, lows, highs = (np.repeat(v, 2) for v in (values, lows, highs))
+                style = ":"
+            else:
+                x = np.arange(1, len(values) + 1)
+            ax.plot(x, values, style, color=colour, label=label, lw=1.5)
+            ax.fill_between(x, lows, highs, color=colour, alpha=0.12, lw=0)
+        ax.set_title(title)
+        ax.set_xlabel("moves (views fused)")
+        ax.set_ylabel(ylabel)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, ncol=2)
+    figure.tight_layout()
+    return figure
+
+
 def episode_curves(curves: dict[str, Sequence[float]], ylabel: str = "score") -> Figure:
     """Scores over moves: ``curves`` maps a label ("refined F1", ...) to one value per move (moves from 1)."""
     figure = Figure(figsize=(5, 3.5))

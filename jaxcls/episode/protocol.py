@@ -1,0 +1,244 @@
+"""The paper's evaluation protocol (Sec. 4) as the rows of its Table 1, run on a scene's fixed viewpoints.
+
+A row is a typed entry of ``ROWS``: how its episodes run (``Kind``), the policy, GR on or off, and GR's
+model library. Every row but the upper bounds runs ``runs`` episodes per scene from seeded random start
+views (``start_views``) with T moves; the episodes of one scene run together, ``vmap``ped over the runs
+(``rollouts``: one ``jit`` per row, the whole episode a ``lax.scan``):
+
+- ``single`` (PointNetSingle): one move from the start view;
+- ``full`` (PointNetFull): every viewpoint fused, then one segmentation, classification and GR
+  (``all_views``): the upper bound of any policy; one episode per scene (it has no start view);
+- ``policy``: the NBV policy's T moves (``Random``, ``VisNoOccl``, ``VisOccl``, ``VisOcclHist``, and the
+  policies beyond the paper);
+- ``oracle``: at each move every candidate's real next view is fused, segmented, classified and refined,
+  and the one whose refined labels score the best true F1 is taken (``oracle_rollout``): the upper bound of
+  any next-best-view policy.
+
+``episode_record`` turns an episode into its JSON record (the target objects' labels after every move,
+matched to the segments by Hungarian assignment, ``scoring.object_labels``); ``per_scene`` gathers a row's
+records into what ``metrics.scene_interval`` and ``metrics.paired_difference`` resample.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+from collections.abc import Sequence
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxcls.episode import active, scoring
+from jaxcls.episode.setup import ActiveConfig
+from jaxcls.perception import observation
+from jaxcls.planning import nbv
+
+
+class Kind(enum.Enum):
+    SINGLE = "single"
+    FULL = "full"
+    POLICY = "policy"
+    ORACLE = "oracle"
+
+
+@dataclasses.dataclass(frozen=True)
+class Row:
+    """A row of Table 1: ``label`` as printed; ``kind``; the NBV ``policy`` (``nbv.POLICIES``; for ``single``
+    and ``full`` it only fills the planner's slot); GR on (``refinement``) or off; GR's model ``library``
+    ("known": the scenes' own instances, the paper's; "category": the training instances only)."""
+
+    label: str
+    kind: Kind
+    policy: str = "vis_occl_hist"
+    refinement: bool = True
+    library: str = "known"
+
+    def settings(self, base: ActiveConfig, moves: int) -> ActiveConfig:
+        """``base`` with this row's policy, GR and library; one move for ``single``, T otherwise."""
+        episode = dataclasses.replace(base.episode, policy=self.policy, refinement=self.refinement,
+                                      moves=1 if self.kind is Kind.SINGLE else moves, off_grid=False)
+        return dataclasses.replace(base, episode=episode, refine=dataclasses.replace(base.refine, library=self.library))
+
+
+def _pair(name: str, label: str, kind: Kind, policy: str = "vis_occl_hist") -> dict[str, Row]:
+    return {name: Row(label, kind, policy, refinement=False), f"{name}_gr": Row(f"{label}GR", kind, policy)}
+
+
+# The paper's twelve rows in its order, then the rows beyond it.
+ROWS: dict[str, Row] = {
+    **_pair("single", "PointNetSingle", Kind.SINGLE),
+    **_pair("full", "PointNetFull", Kind.FULL),
+    **_pair("random", "Random", Kind.POLICY, "random"),
+    **_pair("vis_no_occl", "VisNoOccl", Kind.POLICY, "vis_no_occl"),
+    **_pair("vis_occl", "VisOccl", Kind.POLICY, "vis_occl"),
+    **_pair("vis_occl_hist", "VisOcclHist", Kind.POLICY, "vis_occl_hist"),
+    "vis_occl_hist_unc_gr": Row("VisOcclHistUncGR", Kind.POLICY, "vis_occl_hist_unc"),
+    "info_gain_gr": Row("InfoGainGR", Kind.POLICY, "info_gain"),
+    "continuous_gr": Row("ContinuousGR", Kind.POLICY, "continuous"),
+    "vis_occl_hist_gr_category": Row("VisOcclHistGR (category models)", Kind.POLICY, "vis_occl_hist",
+                                     library="category"),
+    "oracle_gr": Row("OracleGR", Kind.ORACLE),
+}
+PAPER_ROWS = tuple(ROWS)[:12]
+
+
+def row(name: str, key: str = "rows") -> Row:
+    """The row registered as ``name`` (ValueError naming ``key`` and the choices)."""
+    if name not in ROWS:
+        raise ValueError(f"{key}: unknown row {name!r}; choose from {list(ROWS)}")
+    return ROWS[name]
+
+
+def start_views(seed: int, scene: int, runs: int, num_views: int) -> np.ndarray:
+    """[runs] i64 distinct random start views of a scene's runs (the same for every row: rows are paired)."""
+    rng = np.random.default_rng([seed, scene])
+    return rng.choice(num_views, size=runs, replace=runs > num_views)
+
+
+def run_keys(seed: int, scene: int, runs: int) -> jax.Array:
+    """[runs] the episodes' keys (the same for every row)."""
+    base = jax.random.fold_in(jax.random.PRNGKey(seed), scene)
+    return jax.vmap(lambda r: jax.random.fold_in(base, r))(jnp.arange(runs))
+
+
+def _one_rollout(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, start: jax.Array, key: jax.Array
+                 ) -> active.Trace:
+    return active.rollout(episode, active.reset(episode, T_wc, start, key), depth, T_wc)[1]
+
+
+# Runs of one scene: depth [V, H, W] and T_wc [V, 4, 4] shared, starts [R] and keys [R] batched.
+_rollouts = jax.jit(jax.vmap(_one_rollout, in_axes=(None, None, None, 0, 0)))
+
+
+def rollouts(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, starts: np.ndarray, keys: jax.Array
+             ) -> active.Trace:
+    """The runs of one scene from ``starts: [R]`` with ``keys: [R]``, one ``vmap``ped ``jit``: a ``Trace``
+    with [R, T, ...] leaves. depth: [V, H, W] m; T_wc: [V, 4, 4] every viewpoint's frame."""
+    return _rollouts(episode, jnp.asarray(depth, jnp.float32), jnp.asarray(T_wc, jnp.float32),
+                     jnp.asarray(starts, jnp.int32), keys)
+
+
+def _trace_of(state: active.EpisodeState, view: jax.Array) -> active.Trace:
+    obs = state.observation
+    return active.Trace(view=view, refinement=state.refinement, probs=obs.probs, centroid=active.centroids(obs),
+                        points=jnp.sum(obs.segments.mask, axis=1).astype(jnp.int32), next_view=state.next_view,
+                        done=jnp.zeros((), bool))
+
+
+@jax.jit
+def _all_views(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, key: jax.Array) -> active.Trace:
+    state = active.reset(episode, T_wc, 0, key)
+
+    def fuse(volume, frame):
+        return observation.fuse(episode.spec, volume, *frame), None
+
+    volume, _ = jax.lax.scan(fuse, state.observation.volume, (depth[1:], T_wc[1:]))
+    state = state.replace(observation=state.observation.replace(volume=volume,
+                                                                frames=jnp.asarray(T_wc.shape[0] - 1, jnp.int32)))
+    state = active.step(episode, state, depth[0], T_wc[0])
+    return jax.tree.map(lambda x: x[None], _trace_of(state, jnp.asarray(0, jnp.int32)))
+
+
+def all_views(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, key: jax.Array) -> active.Trace:
+    """PointNetFull: views 1..V-1 fused, then a move on view 0 (fused, segmented, classified, refined): a
+    ``Trace`` of one move ([1, ...] leaves)."""
+    return _all_views(episode, jnp.asarray(depth, jnp.float32), jnp.asarray(T_wc, jnp.float32), key)
+
+
+@jax.jit
+def _step_each(episode: active.Episode, state: active.EpisodeState, depth: jax.Array, T_wc: jax.Array,
+               views: jax.Array) -> tuple[active.EpisodeState, active.Trace]:
+    """The move to each of ``views: [C]`` from ``state`` (vmapped): [C] states and their traces."""
+    def go(view):
+        new = active.step(episode, state.replace(next_view=view), depth[view], T_wc[view])
+        return new, _trace_of(new, view)
+
+    return jax.vmap(go)(views)
+
+
+def oracle_rollout(episode: active.Episode, depth: np.ndarray, T_wc: np.ndarray, start: int, key: jax.Array,
+                   truth: scoring.Truth) -> active.Trace:
+    """The oracle NBV: the first move from ``start``; then at each move every candidate (``nbv.candidates``
+    within the radius, unvisited ones first) is fused, segmented, classified and refined, and the one
+    whose refined labels score the best true F1 of the target objects is kept (ties: the nearer
+    candidate). A ``Trace`` with [T, ...] leaves."""
+    depth, T_wc = jnp.asarray(depth, jnp.float32), jnp.asarray(T_wc, jnp.float32)
+    num_classes = len(episode.spec.classifier.classes)
+    state = active.reset(episode, T_wc, start, key)
+    states, traces = _step_each(episode, state, depth, T_wc, jnp.asarray([start], jnp.int32))
+    pick = 0
+    kept = []
+    for _ in range(episode.config.moves):
+        state = jax.tree.map(lambda x, p=pick: x[p], states)
+        kept.append(jax.tree.map(lambda x, p=pick: np.asarray(x[p]), traces))
+        if len(kept) == episode.config.moves:
+            break
+        index, ok = nbv.candidates(state.views, episode.nbv_config)  # [C]: a fixed shape, one compile
+        index, ok = np.asarray(index), np.asarray(ok)
+        fresh = ok & ~np.asarray(state.views.visited)[index]
+        allowed = fresh if fresh.any() else ok if ok.any() else np.arange(len(index)) == 0
+        states, traces = _step_each(episode, state, depth, T_wc, jnp.asarray(index, jnp.int32))
+        centroid, valid = np.asarray(traces.centroid), np.asarray(traces.refinement.valid)
+        refined = np.asarray(traces.refinement.refined)
+        f1 = [scoring.target_scores(truth, scoring.object_labels(truth, centroid[c], valid[c], refined[c]),
+                                    num_classes).f1 if allowed[c] else -1.0 for c in range(len(index))]
+        pick = int(np.argmax(f1))
+    return jax.tree.map(lambda *xs: np.stack(xs), *kept)
+
+
+def episode_record(trace: active.Trace, truth: scoring.Truth, **keys: Any) -> dict[str, Any]:
+    """The JSON record of one episode (``trace``: [T, ...] leaves of one run): ``keys`` (classifier, row,
+    scene, run, start, ...), the views fused (``path``), the target objects' true classes (``true``: [K])
+    and their prior and refined labels after every move (``prior``, ``refined``: [T][K]; -1 = no segment
+    matched the object). A move the episode did not make (it had stopped) repeats the last labels."""
+    prior, refined = np.asarray(trace.refinement.prior), np.asarray(trace.refinement.refined)
+    centroid, valid = np.asarray(trace.centroid), np.asarray(trace.refinement.valid)
+    done = np.asarray(trace.done)
+    labels = []
+    for t in range(len(prior)):
+        if done[t] and labels:
+            labels.append(labels[-1])
+            continue
+        labels.append(scoring.object_labels(truth, centroid[t], valid[t], np.stack([prior[t], refined[t]]))
+                      [:, truth.target])
+    labels = np.stack(labels)  # [T, 2, K]
+    return {**keys, "path": np.asarray(trace.view)[~done].tolist(), "true": truth.label[truth.target].tolist(),
+            "prior": labels[:, 0].tolist(), "refined": labels[:, 1].tolist()}
+
+
+def per_scene(records: Sequence[dict[str, Any]], move: int, label: str = "refined"
+              ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """[(true [n_s], predicted [n_s])] per scene (sorted by scene), pooling a row's runs of each scene, with
+    the labels after ``move`` (1-based; an episode of fewer moves, PointNetSingle or PointNetFull, counts
+    with its last)."""
+    scenes: dict[int, list[dict[str, Any]]] = {}
+    for r in records:
+        scenes.setdefault(int(r["scene"]), []).append(r)
+    out = []
+    for s in sorted(scenes):
+        true = np.concatenate([np.asarray(r["true"], np.int64) for r in scenes[s]])
+        predicted = np.concatenate([np.asarray(r[label][min(move, len(r[label])) - 1], np.int64) for r in scenes[s]])
+        out.append((true, predicted))
+    return out
+
+
+def moves_to_correct(records: Sequence[dict[str, Any]], label: str = "refined") -> tuple[float, float]:
+    """(mean moves until a target's label turns right and stays right, over the targets that end right;
+    the share of targets right after the last move)."""
+    moves, right, total = [], 0, 0
+    for r in records:
+        labels, true = np.asarray(r[label]), np.asarray(r["true"])
+        correct = labels == true[None]  # [T, K]
+        for k in range(correct.shape[1]):
+            total += 1
+            if correct[-1, k]:
+                right += 1
+                wrong = np.flatnonzero(~correct[:, k])
+                moves.append(int(wrong[-1]) + 2 if len(wrong) else 1)
+    return (float(np.mean(moves)) if moves else float("nan")), (right / total if total else 0.0)
+
+
+__all__ = ["PAPER_ROWS", "ROWS", "Kind", "Row", "all_views", "episode_record", "moves_to_correct",
+           "oracle_rollout", "per_scene", "rollouts", "row", "run_keys", "start_views"]
