@@ -83,6 +83,20 @@ class Table1Config:
 
 # --- the dataset -------------------------------------------------------------------------------------------
 
+def dataset_config(config: Table1Config) -> DatasetConfig:
+    """The dataset's config, from its folder or its name, without reading or rendering a scene."""
+    folder = Path(config.dataset)
+    if folder.is_dir() and (folder / "config.yaml").is_file():
+        return load_config(DatasetConfig, folder / "config.yaml", config.dataset_overrides)
+    return load_config(DatasetConfig, config.dataset, config.dataset_overrides)
+
+
+def stored_records(config: Table1Config, store: Path) -> list[dict[str, Any]]:
+    """The stored episodes of this config's classifiers, rows and first ``scenes`` scenes (all if 0)."""
+    return [r for r in io.read_jsonl(store) if r["classifier"] in config.classifiers and r["row"] in config.rows
+            and (not config.scenes or int(r["scene"]) < config.scenes)]
+
+
 def open_dataset(config: Table1Config) -> tuple[DatasetConfig, list[Path]]:
     """The dataset's config and its scene files (``config.scenes`` of them), rendering a config's missing
     scenes first (``build_dataset`` resumes)."""
@@ -311,19 +325,25 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", default="table1_synthetic", help="a path or a shipped config name")
     parser.add_argument("--out", help="append the tables to this Markdown file")
+    parser.add_argument("--tables-only", action="store_true",
+                        help="only the tables of the episodes stored in out_dir (none run, no scene file read)")
     parser.add_argument("overrides", nargs="*")
     args = parser.parse_intermixed_args(argv)
     allocator.retain_freed_memory()
     config = load_config(Table1Config, args.config, args.overrides)
     out = Path(config.out_dir)
     _check_out_dir(config, out)
-    dataset, files = open_dataset(config)
-    save_config(config, out / "config.yaml")
     started = time.perf_counter()
-    records = run_episodes(config, files, dataset, out / "episodes.jsonl")
     timing_file = out / "timing.json"
     timing = json.loads(timing_file.read_text()) if timing_file.exists() else None
-    if timing is None and config.timing_moves:
+    if args.tables_only:
+        dataset = dataset_config(config)
+        records = stored_records(config, out / "episodes.jsonl")
+    else:
+        dataset, files = open_dataset(config)
+        save_config(config, out / "config.yaml")
+        records = run_episodes(config, files, dataset, out / "episodes.jsonl")
+    if timing is None and config.timing_moves and not args.tables_only:
         timing = time_modules(config, files, dataset)
         io.write_json(timing_file, timing)
     classes = len(object_set_from_config(dataset.objects).classes)

@@ -129,21 +129,26 @@ def _trace_of(state: active.EpisodeState, view: jax.Array) -> active.Trace:
 
 @jax.jit
 def _all_views(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, key: jax.Array) -> active.Trace:
+    V = T_wc.shape[0]
     state = active.reset(episode, T_wc, 0, key)
+    order = jnp.concatenate([jnp.arange(1, V), jnp.zeros(1, jnp.int32)]).astype(jnp.int32)
 
     def fuse(volume, frame):
         return observation.fuse(episode.spec, volume, *frame), None
 
     volume, _ = jax.lax.scan(fuse, state.observation.volume, (depth[1:], T_wc[1:]))
-    state = state.replace(observation=state.observation.replace(volume=volume,
-                                                                frames=jnp.asarray(T_wc.shape[0] - 1, jnp.int32)))
+    # Every view is a visited one, its camera among those GR's visibility-aware rho sees the models from
+    # (the path and cameras span all V views here, not the episode's T moves).
+    state = state.replace(observation=state.observation.replace(volume=volume, frames=jnp.asarray(V - 1, jnp.int32)),
+                          path=order, cameras=T_wc[order, :3, 3],
+                          views=state.views.replace(visited=jnp.ones(V, bool).at[0].set(False)))
     state = active.step(episode, state, depth[0], T_wc[0])
     return jax.tree.map(lambda x: x[None], _trace_of(state, jnp.asarray(0, jnp.int32)))
 
 
 def all_views(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, key: jax.Array) -> active.Trace:
-    """PointNetFull: views 1..V-1 fused, then a move on view 0 (fused, segmented, classified, refined): a
-    ``Trace`` of one move ([1, ...] leaves)."""
+    """PointNetFull: views 1..V-1 fused, then a move on view 0 (fused, segmented, classified, refined, GR's
+    rho seeing the models from all V cameras): a ``Trace`` of one move ([1, ...] leaves)."""
     return _all_views(episode, jnp.asarray(depth, jnp.float32), jnp.asarray(T_wc, jnp.float32), key)
 
 

@@ -1,0 +1,193 @@
+"""experiments/table1.py and episode.protocol: an interrupted experiment resumes without redoing or losing an
+episode; same seed, same numbers; the table and CSV against hand-made episodes; bad inputs refused."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from jaxcls import io, metrics
+from jaxcls.config import ConfigError, load_config
+from jaxcls.episode import protocol
+
+ROOT = Path(__file__).parent.parent
+
+
+@pytest.fixture(scope="module")
+def table1():
+    spec = importlib.util.spec_from_file_location("table1", ROOT / "experiments" / "table1.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["table1"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def _small(tmp: Path, out: str, *extra: str) -> list[str]:
+    """A 2-scene, 12-view synthetic set; 2 runs of 2 moves of a policy row and the all-views row; the
+    shipped weights only (``table1_synthetic`` adds the paper's: overrides merge into a mapping)."""
+    config = tmp / "table1.yaml"
+    config.write_text(f"out_dir: {tmp / out}\ndataset: synthetic\nruns: 2\nmoves: 2\ntiming_moves: 0\n"
+                      "resamples: 100\nrows: [vis_occl_hist_gr, full_gr]\nclassifiers: {shipped: ''}\n"
+                      "dataset_overrides: [num_scenes=2, viewpoints.count=12, backend=mujoco, "
+                      f"out_dir={tmp / 'data'}]\n")
+    return ["--config", str(config), f"out_dir={tmp / out}", *extra]
+
+
+def test_jsonl_log_drops_a_torn_line_and_appends_cleanly(tmp_path):
+    path = tmp_path / "log.jsonl"
+    io.append_jsonl(path, [{"a": 1}, {"a": 2}])
+    with open(path, "a") as f:
+        f.write('{"a": 3, "b"')  # an append cut short
+    assert io.read_jsonl(path) == [{"a": 1}, {"a": 2}]
+    io.append_jsonl(path, [{"a": 4}])
+    assert io.read_jsonl(path) == [{"a": 1}, {"a": 2}, {"a": 4}]
+    path.write_text('{"a": 1}\nnot json\n{"a": 2}\n')
+    with pytest.raises(ValueError, match="line 2"):
+        io.read_jsonl(path)
+
+
+def test_interrupted_experiment_resumes_and_the_same_seed_gives_the_same_numbers(table1, tmp_path, monkeypatch):
+    argv = _small(tmp_path, "a")
+    real_append = io.append_jsonl
+    calls = []
+
+    def interrupted(path, records):
+        calls.append(len(records))
+        if len(calls) == 2:
+            raise KeyboardInterrupt  # stopped after the first batch of episodes was stored
+        return real_append(path, records)
+
+    monkeypatch.setattr(io, "append_jsonl", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        table1.main(argv)
+    monkeypatch.setattr(io, "append_jsonl", real_append)
+    store = tmp_path / "a" / "episodes.jsonl"
+    first = io.read_jsonl(store)
+    assert len(first) == calls[0] == 2  # scene 0's two runs of the policy row
+    with open(store, "a") as f:
+        f.write('{"classifier": "shipped", "row"')  # and a record torn by the interruption
+    table1.main(argv)
+    records = io.read_jsonl(store)
+    keys = [(r["classifier"], r["row"], r["scene"], r["run"]) for r in records]
+    assert len(keys) == len(set(keys)) == 2 * (2 + 1)  # 2 scenes x (2 runs + the all-views episode)
+    assert records[:2] == first  # nothing redone
+    table1.main(argv)  # a complete run: nothing to do, nothing added
+    assert io.read_jsonl(store) == records
+
+    table1.main(_small(tmp_path, "b"))  # the same config from scratch
+    again = io.read_jsonl(tmp_path / "b" / "episodes.jsonl")
+    order = sorted(range(len(records)), key=lambda i: keys[i])
+    assert [records[i] for i in order] == sorted(again, key=lambda r: (r["classifier"], r["row"], r["scene"], r["run"]))
+    for r in records:
+        assert len(r["refined"]) == (2 if r["row"] == "vis_occl_hist_gr" else 1)
+        assert len(r["true"]) == 5 and all(len(labels) == 5 for labels in r["refined"])
+    out = tmp_path / "a"
+    assert (out / "figure4.png").stat().st_size > 0 and "VisOcclHistGR" in (out / "table.md").read_text()
+    with open(out / "table.csv") as f:
+        table = list(csv.DictReader(f))
+    assert [(r["row"], r["move"]) for r in table] == [("vis_occl_hist_gr", "1"), ("vis_occl_hist_gr", "2"),
+                                                      ("full_gr", "1")]
+    assert json.loads((out / "episodes.jsonl").read_text().splitlines()[0])["scene"] == 0
+    with pytest.raises(ValueError, match=r"keys \[.runs.\] differ"):  # another config's episodes are not mixed in
+        table1.main(_small(tmp_path, "a", "runs=3"))
+
+
+def _record(row: str, scene: int, run: int, true: list[int], labels: list[list[int]]) -> dict:
+    return {"classifier": "c", "row": row, "scene": scene, "run": run, "start": run, "path": list(range(len(labels))),
+            "true": true, "prior": labels, "refined": labels}
+
+
+def test_table_and_csv_against_hand_made_episodes(table1):
+    """Two scenes, one run each: VisOcclHistGR gets scene 0 all right after move 2 and one object wrong in
+    scene 1; PointNetSingleGR (one move) gets one wrong in each scene. The pooled scores, the per-move CSV
+    and the moves-to-correct are checked against classification_scores and hand counts."""
+    records = [
+        _record("vis_occl_hist_gr", 0, 0, [0, 1, 2], [[0, 2, 2], [0, 1, 2]]),
+        _record("vis_occl_hist_gr", 1, 0, [1, 2, 3], [[1, 2, 0], [1, 2, 0]]),
+        _record("single_gr", 0, 0, [0, 1, 2], [[0, 2, 2]]),
+        _record("single_gr", 1, 0, [1, 2, 3], [[1, 2, -1]]),
+    ]
+    config = table1.Table1Config(moves=2, runs=1, rows=("single_gr", "vis_occl_hist_gr"), classifiers={"c": ""},
+                                 resamples=100)
+    markdown, rows, curves = table1.tables(config, records, 4, None, ["x"])
+    policy = metrics.classification_scores(np.array([0, 1, 2, 1, 2, 3]), np.array([0, 1, 2, 1, 2, 0]), 4)
+    single = metrics.classification_scores(np.array([0, 1, 2, 1, 2, 3]), np.array([0, 2, 2, 1, 2, -1]), 4)
+    line = next(x for x in markdown.splitlines() if x.startswith("| VisOcclHistGR |"))
+    cells = [c.strip() for c in line.strip("|").split("|")]
+    assert cells[1:5] == [f"{policy.accuracy:.3f}", f"{policy.precision:.3f}", f"{policy.recall:.3f}",
+                          f"{policy.f1:.3f}"]
+    # Moves to correct: scene 0's object 1 turns right at move 2, the others are right from move 1; scene 1's
+    # object 3 never is: mean over the 5 right ones = (1 + 2 + 1 + 1 + 1) / 5; 5 of 6 right at the end.
+    assert cells[7:9] == ["1.20", "0.83"]
+    single_line = next(x for x in markdown.splitlines() if x.startswith("| PointNetSingleGR |"))
+    assert f"| {single.f1:.3f} |" in single_line
+    assert [(r["row"], r["move"]) for r in rows] == [("single_gr", 1), ("vis_occl_hist_gr", 1),
+                                                     ("vis_occl_hist_gr", 2)]
+    first = metrics.classification_scores(np.array([0, 1, 2, 1, 2, 3]), np.array([0, 2, 2, 1, 2, 0]), 4)
+    assert rows[1]["f1"] == pytest.approx(first.f1) and rows[2]["f1"] == pytest.approx(policy.f1)
+    assert rows[2]["f1_low"] <= rows[2]["f1"] <= rows[2]["f1_high"] and rows[2]["scenes"] == 2
+    assert list(curves["c"]) == ["PointNetSingleGR", "VisOcclHistGR"]
+    assert "VisOcclHistGR - PointNetSingleGR" in markdown  # the paired difference against one view
+
+
+def test_protocol_rows_and_starts():
+    assert protocol.PAPER_ROWS == ("single", "single_gr", "full", "full_gr", "random", "random_gr", "vis_no_occl",
+                                   "vis_no_occl_gr", "vis_occl", "vis_occl_gr", "vis_occl_hist", "vis_occl_hist_gr")
+    np.testing.assert_array_equal(protocol.start_views(0, 3, 10, 100), protocol.start_views(0, 3, 10, 100))
+    assert len(set(protocol.start_views(0, 3, 10, 100).tolist())) == 10
+    with pytest.raises(ValueError, match="rows: unknown row 'vis_oops'"):
+        protocol.row("vis_oops")
+    from jaxcls.episode.setup import ActiveConfig
+
+    settings = protocol.ROWS["single_gr"].settings(ActiveConfig(), 10)
+    assert settings.episode.moves == 1 and settings.episode.refinement
+    settings = protocol.ROWS["vis_occl_hist_gr_category"].settings(ActiveConfig(), 10)
+    assert settings.episode.moves == 10 and settings.refine.library == "category"
+
+
+def test_bad_inputs_are_refused_naming_the_key_or_file(table1, tmp_path):
+    with pytest.raises(ConfigError, match="unknown row 'vis_oops'"):
+        load_config(table1.Table1Config, "table1_synthetic", ["rows=[vis_oops]"])
+    with pytest.raises(ValueError, match="neither a dataset folder nor a dataset config"):
+        table1.open_dataset(table1.Table1Config(dataset=str(tmp_path / "nothing")))
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(ValueError, match=r"no config\.yaml"):
+        table1.open_dataset(table1.Table1Config(dataset=str(empty)))
+    # A dataset folder whose scenes were drawn from another object set than its config says.
+    from jaxcls.world.dataset import DatasetConfig
+
+    data = tmp_path / "data"
+    argv = _small(tmp_path, "c")
+    config = load_config(table1.Table1Config, argv[1], argv[2:])
+    dataset, files = table1.open_dataset(config)
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "scene_000.npz").write_bytes(files[0].read_bytes())
+    from jaxcls.config import save_config
+
+    save_config(dataclasses.replace(dataset, objects=dataclasses.replace(dataset.objects, seed=1)),
+                other / "config.yaml")
+    bad = dataclasses.replace(config, dataset=str(other), dataset_overrides=())
+    with pytest.raises(ValueError, match=r"scene_000\.npz: the scene was drawn from objects"):
+        table1.run_episodes(bad, [other / "scene_000.npz"], table1.dataset_config(bad), tmp_path / "x.jsonl",
+                            show_progress=False)
+    assert not (tmp_path / "x.jsonl").exists()
+    assert isinstance(dataset, DatasetConfig) and data.is_dir()
+    # A classifier trained on other classes.
+    from jaxcls.perception import pointnet
+
+    weights = tmp_path / "w.msgpack"
+    shipped = pointnet.load_classifier()
+    pointnet.save_classifier(weights, dataclasses.replace(shipped, classes=tuple(f"c{i}" for i in shipped.classes)))
+    with pytest.raises(ValueError, match=r"w.msgpack \(classifiers.mine\).*trained on classes"):
+        table1.run_episodes(dataclasses.replace(config, classifiers={"mine": str(weights)}), files, dataset,
+                            tmp_path / "y.jsonl", show_progress=False)
+    assert not (tmp_path / "y.jsonl").exists()
