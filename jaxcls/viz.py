@@ -183,7 +183,7 @@ def score_curves(panels: dict[str, dict[str, tuple[Sequence[float], Sequence[flo
     """Scores over moves with confidence bands, one panel per key of ``panels`` (e.g. per classifier): each
     maps a row's label to (values, lows, highs), one per move (moves from 1). A row of one value (a single
     view, or every view fused) is drawn as a horizontal line across the panel with its band."""
-    figure = Figure(figsize=(5.5 * len(panels), 4.2))
+    figure = Figure(figsize=(5.5 * len(panels), 5.6))
     longest = max((len(v[0]) for rows in panels.values() for v in rows.values()), default=1)
     colours = colormaps["tab20"].colors
     for p, (title, rows) in enumerate(panels.items()):
@@ -204,7 +204,7 @@ def score_curves(panels: dict[str, dict[str, tuple[Sequence[float], Sequence[flo
         ax.set_ylabel(ylabel)
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, ncol=2)
+        ax.legend(fontsize=6.5, ncol=3, loc="upper center", bbox_to_anchor=(0.5, -0.14), frameon=False)
     figure.tight_layout()
     return figure
 
