@@ -61,7 +61,9 @@ class Table1Config:
     moves: int = bounded(10, ge=1)  # T
     rows: tuple[str, ...] = protocol.PAPER_ROWS
     oracle_scenes: int = bounded(7, ge=0)  # the oracle row runs on the first this many scenes
-    classifiers: dict[str, str] = dataclasses.field(default_factory=lambda: {"shipped": ""})
+    # name: weights (a .msgpack path or a shipped name, "" = the shipped weights); no default, so that a
+    # config's own list is the whole list (OmegaConf merges mappings into the defaults).
+    classifiers: dict[str, str] = dataclasses.field(default_factory=dict)
     perception: PerceptionConfig = dataclasses.field(default_factory=setup.episode_perception)
     refine: RefineConfig = dataclasses.field(default_factory=setup.episode_refine)
     nbv: NBVConfig = dataclasses.field(default_factory=setup.episode_nbv)
@@ -166,7 +168,7 @@ def run_episodes(config: Table1Config, files: list[Path], dataset: DatasetConfig
                     if not missing:
                         continue
                     if (c, name) not in episodes:
-                        episodes[c, name] = _episode(config, row, classifier, object_set, views)
+                        episodes[c, name] = _episode(config, row, classifier, object_set, views, dataset.scene.split)
                     bar.set_postfix(scene=s, classifier=c, row=name)
                     records = _row_records(config, row, episodes[c, name], views, truth, starts, keys, missing)
                     io.append_jsonl(store, [{"classifier": c, "row": name, "scene": s, **r} for r in records])
@@ -176,13 +178,13 @@ def run_episodes(config: Table1Config, files: list[Path], dataset: DatasetConfig
 
 
 def _episode(config: Table1Config, row: protocol.Row, classifier: pointnet.Classifier, object_set,
-             views: sources.Preloaded) -> active.Episode:
+             views: sources.Preloaded, scene_split: str) -> active.Episode:
     refine = config.refine
     if refine.yaw_source == "learned" and not classifier.config.yaw_head:
         refine = dataclasses.replace(refine, yaw_source="hypotheses")  # weights without a yaw head
     base = setup.ActiveConfig(perception=config.perception, refine=refine, nbv=config.nbv)
     return setup.make_episode(row.settings(base, config.moves), object_set, views.intrinsics, views.table_height,
-                              classifier)
+                              classifier, scene_split)
 
 
 def _row_records(config: Table1Config, row: protocol.Row, episode: active.Episode, views: sources.Preloaded,
@@ -208,7 +210,8 @@ def time_modules(config: Table1Config, files: list[Path], dataset: DatasetConfig
     classifier = setup.load_classifier(path, object_set, f"classifiers.{name}")
     views = sources.dataset_source(files[0], dataset.objects)
     row = protocol.ROWS["vis_occl_hist_gr"]
-    episode = _episode(dataclasses.replace(config, moves=config.timing_moves), row, classifier, object_set, views)
+    episode = _episode(dataclasses.replace(config, moves=config.timing_moves), row, classifier, object_set, views,
+                       dataset.scene.split)
     start = int(protocol.start_views(config.seed, 0, 1, len(views.T_wc))[0])
     runner.run(episode, views, start, jax.random.PRNGKey(config.seed))  # compiles
     log = runner.run(episode, views, start, jax.random.PRNGKey(config.seed))

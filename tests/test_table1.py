@@ -156,11 +156,11 @@ def test_bad_inputs_are_refused_naming_the_key_or_file(table1, tmp_path):
     with pytest.raises(ConfigError, match="unknown row 'vis_oops'"):
         load_config(table1.Table1Config, "table1_synthetic", ["rows=[vis_oops]"])
     with pytest.raises(ValueError, match="neither a dataset folder nor a dataset config"):
-        table1.open_dataset(table1.Table1Config(dataset=str(tmp_path / "nothing")))
+        table1.open_dataset(table1.Table1Config(dataset=str(tmp_path / "nothing"), classifiers={"c": ""}))
     empty = tmp_path / "empty"
     empty.mkdir()
     with pytest.raises(ValueError, match=r"no config\.yaml"):
-        table1.open_dataset(table1.Table1Config(dataset=str(empty)))
+        table1.open_dataset(table1.Table1Config(dataset=str(empty), classifiers={"c": ""}))
     # A dataset folder whose scenes were drawn from another object set than its config says.
     from jaxcls.world.dataset import DatasetConfig
 

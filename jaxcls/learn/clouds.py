@@ -341,20 +341,27 @@ def _cache_key(object_set: ObjectSet, split: str, config: CloudConfig, object_se
 
 def load_clouds(object_set: ObjectSet, split: Literal["train", "test"], config: CloudConfig,
                 object_set_config: ObjectSetConfig, seed: int = 0, show_progress: bool = True,
-                perception: PerceptionConfig | None = None) -> CloudSet:
+                perception: PerceptionConfig | None = None,
+                models_split: Literal["train", "test"] | None = None) -> CloudSet:
     """All clouds of a split's instances, generated once and cached per instance under ``cache_dir``.
+
+    ``split`` picks the random draw (views, poses, scenes); ``models_split`` the instances they show (default:
+    the same split). ``split="test", models_split="train"`` gives held-out views and poses of the training
+    instances: the evaluation of a set with one model per class (a BOP set such as LINEMOD).
 
     The cache folder is named by a hash of everything that defines the clouds (config, class list, the
     instances' names and surface samples; not the backend, whose renders agree), so a changed config or
     object set never reads stale clouds; an interrupted run resumes.
     """
-    models = object_set.split(split)
+    models_split = models_split or split
+    models = object_set.split(models_split)
     if not models:
-        hint = "; hold some out with objects.test_fraction" if split == "test" else ""
-        raise ValueError(f"clouds: object set '{object_set.name}' has no '{split}' instances{hint}")
+        hint = "; hold some out with objects.test_fraction" if models_split == "test" else ""
+        raise ValueError(f"clouds: object set '{object_set.name}' has no '{models_split}' instances{hint}")
     perception = perception or PerceptionConfig()
-    key = _cache_key(object_set, split, config, object_set_config, seed, perception)
-    folder = Path(config.cache_dir) / f"{object_set.name}_{split}_{key}"
+    key = _cache_key(object_set, models_split, config, object_set_config, seed, perception)
+    name = split if models_split == split else f"{split}-views-of-{models_split}"
+    folder = Path(config.cache_dir) / f"{object_set.name}_{name}_{key}"
     folder.mkdir(parents=True, exist_ok=True)
     parts = []
     split_id = 0 if split == "train" else 1
@@ -384,7 +391,7 @@ def load_clouds(object_set: ObjectSet, split: Literal["train", "test"], config: 
             path = scene_folder / f"scene_{i:04d}.npz"
             if not path.is_file():
                 seq = np.random.SeedSequence([seed, split_id, 1_000_000 + i])
-                _save_part(path, scene_clouds(object_set, split, object_set_config, config,
+                _save_part(path, scene_clouds(object_set, models_split, object_set_config, config,
                                               int(seq.generate_state(1)[0]), perception))
             parts.append(_load_part(path))
     return CloudSet.concatenate(parts)

@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -39,6 +40,8 @@ from jaxcls.perception import pointnet
 from jaxcls.perception.settings import PerceptionConfig
 from jaxcls.world.objects import ObjectSetConfig, object_set_from_config
 
+# What a run's test accuracy is measured on (metrics.json "evaluated_on").
+EVALUATED_ON = {"test": "held-out instances", "train": "held-out views and poses of the training instances"}
 
 @dataclasses.dataclass(frozen=True)
 class Mix:
@@ -277,9 +280,12 @@ def train(config: TrainConfig, show_progress: bool = True) -> Path:
     if config.batch_size % len(devices):
         raise ValueError(f"train: batch_size {config.batch_size} must be a multiple of the {len(devices)} devices")
     object_set = object_set_from_config(config.objects)
-    if not object_set.test:
-        raise ValueError(f"train: object set '{object_set.name}' has no held-out instances to evaluate on; hold "
-                         "some out with objects.test_fraction")
+    # Without held-out instances (one model per class, as a BOP set such as LINEMOD has), evaluate on held-out
+    # views and poses of the training instances: the test draw of the clouds, on the training models.
+    evaluated_on = "test" if object_set.test else "train"
+    if evaluated_on == "train":
+        print(f"train: object set '{object_set.name}' has no held-out instances; evaluating on held-out views "
+              "and poses of the training models", file=sys.stderr)
     classes = object_set.classes
     M = len(classes)
     manager = _checkpoint_manager(run_dir, config)
@@ -289,7 +295,7 @@ def train(config: TrainConfig, show_progress: bool = True) -> Path:
     train_clouds = load_clouds(object_set, "train", config.data, config.objects, config.seed, show_progress,
                                config.perception)
     test_clouds = load_clouds(object_set, "test", config.data, config.objects, config.seed, show_progress,
-                              config.perception)
+                              config.perception, models_split=evaluated_on)
     used = np.asarray([getattr(config.mix, s) > 0 for s in SOURCES])[train_clouds.source]
     steps = config.steps_per_epoch or max(1, int(used.sum()) // config.batch_size)
     mesh = Mesh(np.asarray(devices), ("data",))
@@ -325,16 +331,17 @@ def train(config: TrainConfig, show_progress: bool = True) -> Path:
                   for s, (p, m, y, _) in evals.items()}
         history.append({"epoch": epoch + 1, "loss": loss, "train_accuracy": accuracy, "test_accuracy": scores,
                         "train_seconds": seconds, "clouds_per_second": steps * config.batch_size / seconds})
-        io.write_json(metrics_path, {"classes": list(classes), "history": history})
+        io.write_json(metrics_path, {"classes": list(classes), "evaluated_on": EVALUATED_ON[evaluated_on],
+                                     "history": history})
         manager.save(epoch + 1, args=ocp.args.StandardSave(_saved(state)))
         bar.set_postfix(loss=f"{loss:.3f}", acc=f"{accuracy:.3f}",
                         **{f"test_{s}": f"{v:.3f}" for s, v in scores.items()})
     manager.wait_until_finished()
-    return finish(run_dir, config, classes, state, evals, history, orders)
+    return finish(run_dir, config, classes, state, evals, history, orders, evaluated_on)
 
 
 def finish(run_dir: Path, config: TrainConfig, classes: tuple[str, ...], state: TrainState,
-           evals: dict, history: list[dict], orders: tuple[int, ...] = ()) -> Path:
+           evals: dict, history: list[dict], orders: tuple[int, ...] = (), evaluated_on: str = "test") -> Path:
     """Final per-class figures (None for a class without held-out clouds), confusion matrices, the yaw
     head's errors, plots and the exported weights."""
     M = len(classes)
@@ -352,7 +359,8 @@ def finish(run_dir: Path, config: TrainConfig, classes: tuple[str, ...], state: 
             final[source]["yaw_error_deg"] = {"median": float(np.median(errors)) if len(errors) else None,
                                               "within_15": float(np.mean(errors <= 15)) if len(errors) else None,
                                               "count": len(errors)}
-    io.write_json(run_dir / "metrics.json", {"classes": list(classes), "final": final, "history": history})
+    io.write_json(run_dir / "metrics.json", {"classes": list(classes), "evaluated_on": EVALUATED_ON[evaluated_on],
+                                              "final": final, "history": history})
     viz.save(viz.training_curve(history), run_dir / "curve.png")
     viz.save(viz.confusion({s: np.asarray(f["confusion"]) for s, f in final.items()}, classes),
              run_dir / "confusion.png")
