@@ -286,13 +286,14 @@ def _differences(config: Table1Config, by: dict, c: str, classes: int) -> list[s
     VisOcclHistGR and against PointNetSingle; the oracle against the best policy."""
     T, notes = config.moves, []
 
-    def scenes_of(name, move):
-        return protocol.per_scene(by.get((c, name), []), move)
+    def scenes_of(name, move, keep=None):
+        return protocol.per_scene([r for r in by.get((c, name), []) if keep is None or r["scene"] in keep], move)
 
     def diff(a, b, move_a=T, move_b=T):
-        sa, sb = scenes_of(a, move_a), scenes_of(b, move_b)
-        shared = min(len(sa), len(sb))
-        d, lo, hi = metrics.paired_difference(sa[:shared], sb[:shared], classes, resamples=config.resamples)
+        # Paired on the scenes both rows have (the oracle runs on fewer; an interrupted run may have more).
+        shared = {r["scene"] for r in by[c, a]} & {r["scene"] for r in by[c, b]}
+        d, lo, hi = metrics.paired_difference(scenes_of(a, move_a, shared), scenes_of(b, move_b, shared), classes,
+                                              resamples=config.resamples)
         sig = "" if lo <= 0 <= hi else " (the interval excludes 0)"
         return f"{protocol.ROWS[a].label} - {protocol.ROWS[b].label}: {d:+.3f} [{lo:+.3f}, {hi:+.3f}]{sig}"
 
