@@ -37,7 +37,7 @@ def _libc() -> ctypes.CDLL | None:
     return libc if hasattr(libc, "gnu_get_libc_version") else None
 
 
-def retain_freed_memory(limit_bytes: int = 1 << 30) -> bool:
+def retain_freed_memory(limit_bytes: int = 256 << 20) -> bool:
     """Serve blocks below ``limit_bytes`` from the heap and keep up to ``limit_bytes`` of freed memory in
     the process (glibc's ``M_MMAP_THRESHOLD`` and ``M_TRIM_THRESHOLD``). True when glibc took both."""
     if limit_bytes <= 0:
