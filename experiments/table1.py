@@ -34,7 +34,7 @@ import jax
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaxcls import allocator, io, metrics, report, viz
+from jaxcls import io, metrics, report, viz
 from jaxcls.config import ConfigError, bounded, check_bounds, load_config, resolve_config, save_config
 from jaxcls.episode import active, protocol, runner, scoring, setup, sources
 from jaxcls.perception import pointnet
@@ -333,7 +333,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="only the tables of the episodes stored in out_dir (none run, no scene file read)")
     parser.add_argument("overrides", nargs="*")
     args = parser.parse_intermixed_args(argv)
-    allocator.retain_freed_memory()
+    # No allocator.retain_freed_memory() here: two CPU runs of ~35 row compiles each died with LLVM's "Cannot
+    # allocate memory" while it was on (cause not established); batched episodes gain little from it.
     config = load_config(Table1Config, args.config, args.overrides)
     out = Path(config.out_dir)
     _check_out_dir(config, out)
