@@ -333,8 +333,9 @@ def main(argv: list[str] | None = None) -> None:
                         help="only the tables of the episodes stored in out_dir (none run, no scene file read)")
     parser.add_argument("overrides", nargs="*")
     args = parser.parse_intermixed_args(argv)
-    # No allocator.retain_freed_memory() here: two CPU runs of ~35 row compiles each died with LLVM's "Cannot
-    # allocate memory" while it was on (cause not established); batched episodes gain little from it.
+    # No allocator.retain_freed_memory() here: batched episodes gain little from it. (Long CPU runs die with
+    # LLVM's "Cannot allocate memory" after ~30 row compiles in one process, with or without it: run fewer
+    # rows or one classifier per process there; the command resumes.)
     config = load_config(Table1Config, args.config, args.overrides)
     out = Path(config.out_dir)
     _check_out_dir(config, out)
