@@ -197,8 +197,9 @@ def _row_records(config: Table1Config, row: protocol.Row, episode: active.Episod
         return [protocol.episode_record(protocol.oracle_rollout(episode, views.depth, views.T_wc, int(starts[r]),
                                                                 keys[r], truth), truth, run=r, start=int(starts[r]))
                 for r in runs]
-    traces = protocol.rollouts(episode, views.depth, views.T_wc, starts, keys)  # all runs: one compiled shape
-    return [protocol.episode_record(jax.tree.map(lambda x, r=r: np.asarray(x[r]), traces), truth, run=r,
+    # All runs (one compiled shape), brought to the host once.
+    traces = jax.device_get(protocol.rollouts(episode, views.depth, views.T_wc, starts, keys))
+    return [protocol.episode_record(jax.tree.map(lambda x, r=r: x[r], traces), truth, run=r,
                                     start=int(starts[r])) for r in runs]
 
 
