@@ -326,6 +326,14 @@ class Trace:
     done: jax.Array
 
 
+def trace(state: EpisodeState, view: jax.Array, skipped: jax.Array | bool = False) -> Trace:
+    """The ``Trace`` of the move to ``view`` that left ``state``; ``skipped``: it was not made (stopped)."""
+    obs = state.observation
+    return Trace(view=view, refinement=state.refinement, probs=obs.probs, centroid=centroids(obs),
+                 points=jnp.sum(obs.segments.mask, axis=1).astype(jnp.int32), next_view=state.next_view,
+                 done=jnp.asarray(skipped, bool))
+
+
 def rollout(episode: Episode, state: EpisodeState, depth: jax.Array, T_wc: jax.Array
             ) -> tuple[EpisodeState, Trace]:
     """A whole episode on frames in memory: depth [V, H, W] and T_wc [V, 4, 4] of every viewpoint (a
@@ -341,10 +349,7 @@ def rollout(episode: Episode, state: EpisodeState, depth: jax.Array, T_wc: jax.A
         skipped = state.done
         view = state.next_view
         state = step(episode, state, depth[view], T_wc[view])
-        obs, r = state.observation, state.refinement
-        return state, Trace(view=view, refinement=r, probs=obs.probs, centroid=centroids(obs),
-                            points=jnp.sum(obs.segments.mask, axis=1).astype(jnp.int32), next_view=state.next_view,
-                            done=skipped)
+        return state, trace(state, view, skipped)
 
     return jax.lax.scan(body, state, None, length=episode.config.moves)
 
@@ -377,4 +382,4 @@ def timed_step(episode: Episode, state: EpisodeState, depth: jax.Array, T_wc: ja
 
 __all__ = ["MODULES", "STAGES", "Episode", "EpisodeConfig", "EpisodeState", "StopConfig", "Trace", "belief",
            "centroids", "check_frame", "empty_refinement", "reset", "rollout", "rollout_jit", "seen_from",
-           "step", "step_jit", "timed_step"]
+           "step", "step_jit", "timed_step", "trace"]

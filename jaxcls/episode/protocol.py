@@ -120,13 +120,6 @@ def rollouts(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, starts:
                      jnp.asarray(starts, jnp.int32), keys)
 
 
-def _trace_of(state: active.EpisodeState, view: jax.Array) -> active.Trace:
-    obs = state.observation
-    return active.Trace(view=view, refinement=state.refinement, probs=obs.probs, centroid=active.centroids(obs),
-                        points=jnp.sum(obs.segments.mask, axis=1).astype(jnp.int32), next_view=state.next_view,
-                        done=jnp.zeros((), bool))
-
-
 @jax.jit
 def _all_views(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, key: jax.Array) -> active.Trace:
     V = T_wc.shape[0]
@@ -143,7 +136,7 @@ def _all_views(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, key: 
                           path=order, cameras=T_wc[order, :3, 3],
                           views=state.views.replace(visited=jnp.ones(V, bool).at[0].set(False)))
     state = active.step(episode, state, depth[0], T_wc[0])
-    return jax.tree.map(lambda x: x[None], _trace_of(state, jnp.asarray(0, jnp.int32)))
+    return jax.tree.map(lambda x: x[None], active.trace(state, jnp.asarray(0, jnp.int32)))
 
 
 def all_views(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, key: jax.Array) -> active.Trace:
@@ -158,7 +151,7 @@ def _step_each(episode: active.Episode, state: active.EpisodeState, depth: jax.A
     """The move to each of ``views: [C]`` from ``state`` (vmapped): [C] states and their traces."""
     def go(view):
         new = active.step(episode, state.replace(next_view=view), depth[view], T_wc[view])
-        return new, _trace_of(new, view)
+        return new, active.trace(new, view)
 
     return jax.vmap(go)(views)
 
