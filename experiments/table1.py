@@ -284,7 +284,8 @@ def tables(config: Table1Config, records: list[dict[str, Any]], classes: int, ti
 
 def _differences(config: Table1Config, by: dict, c: str, classes: int) -> list[str]:
     """Paired scene-bootstrap differences of F1 at T: GR against none per pair; every policy against
-    VisOcclHistGR and against PointNetSingle; the oracle against the best policy."""
+    PointNetSingle; VisOcclHist(GR) against Random(GR); every policy against VisOcclHistGR; the oracle
+    against the best policy."""
     T, notes = config.moves, []
 
     def scenes_of(name, move, keep=None):
@@ -307,6 +308,9 @@ def _differences(config: Table1Config, by: dict, c: str, classes: int) -> list[s
         single = "single_gr" if protocol.ROWS[n].refinement else "single"
         if single in present:
             notes.append("Active at T against one view: " + diff(n, single, T, 1))
+    for a, b in (("vis_occl_hist", "random"), ("vis_occl_hist_gr", "random_gr")):  # the paper's VisOcclHist >= Random
+        if a in present and b in present:
+            notes.append("VisOcclHist against Random: " + diff(a, b))
     if "vis_occl_hist_gr" in present:
         notes += ["Against VisOcclHistGR: " + diff(n, "vis_occl_hist_gr") for n in policies
                   if n != "vis_occl_hist_gr"]
