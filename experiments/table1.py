@@ -138,6 +138,19 @@ def _runs_of(row: protocol.Row, runs: int) -> int:
     return 1 if row.kind is protocol.Kind.FULL else runs
 
 
+# Linux caps a process's memory maps (vm.max_map_count, 65530 by default). On XLA's CPU backend each compiled
+# row program holds ~1,600-2,400 of them (its JIT-compiled code), so a process that kept every row's program
+# died with LLVM's "Cannot allocate memory" after ~30. On the CPU the rows run in passes over the scenes of at
+# most this many (classifier, row) programs each, freed after the pass (a scene is read once per pass).
+CPU_PROGRAMS_PER_PASS = 12
+
+
+def passes(programs: list, backend: str) -> list[list]:
+    """``programs`` in the groups that run together: all at once off the CPU, ``CPU_PROGRAMS_PER_PASS`` on it."""
+    size = CPU_PROGRAMS_PER_PASS if backend == "cpu" else max(1, len(programs))
+    return [programs[i:i + size] for i in range(0, len(programs), size)]
+
+
 def run_episodes(config: Table1Config, files: list[Path], dataset: DatasetConfig, store: Path,
                  show_progress: bool = True) -> list[dict[str, Any]]:
     """Every (classifier, row, scene, run) episode not yet in ``store`` (JSONL), appended as each scene's runs
@@ -151,28 +164,32 @@ def run_episodes(config: Table1Config, files: list[Path], dataset: DatasetConfig
               if row.kind is not protocol.Kind.ORACLE or s < config.oracle_scenes
               for run in range(_runs_of(row, config.runs))]
     todo = [k for k in wanted if k not in done]
-    episodes: dict[tuple[str, str], active.Episode] = {}
+    programs = [(c, name) for c in classifiers for name in rows if any(k[:2] == (c, name) for k in todo)]
     with tqdm(total=len(wanted), initial=len(wanted) - len(todo), desc="episodes", unit="episode",
               disable=not show_progress) as bar:
-        for s, path in enumerate(files):
-            scene_todo = [k for k in todo if k[2] == s]
-            if not scene_todo:
-                continue
-            views = sources.dataset_source(path, dataset.objects)
-            truth = scoring.Truth.from_scene(views.scene, object_set)
-            starts = protocol.start_views(config.seed, s, config.runs, len(views.T_wc))
-            keys = protocol.run_keys(config.seed, s, config.runs)
-            for c, classifier in classifiers.items():
-                for name, row in rows.items():
+        for group in passes(programs, jax.default_backend()):
+            episodes: dict[tuple[str, str], active.Episode] = {}
+            for s, path in enumerate(files):
+                scene_todo = [k for k in todo if k[2] == s and k[:2] in group]
+                if not scene_todo:
+                    continue
+                views = sources.dataset_source(path, dataset.objects)
+                truth = scoring.Truth.from_scene(views.scene, object_set)
+                starts = protocol.start_views(config.seed, s, config.runs, len(views.T_wc))
+                keys = protocol.run_keys(config.seed, s, config.runs)
+                for c, name in group:
                     missing = sorted(k[3] for k in scene_todo if k[:2] == (c, name))
                     if not missing:
                         continue
+                    row = rows[name]
                     if (c, name) not in episodes:
-                        episodes[c, name] = _episode(config, row, classifier, object_set, views, dataset.scene.split)
+                        episodes[c, name] = _episode(config, row, classifiers[c], object_set, views,
+                                                     dataset.scene.split)
                     bar.set_postfix(scene=s, classifier=c, row=name)
                     records = _row_records(config, row, episodes[c, name], views, truth, starts, keys, missing)
                     io.append_jsonl(store, [{"classifier": c, "row": name, "scene": s, **r} for r in records])
                     bar.update(len(records))
+            jax.clear_caches()  # the pass's compiled programs (and their memory maps) go
     keep = set(wanted)
     return [r for r in io.read_jsonl(store) if _key(r) in keep]
 
@@ -338,9 +355,7 @@ def main(argv: list[str] | None = None) -> None:
                         help="only the tables of the episodes stored in out_dir (none run, no scene file read)")
     parser.add_argument("overrides", nargs="*")
     args = parser.parse_intermixed_args(argv)
-    # No allocator.retain_freed_memory() here: batched episodes gain little from it. (Long CPU runs die with
-    # LLVM's "Cannot allocate memory" after ~30 row compiles in one process, with or without it: run fewer
-    # rows or one classifier per process there; the command resumes.)
+    # No allocator.retain_freed_memory() here: batched episodes gain little from it.
     config = load_config(Table1Config, args.config, args.overrides)
     out = Path(config.out_dir)
     _check_out_dir(config, out)

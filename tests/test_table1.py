@@ -10,6 +10,7 @@ import json
 import sys
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
@@ -82,7 +83,17 @@ def test_interrupted_experiment_resumes_and_the_same_seed_gives_the_same_numbers
     table1.main(argv)  # a complete run: nothing to do, nothing added
     assert io.read_jsonl(store) == records
 
-    table1.main(_small(tmp_path, "b"))  # the same config from scratch
+    # The same config from scratch, one compiled program per pass over the scenes (as on a CPU with many
+    # rows): the same records, and every program's memory maps freed afterwards (vm.max_map_count).
+    monkeypatch.setattr(table1, "CPU_PROGRAMS_PER_PASS", 1)
+    assert table1.passes([1, 2, 3], "cpu") == [[1], [2], [3]] and table1.passes([1, 2, 3], "gpu") == [[1, 2, 3]]
+    jax.clear_caches()  # "b" compiles its programs afresh
+    maps_before = _memory_maps()
+    table1.main(_small(tmp_path, "b"))
+    maps_after = _memory_maps()
+    print("memory maps before and after a run:", maps_before, maps_after)
+    if maps_before is not None:
+        assert maps_after < maps_before + 1000  # one compiled row program alone holds ~1,600-2,400
     again = io.read_jsonl(tmp_path / "b" / "episodes.jsonl")
     order = sorted(range(len(records)), key=lambda i: keys[i])
     assert [records[i] for i in order] == sorted(again, key=lambda r: (r["classifier"], r["row"], r["scene"], r["run"]))
@@ -123,6 +134,12 @@ def test_the_oracle_bounds_a_policy_one_move_ahead(table1, tmp_path):
         gains.append(f1(oracle) - f1(policy))
     print("oracle - policy F1 after move 2, per run:", gains)
     assert min(gains) >= -1e-9
+
+
+def _memory_maps() -> int | None:
+    """The process's memory maps (Linux), None elsewhere."""
+    maps = Path("/proc/self/maps")
+    return sum(1 for _ in maps.open()) if maps.exists() else None
 
 
 def _record(row: str, scene: int, run: int, true: list[int], labels: list[list[int]]) -> dict:
