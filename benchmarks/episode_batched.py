@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxcls import io, metrics, report
+from jaxcls import io, metrics, precision, report
 from jaxcls.episode import active, scoring, setup
 from jaxcls.geometry import Intrinsics
 
@@ -50,8 +50,7 @@ def main(argv: list[str] | None = None) -> None:
         save_frames(args.save, args.seed)
         print(f"wrote {args.save}")
         return
-    if jax.default_backend() == "gpu":
-        jax.config.update("jax_default_matmul_precision", "highest")  # camera poses need it on GPUs
+    precision.full_float32_matmuls()  # camera poses need it on GPUs
 
     from jaxcls.world.objects import object_set_from_config
     from jaxcls.world.scenes import Scene

@@ -9,7 +9,9 @@ written by ``jaxcls dataset``; a config's folder is rendered first if it is miss
 ``protocol.ROWS`` names (``rows``); each runs ``runs`` episodes per scene from seeded random start views
 (the same starts and keys for every row: rows are paired), ``moves`` moves each, with every classifier of
 ``classifiers`` (name: a ``.msgpack`` path or a shipped name, "" = the shipped weights). The oracle row
-runs on the first ``oracle_scenes`` scenes only (it tries every candidate at every move).
+runs on the first ``oracle_scenes`` scenes only (it tries every candidate at every move), a scene's runs
+together (``oracle_runs_per_call`` at a time). On a GPU, float32 products run at full precision
+(``jaxcls.precision``).
 
 Episodes stream to ``out_dir/episodes.jsonl`` as each scene's runs of a row finish; running the command
 again skips what is there (an interrupted run resumes without redoing or losing an episode; a torn last
@@ -34,7 +36,7 @@ import jax
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaxcls import io, metrics, report, viz
+from jaxcls import io, metrics, precision, report, viz
 from jaxcls.config import ConfigError, bounded, check_bounds, load_config, resolve_config, save_config
 from jaxcls.episode import active, protocol, runner, scoring, setup, sources
 from jaxcls.perception import pointnet
@@ -61,6 +63,9 @@ class Table1Config:
     moves: int = bounded(10, ge=1)  # T
     rows: tuple[str, ...] = protocol.PAPER_ROWS
     oracle_scenes: int = bounded(7, ge=0)  # the oracle row runs on the first this many scenes
+    # The oracle's runs of a scene tried together (each tries every candidate at every move: runs x
+    # candidates moves in one vmapped call, ~45 MB each at 640x480 on a CPU); 0 = all of a scene's runs.
+    oracle_runs_per_call: int = bounded(0, ge=0)
     # name: weights (a .msgpack path or a shipped name, "" = the shipped weights); no default, so that a
     # config's own list is the whole list (OmegaConf merges mappings into the defaults).
     classifiers: dict[str, str] = dataclasses.field(default_factory=dict)
@@ -80,7 +85,8 @@ class Table1Config:
     def results_defining(self) -> dict[str, Any]:
         """What the stored episodes depend on (a rerun with another of these must use another out_dir)."""
         return {k: v for k, v in dataclasses.asdict(self).items()
-                if k not in ("out_dir", "rows", "oracle_scenes", "timing_moves", "resamples", "scenes")}
+                if k not in ("out_dir", "rows", "oracle_scenes", "oracle_runs_per_call", "timing_moves", "resamples",
+                             "scenes")}
 
 
 # --- the dataset -------------------------------------------------------------------------------------------
@@ -211,9 +217,14 @@ def _row_records(config: Table1Config, row: protocol.Row, episode: active.Episod
         trace = protocol.all_views(episode, views.depth, views.T_wc, keys[0])
         return [protocol.episode_record(trace, truth, run=0, start=-1)]
     if row.kind is protocol.Kind.ORACLE:
-        return [protocol.episode_record(protocol.oracle_rollout(episode, views.depth, views.T_wc, int(starts[r]),
-                                                                keys[r], truth), truth, run=r, start=int(starts[r]))
-                for r in runs]
+        size = config.oracle_runs_per_call or len(runs)
+        records = []
+        for chunk in (runs[i:i + size] for i in range(0, len(runs), size)):
+            traces = protocol.oracle_rollouts(episode, views.depth, views.T_wc, starts[chunk], keys[np.asarray(chunk)],
+                                              truth)
+            records += [protocol.episode_record(jax.tree.map(lambda x, i=i: x[i], traces), truth, run=r,
+                                                start=int(starts[r])) for i, r in enumerate(chunk)]
+        return records
     # All runs (one compiled shape), brought to the host once.
     traces = jax.device_get(protocol.rollouts(episode, views.depth, views.T_wc, starts, keys))
     return [protocol.episode_record(jax.tree.map(lambda x, r=r: x[r], traces), truth, run=r,
@@ -356,6 +367,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("overrides", nargs="*")
     args = parser.parse_intermixed_args(argv)
     # No allocator.retain_freed_memory() here: batched episodes gain little from it.
+    precision.full_float32_matmuls()  # a GPU computes the CPU's episodes (jaxcls.precision)
     config = load_config(Table1Config, args.config, args.overrides)
     out = Path(config.out_dir)
     _check_out_dir(config, out)

@@ -9,8 +9,8 @@ The folders follow the pipeline (``docs/ARCHITECTURE.md``):
 - ``learn``: training clouds and the classifier's training;
 - at the top: ``geometry`` (cameras, poses as ``jaxlie.SE3``, viewpoints), ``math`` (NaN-safe norms and
   divisions), ``config`` (YAML -> typed configs), ``io`` (atomic writes), ``allocator`` (freed memory kept
-  for reuse), ``viz`` (figures), ``report`` (Markdown tables) and ``cli`` with ``commands`` (the ``jaxcls``
-  command).
+  for reuse), ``precision`` (full float32 products on GPUs), ``viz`` (figures), ``report`` (Markdown
+  tables) and ``cli`` with ``commands`` (the ``jaxcls`` command).
 
 Imports run one way: world -> perception -> (planning -> episode) -> commands; learning reads the world
 and perception. Subpackages load on first use, so that training a classifier does not need MuJoCo.
@@ -20,7 +20,7 @@ import importlib
 
 __version__ = "0.2.0"
 
-__all__ = ["commands", "config", "geometry", "io", "learn", "math", "perception", "report", "viz", "world"]
+__all__ = ["commands", "config", "geometry", "io", "learn", "math", "perception", "precision", "report", "viz", "world"]
 
 
 def __getattr__(name: str):

@@ -113,27 +113,35 @@ def test_interrupted_experiment_resumes_and_the_same_seed_gives_the_same_numbers
 
 def test_the_oracle_bounds_a_policy_one_move_ahead(table1, tmp_path):
     """From the same start, the oracle's second move scores at least the F1 of VisOcclHistGR's second move:
-    both share the first move, and the policy's pick is one of the candidates the oracle scores."""
+    both share the first move, and the policy's pick is one of the candidates the oracle scores. So it does
+    with a scene's runs tried all in one vmapped call and two at a time (``oracle_runs_per_call``)."""
     # The paper-recipe weights, whose labels change from view to view, and every view a candidate (12 views
     # are too sparse for the 0.5 m radius): candidates differ in F1.
     argv = _small(tmp_path, "o", "scenes=1", "runs=4", "rows=[vis_occl_hist_gr,oracle_gr]", "oracle_scenes=1",
                   "nbv.radius=2.0", classifiers="{paper: builtin_paper}")
     table1.main(argv)
+    table1.main([*argv, "rows=[oracle_gr]", "oracle_runs_per_call=2", f"out_dir={tmp_path / 'o2'}"])
     records = {(r["row"], r["run"]): r for r in io.read_jsonl(tmp_path / "o" / "episodes.jsonl")}
     assert len(records) == 8
+    in_pairs = {r["run"]: r for r in io.read_jsonl(tmp_path / "o2" / "episodes.jsonl")}
+    assert sorted(in_pairs) == [0, 1, 2, 3]
     classes = len(object_set_from_config(ObjectSetConfig()).classes)  # the synthetic set's, the builtin one
-    gains = []
-    for run in range(4):
-        policy, oracle = records["vis_occl_hist_gr", run], records["oracle_gr", run]
-        assert oracle["path"][0] == policy["path"][0] and oracle["refined"][0] == policy["refined"][0]
-        assert len(oracle["path"]) == 2 and oracle["path"][1] != oracle["path"][0]
 
-        def f1(r):
-            return metrics.classification_scores(np.asarray(r["true"]), np.asarray(r["refined"][1]), classes).f1
+    def f1(r):
+        return metrics.classification_scores(np.asarray(r["true"]), np.asarray(r["refined"][1]), classes).f1
 
-        gains.append(f1(oracle) - f1(policy))
-    print("oracle - policy F1 after move 2, per run:", gains)
-    assert min(gains) >= -1e-9
+    for oracles in ({run: records["oracle_gr", run] for run in range(4)}, in_pairs):
+        gains = []
+        for run, oracle in oracles.items():
+            policy = records["vis_occl_hist_gr", run]
+            assert oracle["path"][0] == policy["path"][0] and oracle["refined"][0] == policy["refined"][0]
+            assert len(oracle["path"]) == 2 and oracle["path"][1] != oracle["path"][0]
+            gains.append(f1(oracle) - f1(policy))
+        print("oracle - policy F1 after move 2, per run:", gains)
+        assert min(gains) >= -1e-9
+    # Batches of other sizes may round differently and break a tie between candidates otherwise (seen: one
+    # run of four took another of two candidates of equal F1); the best F1 found is the same.
+    assert [f1(in_pairs[run]) for run in range(4)] == pytest.approx([f1(records["oracle_gr", run]) for run in range(4)])
 
 
 def _memory_maps() -> int | None:

@@ -11,7 +11,7 @@ views (``start_views``) with T moves; the episodes of one scene run together, ``
 - ``policy``: the NBV policy's T moves (``Random``, ``VisNoOccl``, ``VisOccl``, ``VisOcclHist``, and the
   policies beyond the paper);
 - ``oracle``: at each move every candidate's real next view is fused, segmented, classified and refined,
-  and the one whose refined labels score the best true F1 is taken (``oracle_rollout``): the upper bound of
+  and the one whose refined labels score the best true F1 is taken (``oracle_rollouts``): the upper bound of
   any next-best-view policy.
 
 ``episode_record`` turns an episode into its JSON record (the target objects' labels after every move,
@@ -145,10 +145,9 @@ def all_views(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, key: j
     return _all_views(episode, jnp.asarray(depth, jnp.float32), jnp.asarray(T_wc, jnp.float32), key)
 
 
-@jax.jit
-def _step_each(episode: active.Episode, state: active.EpisodeState, depth: jax.Array, T_wc: jax.Array,
-               views: jax.Array) -> tuple[active.EpisodeState, active.Trace]:
-    """The move to each of ``views: [C]`` from ``state`` (vmapped): [C] states and their traces."""
+def _moves_to(episode: active.Episode, state: active.EpisodeState, depth: jax.Array, T_wc: jax.Array,
+              views: jax.Array) -> tuple[active.EpisodeState, active.Trace]:
+    """The move to each of ``views: [C]`` from one ``state`` (vmapped): [C] states and their traces."""
     def go(view):
         new = active.step(episode, state.replace(next_view=view), depth[view], T_wc[view])
         return new, active.trace(new, view)
@@ -156,34 +155,50 @@ def _step_each(episode: active.Episode, state: active.EpisodeState, depth: jax.A
     return jax.vmap(go)(views)
 
 
-def oracle_rollout(episode: active.Episode, depth: np.ndarray, T_wc: np.ndarray, start: int, key: jax.Array,
-                   truth: scoring.Truth) -> active.Trace:
-    """The oracle NBV: the first move from ``start``; then at each move every candidate (``nbv.candidates``
-    within the radius, unvisited ones first) is fused, segmented, classified and refined, and the one
-    whose refined labels score the best true F1 of the target objects is kept (ties: the nearer
-    candidate). A ``Trace`` with [T, ...] leaves."""
+# The runs' first states: starts [R], keys [R] -> [R] states.
+_resets = jax.jit(jax.vmap(active.reset, in_axes=(None, None, 0, 0)))
+# Runs [R] of one scene, each from its own state to its own candidates: views [R, C] -> [R, C] states, traces.
+_runs_moves_to = jax.jit(jax.vmap(_moves_to, in_axes=(None, 0, None, None, 0)))
+
+
+@jax.jit
+def _runs_candidates(episode: active.Episode, views: nbv.Views) -> tuple[jax.Array, jax.Array]:
+    """Each run's candidates (``nbv.candidates``): index, ok [R, C]; C fixed (``max_candidates``)."""
+    return jax.vmap(lambda v: nbv.candidates(v, episode.nbv_config))(views)
+
+
+def oracle_rollouts(episode: active.Episode, depth: np.ndarray, T_wc: np.ndarray, starts: np.ndarray,
+                    keys: jax.Array, truth: scoring.Truth) -> active.Trace:
+    """The oracle NBV for the runs ``starts: [R]`` (keys [R]) of one scene: the first move from each start;
+    then at each move every candidate of every run (``nbv.candidates`` within the radius, unvisited ones
+    first) is fused, segmented, classified and refined in one vmapped call, and each run keeps the one whose
+    refined labels score the best true F1 of the target objects (ties: the nearer candidate). A ``Trace``
+    with [R, T, ...] leaves."""
     depth, T_wc = jnp.asarray(depth, jnp.float32), jnp.asarray(T_wc, jnp.float32)
-    num_classes = len(episode.spec.classifier.classes)
-    state = active.reset(episode, T_wc, start, key)
-    states, traces = _step_each(episode, state, depth, T_wc, jnp.asarray([start], jnp.int32))
-    pick = 0
+    starts = np.asarray(starts, np.int64)
+    R, num_classes = len(starts), len(episode.spec.classifier.classes)
+    runs = np.arange(R)
+    states = _resets(episode, T_wc, jnp.asarray(starts, jnp.int32), keys)
+    states, traces = _runs_moves_to(episode, states, depth, T_wc, jnp.asarray(starts[:, None], jnp.int32))
+    pick = np.zeros(R, np.int64)
     kept = []
     for _ in range(episode.config.moves):
-        state = jax.tree.map(lambda x, p=pick: x[p], states)
-        kept.append(jax.tree.map(lambda x, p=pick: np.asarray(x[p]), traces))
+        states = jax.tree.map(lambda x, p=pick: x[runs, p], states)
+        kept.append(jax.tree.map(lambda x, p=pick: np.asarray(x)[runs, p], traces))
         if len(kept) == episode.config.moves:
             break
-        index, ok = nbv.candidates(state.views, episode.nbv_config)  # [C]: a fixed shape, one compile
-        index, ok = np.asarray(index), np.asarray(ok)
-        fresh = ok & ~np.asarray(state.views.visited)[index]
-        allowed = fresh if fresh.any() else ok if ok.any() else np.arange(len(index)) == 0
-        states, traces = _step_each(episode, state, depth, T_wc, jnp.asarray(index, jnp.int32))
+        index, ok = map(np.asarray, _runs_candidates(episode, states.views))  # [R, C]
+        fresh = ok & ~np.take_along_axis(np.asarray(states.views.visited), index, axis=1)
+        first = np.arange(index.shape[1]) == 0
+        allowed = np.where(fresh.any(1, keepdims=True), fresh, np.where(ok.any(1, keepdims=True), ok, first))
+        states, traces = _runs_moves_to(episode, states, depth, T_wc, jnp.asarray(index, jnp.int32))
         centroid, valid = np.asarray(traces.centroid), np.asarray(traces.refinement.valid)
         refined = np.asarray(traces.refinement.refined)
-        f1 = [scoring.target_scores(truth, scoring.object_labels(truth, centroid[c], valid[c], refined[c]),
-                                    num_classes).f1 if allowed[c] else -1.0 for c in range(len(index))]
-        pick = int(np.argmax(f1))
-    return jax.tree.map(lambda *xs: np.stack(xs), *kept)
+        f1 = np.array([[scoring.target_scores(truth, scoring.object_labels(truth, centroid[r, c], valid[r, c],
+                                                                          refined[r, c]), num_classes).f1
+                        if allowed[r, c] else -1.0 for c in range(index.shape[1])] for r in runs])
+        pick = np.argmax(f1, axis=1)
+    return jax.tree.map(lambda *xs: np.stack(xs, axis=1), *kept)
 
 
 def episode_record(trace: active.Trace, truth: scoring.Truth, **keys: Any) -> dict[str, Any]:
@@ -239,4 +254,4 @@ def moves_to_correct(records: Sequence[dict[str, Any]], label: str = "refined") 
 
 
 __all__ = ["PAPER_ROWS", "ROWS", "Kind", "Row", "all_views", "episode_record", "moves_to_correct",
-           "oracle_rollout", "per_scene", "rollouts", "row", "run_keys", "start_views"]
+           "oracle_rollouts", "per_scene", "rollouts", "row", "run_keys", "start_views"]

@@ -1,0 +1,29 @@
+"""Float32 matrix products at full float32 precision on accelerators (no TF32 or bfloat16 passes).
+
+On a GPU, XLA runs float32 ``dot``/``einsum``/``@`` at its default precision through the tensor cores
+(TF32: a 10-bit mantissa, ~5e-4 relative). Camera poses applied to points a metre away then move them by
+~0.5 mm, the TSDF's projection and PointNet's features drift from the CPU's, and with sensor noise an
+episode can take another view and end with other labels (RESULTS.md, "CPU against GPU"). The geometry's
+own products pass ``precision=HIGHEST`` where they were found to matter; ``full_float32_matmuls`` makes it
+the process-wide default, so that a GPU run of an episode computes what the CPU computes.
+
+It changes a process-wide setting, so nothing calls it on import: the episode commands (``jaxcls run`` /
+``jaxcls demo``), ``experiments/table1.py`` and the episode benchmarks call it at start-up. Training
+(``jaxcls train``) keeps the default: it gains from TF32 and needs no bit-level agreement.
+"""
+
+from __future__ import annotations
+
+import jax
+
+
+def full_float32_matmuls() -> bool:
+    """Set ``jax_default_matmul_precision`` to "highest" where the default backend is an accelerator; on the
+    CPU, float32 products are full precision already and nothing changes. True if it was set."""
+    if jax.default_backend() == "cpu":
+        return False
+    jax.config.update("jax_default_matmul_precision", "highest")
+    return True
+
+
+__all__ = ["full_float32_matmuls"]
