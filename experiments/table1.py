@@ -10,7 +10,7 @@ written by ``jaxcls dataset``; a config's folder is rendered first if it is miss
 (the same starts and keys for every row: rows are paired), ``moves`` moves each, with every classifier of
 ``classifiers`` (name: a ``.msgpack`` path or a shipped name, "" = the shipped weights). The oracle row
 runs on the first ``oracle_scenes`` scenes only (it tries every candidate at every move), a scene's runs
-together (``oracle_runs_per_call`` at a time). On a GPU, float32 products run at full precision
+together on an accelerator (``oracle_runs_per_call``). On a GPU, float32 products run at full precision
 (``jaxcls.precision``).
 
 Episodes stream to ``out_dir/episodes.jsonl`` as each scene's runs of a row finish; running the command
@@ -64,7 +64,8 @@ class Table1Config:
     rows: tuple[str, ...] = protocol.PAPER_ROWS
     oracle_scenes: int = bounded(7, ge=0)  # the oracle row runs on the first this many scenes
     # The oracle's runs of a scene tried together (each tries every candidate at every move: runs x
-    # candidates moves in one vmapped call, ~45 MB each at 640x480 on a CPU); 0 = all of a scene's runs.
+    # candidates moves in one vmapped call, ~45 MB each at 640x480). 0: all of a scene's runs on an
+    # accelerator (6.8x one at a time on an H100, BENCHMARKS.md), one at a time on the CPU (no faster there).
     oracle_runs_per_call: int = bounded(0, ge=0)
     # name: weights (a .msgpack path or a shipped name, "" = the shipped weights); no default, so that a
     # config's own list is the whole list (OmegaConf merges mappings into the defaults).
@@ -217,7 +218,7 @@ def _row_records(config: Table1Config, row: protocol.Row, episode: active.Episod
         trace = protocol.all_views(episode, views.depth, views.T_wc, keys[0])
         return [protocol.episode_record(trace, truth, run=0, start=-1)]
     if row.kind is protocol.Kind.ORACLE:
-        size = config.oracle_runs_per_call or len(runs)
+        size = config.oracle_runs_per_call or (1 if jax.default_backend() == "cpu" else len(runs))
         records = []
         for chunk in (runs[i:i + size] for i in range(0, len(runs), size)):
             traces = protocol.oracle_rollouts(episode, views.depth, views.T_wc, starts[chunk], keys[np.asarray(chunk)],

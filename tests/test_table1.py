@@ -114,7 +114,8 @@ def test_interrupted_experiment_resumes_and_the_same_seed_gives_the_same_numbers
 def test_the_oracle_bounds_a_policy_one_move_ahead(table1, tmp_path):
     """From the same start, the oracle's second move scores at least the F1 of VisOcclHistGR's second move:
     both share the first move, and the policy's pick is one of the candidates the oracle scores. So it does
-    with a scene's runs tried all in one vmapped call and two at a time (``oracle_runs_per_call``)."""
+    with a scene's runs tried one at a time (the CPU's default) and two in one vmapped call
+    (``oracle_runs_per_call``)."""
     # The paper-recipe weights, whose labels change from view to view, and every view a candidate (12 views
     # are too sparse for the 0.5 m radius): candidates differ in F1.
     argv = _small(tmp_path, "o", "scenes=1", "runs=4", "rows=[vis_occl_hist_gr,oracle_gr]", "oracle_scenes=1",
