@@ -368,7 +368,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("overrides", nargs="*")
     args = parser.parse_intermixed_args(argv)
     # No allocator.retain_freed_memory() here: batched episodes gain little from it.
-    precision.full_float32_matmuls()  # a GPU computes the CPU's episodes (jaxcls.precision)
+    precision.full_float32_matmuls()  # no TF32 on a GPU (jaxcls.precision)
     config = load_config(Table1Config, args.config, args.overrides)
     out = Path(config.out_dir)
     _check_out_dir(config, out)

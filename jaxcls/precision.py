@@ -2,10 +2,11 @@
 
 On a GPU, XLA runs float32 ``dot``/``einsum``/``@`` at its default precision through the tensor cores
 (TF32: a 10-bit mantissa, ~5e-4 relative). Camera poses applied to points a metre away then move them by
-~0.5 mm, the TSDF's projection and PointNet's features drift from the CPU's, and with sensor noise an
-episode can take another view and end with other labels (RESULTS.md, "CPU against GPU"). The geometry's
-own products pass ``precision=HIGHEST`` where they were found to matter; ``full_float32_matmuls`` makes it
-the process-wide default, so that a GPU run of an episode computes what the CPU computes.
+~0.5 mm, and the TSDF's projection and PointNet's features drift from the CPU's. The geometry's own
+products pass ``precision=HIGHEST`` where they were found to matter; ``full_float32_matmuls`` makes it the
+process-wide default, so that TF32 is not one of the differences between a GPU's and a CPU's episodes.
+Others remain (the kernels' summation orders): with sensor noise, a GPU and a CPU episode still part at
+near-ties of ICP or the view utility now and then (RESULTS.md, "CPU against GPU").
 
 It changes a process-wide setting, so nothing calls it on import: the episode commands (``jaxcls run`` /
 ``jaxcls demo``), ``experiments/table1.py`` and the episode benchmarks call it at start-up. Training

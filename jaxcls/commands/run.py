@@ -148,7 +148,7 @@ def run_command(config: RunConfig, overwrite: bool = False, echo=print) -> tuple
 def _run(config: RunConfig, args: argparse.Namespace) -> str:
     from jaxcls import precision
 
-    precision.full_float32_matmuls()  # on a GPU: the CPU's float32 products (jaxcls.precision)
+    precision.full_float32_matmuls()  # no TF32 on a GPU (jaxcls.precision)
     out, log = run_command(config, overwrite=args.overwrite, echo=lambda line: print(line, flush=True))
     final = log.moves[-1]
     score = ""
