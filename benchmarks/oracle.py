@@ -14,7 +14,6 @@ whether the two reach the same final F1 per run.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import time
 
 import jax
@@ -48,10 +47,8 @@ def main(argv: list[str] | None = None) -> None:
     classifier = setup.load_classifier(args.classifier, object_set)
     base = setup.ActiveConfig(perception=setup.episode_perception(), refine=setup.episode_refine(),
                               nbv=setup.episode_nbv())
-    if not classifier.config.yaw_head:
-        base = dataclasses.replace(base, refine=dataclasses.replace(base.refine, yaw_source="hypotheses"))
-    episode = setup.make_episode(protocol.ROWS["oracle_gr"].settings(base, args.moves), object_set,
-                                 views.intrinsics, views.table_height, classifier, dataset.scene.split)
+    episode = protocol.ROWS["oracle_gr"].episode(base, args.moves, classifier, object_set, views.intrinsics,
+                                                 views.table_height, dataset.scene.split)
     starts = protocol.start_views(0, 0, args.runs, len(views.T_wc))
     keys = protocol.run_keys(0, 0, args.runs)
     classes = len(object_set.classes)

@@ -203,12 +203,8 @@ def run_episodes(config: Table1Config, files: list[Path], dataset: DatasetConfig
 
 def _episode(config: Table1Config, row: protocol.Row, classifier: pointnet.Classifier, object_set,
              views: sources.Preloaded, scene_split: str) -> active.Episode:
-    refine = config.refine
-    if refine.yaw_source == "learned" and not classifier.config.yaw_head:
-        refine = dataclasses.replace(refine, yaw_source="hypotheses")  # weights without a yaw head
-    base = setup.ActiveConfig(perception=config.perception, refine=refine, nbv=config.nbv)
-    return setup.make_episode(row.settings(base, config.moves), object_set, views.intrinsics, views.table_height,
-                              classifier, scene_split)
+    base = setup.ActiveConfig(perception=config.perception, refine=config.refine, nbv=config.nbv)
+    return row.episode(base, config.moves, classifier, object_set, views.intrinsics, views.table_height, scene_split)
 
 
 def _row_records(config: Table1Config, row: protocol.Row, episode: active.Episode, views: sources.Preloaded,

@@ -30,10 +30,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxcls.episode import active, scoring
+from jaxcls.episode import active, scoring, setup
 from jaxcls.episode.setup import ActiveConfig
-from jaxcls.perception import observation
+from jaxcls.geometry import Intrinsics
+from jaxcls.perception import observation, pointnet
 from jaxcls.planning import nbv
+from jaxcls.world.objects import ObjectSet
 
 
 class Kind(enum.Enum):
@@ -60,6 +62,15 @@ class Row:
         episode = dataclasses.replace(base.episode, policy=self.policy, refinement=self.refinement,
                                       moves=1 if self.kind is Kind.SINGLE else moves, off_grid=False)
         return dataclasses.replace(base, episode=episode, refine=dataclasses.replace(base.refine, library=self.library))
+
+    def episode(self, base: ActiveConfig, moves: int, classifier: pointnet.Classifier, object_set: ObjectSet,
+                intrinsics: Intrinsics, table_height: float, scene_split: str = "test") -> active.Episode:
+        """This row's episode (``settings``) with ``classifier``; weights without a yaw head take GR's yaw
+        hypotheses instead of the learned yaw."""
+        if base.refine.yaw_source == "learned" and not classifier.config.yaw_head:
+            base = dataclasses.replace(base, refine=dataclasses.replace(base.refine, yaw_source="hypotheses"))
+        return setup.make_episode(self.settings(base, moves), object_set, intrinsics, table_height, classifier,
+                                  scene_split)
 
 
 def _pair(name: str, label: str, kind: Kind, policy: str = "vis_occl_hist") -> dict[str, Row]:
@@ -180,11 +191,12 @@ def oracle_rollouts(episode: active.Episode, depth: np.ndarray, T_wc: np.ndarray
     runs = np.arange(R)
     states = _resets(episode, T_wc, jnp.asarray(starts, jnp.int32), keys)
     states, traces = _runs_moves_to(episode, states, depth, T_wc, jnp.asarray(starts[:, None], jnp.int32))
+    traces = jax.device_get(traces)  # [R, C] traces on the host once a move: scored, and the picks kept
     pick = np.zeros(R, np.int64)
     kept = []
     for _ in range(episode.config.moves):
         states = jax.tree.map(lambda x, p=pick: x[runs, p], states)
-        kept.append(jax.tree.map(lambda x, p=pick: np.asarray(x)[runs, p], traces))
+        kept.append(jax.tree.map(lambda x, p=pick: x[runs, p], traces))
         if len(kept) == episode.config.moves:
             break
         index, ok = map(np.asarray, _runs_candidates(episode, states.views))  # [R, C]
@@ -192,8 +204,8 @@ def oracle_rollouts(episode: active.Episode, depth: np.ndarray, T_wc: np.ndarray
         first = np.arange(index.shape[1]) == 0
         allowed = np.where(fresh.any(1, keepdims=True), fresh, np.where(ok.any(1, keepdims=True), ok, first))
         states, traces = _runs_moves_to(episode, states, depth, T_wc, jnp.asarray(index, jnp.int32))
-        centroid, valid = np.asarray(traces.centroid), np.asarray(traces.refinement.valid)
-        refined = np.asarray(traces.refinement.refined)
+        traces = jax.device_get(traces)
+        centroid, valid, refined = traces.centroid, traces.refinement.valid, traces.refinement.refined
         f1 = np.array([[scoring.target_scores(truth, scoring.object_labels(truth, centroid[r, c], valid[r, c],
                                                                           refined[r, c]), num_classes).f1
                         if allowed[r, c] else -1.0 for c in range(index.shape[1])] for r in runs])
