@@ -12,10 +12,15 @@ from move to move), each from the same stored state and frame:
 
 - ours, stage by stage: ``active.timed_step`` (each module its own jit, waited for: the per-module times);
 - ours, fused: ``active.step_jit`` (one XLA program per move; total only);
-- peer: reconstruction with Open3D's ``UniformTSDFVolume`` (the episode's 0.6 m / 128^3 cube, 4-voxel
-  truncation; one volume per episode, the new frame integrated) and ``extract_point_cloud``, table points
-  dropped, padded to the episode's surface size; segmentation with the reference path
-  (``perception.segment.segment``: scikit-learn DBSCAN, the footprint watershed, K-means); classification
+- peer: reconstruction as ours does it, the camera tracked first (``active.timed_step``'s reconstruction
+  registers the frame to the fused model before fusing it): the frame registered to the peer's current
+  surface (its last ``extract_point_cloud``, table points dropped, with normals) by Open3D's point-to-plane
+  ``registration_icp`` from the reported pose (``benchmarks/tracking.py``'s ``Open3DTracker``: the frame's
+  foreground points at every 2nd pixel, 0.02 m gate, at most 20 iterations; the episode's first frame, with no
+  surface yet, stays at the reported pose), then integrated at the registered pose into Open3D's
+  ``UniformTSDFVolume`` (the episode's 0.6 m / 128^3 cube, 4-voxel truncation; one volume per episode) and
+  ``extract_point_cloud``, table points dropped, padded to the episode's surface size; segmentation with the
+  reference path (``perception.segment.segment``: scikit-learn DBSCAN, the footprint watershed, K-means); classification
   with the same PointNet (``pointnet.classify``); GR with Open3D's point-to-plane ``registration_icp`` for
   every (segment, top-3 class, model of the class, yaw) one after another (``benchmarks/refine.py``'s
   ``_open3d_move``: 30 iterations, rho from KD-trees), on the segments' points strided to the episode's
@@ -131,7 +136,8 @@ def _scene(seed: int, moves: int, classifier: pointnet.Classifier) -> Scene:
 class Peer:
     """The peer composition of a move (Open3D, scikit-learn, the same PointNet, Open3D ICP, NumPy)."""
 
-    def __init__(self, episode: active.Episode, models, refine_bench, nbv_bench, same_models: bool = False):
+    def __init__(self, episode: active.Episode, models, refine_bench, nbv_bench, tracking_bench,
+                 same_models: bool = False):
         import open3d as o3d
 
         self.same_models = same_models
@@ -158,6 +164,10 @@ class Peer:
         self.config = dataclasses.replace(config, top_k=config.top_k * int(per_class[0]))
         self.small = visibility.scaled(self.spec.intrinsics, episode.nbv_config.visibility.scale)
         self.volume = None
+        foreground = self.spec.config.foreground
+        self.tracker = tracking_bench.Open3DTracker(intr, self.spec.floor, foreground.max_depth)
+        self.surface: tuple[np.ndarray, np.ndarray] | None = None  # the last extracted surface: points, normals
+        self.tracking_ms: list[float] = []  # the frame-to-model registrations' times (within reconstruction)
 
     def reset(self, episode: active.Episode) -> None:
         """A new episode (its table, volume and planner settings): an empty volume."""
@@ -170,6 +180,8 @@ class Peer:
         self.volume = integration.UniformTSDFVolume(v.size, v.resolution, v.truncation_voxels * v.voxel_size,
                                                     integration.TSDFVolumeColorType.NoColor,
                                                     np.asarray(self.spec.roi_center, float) - v.size / 2)
+        self.tracker.floor = self.spec.floor  # this episode's table
+        self.surface = None
 
     def integrate(self, depth: np.ndarray, T_wc: np.ndarray) -> None:
         rgbd = self.o3d.geometry.RGBDImage.create_from_color_and_depth(
@@ -178,7 +190,13 @@ class Peer:
         self.volume.integrate(rgbd, self.K, np.linalg.inv(np.asarray(T_wc, np.float64)))
 
     def reconstruct(self, depth: np.ndarray, T_wc: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The frame integrated, the surface extracted, table points dropped, padded to [P]."""
+        """The frame registered to the surface so far (Open3D ICP from the reported ``T_wc``; the first frame of
+        the episode at ``T_wc``), integrated at the registered pose, the surface extracted, table points dropped,
+        padded to [P]."""
+        if self.surface is not None:
+            start = time.perf_counter()
+            T_wc = self.tracker.register(depth, T_wc, *self.surface)
+            self.tracking_ms.append(1e3 * (time.perf_counter() - start))
         self.integrate(depth, T_wc)
         cloud = self.volume.extract_point_cloud()
         points, normals = np.asarray(cloud.points, np.float32), np.asarray(cloud.normals, np.float32)
@@ -188,6 +206,7 @@ class Peer:
         if len(points) > P:  # an evenly spread subset, as ``tsdf.extract_surface``
             pick = np.linspace(0, len(points) - 1, P).round().astype(int)
             points, normals = points[pick], normals[pick]
+        self.surface = (points, normals)
         mask = np.zeros(P, bool)
         mask[:len(points)] = True
         pad = ((0, P - len(points)), (0, 0))
@@ -273,7 +292,7 @@ def main(argv: list[str] | None = None) -> None:
     import open3d as o3d
 
     retained = args.allocator == "retain" and allocator.retain_freed_memory()
-    refine_bench, nbv_bench = _sibling("refine"), _sibling("nbv")
+    refine_bench, nbv_bench, tracking_bench = _sibling("refine"), _sibling("nbv"), _sibling("tracking")
     classifier = pointnet.load_classifier()
     start = time.perf_counter()
     scenes = [_scene(seed, args.moves, classifier) for seed in range(args.scenes)]
@@ -282,8 +301,8 @@ def main(argv: list[str] | None = None) -> None:
     episode = scenes[0].episode
     models = refine.library_models(scenes[0].object_set, episode.refine_config.library)
     assert tuple(m.name for m in models) == episode.library.names, "the peer's models are the episode's library"
-    peer = Peer(episode, models, refine_bench, nbv_bench)
-    peer_same = Peer(episode, models, refine_bench, nbv_bench, same_models=True)
+    peer = Peer(episode, models, refine_bench, nbv_bench, tracking_bench)
+    peer_same = Peer(episode, models, refine_bench, nbv_bench, tracking_bench, same_models=True)
     start = time.perf_counter()
     jax.block_until_ready(active.step_jit(episode, scenes[0].states[1], *scenes[0].frames[1]))
     compile_fused = time.perf_counter() - start
@@ -320,25 +339,26 @@ def main(argv: list[str] | None = None) -> None:
 
     names = {"ours": "jaxcls `active.timed_step` (stage by stage, each module jitted)",
              "fused": "jaxcls `active.step_jit` (the move in one jit)",
-             "peer": "peer: Open3D TSDF + scikit-learn segmentation + PointNet + Open3D ICP (every model of the "
-                     "top-3 classes) + NumPy NBV",
+             "peer": "peer: Open3D ICP tracking + TSDF + scikit-learn segmentation + PointNet + Open3D ICP (every "
+                     "model of the top-3 classes) + NumPy NBV",
              "peer_same": "peer, registering only the models ours registers (of each class the nearest in height)"}
     contenders = {"ours": run_ours, "fused": run_fused, "peer": run_peer, "peer_same": run_peer_same}
     for scene in scenes:  # warm-up of the peer's path (and of pointnet.classify's jit)
         for p in (peer, peer_same):
             p.reset(scene.episode)
-            p.integrate(*scene.frames[0])
+            p.reconstruct(*scene.frames[0])
         for t in range(1, args.moves):
             run_peer(scene, t)
             run_peer_same(scene, t)
     agree["next view"], found_log[:] = [0, 0], []
+    peer.tracking_ms.clear()
     totals = {k: [[] for _ in range(args.rounds)] for k in contenders}
     modules = {k: {m: [] for m in active.MODULES} for k in contenders}
     for r in range(args.rounds):
         for s, scene in enumerate(scenes):
             for p in (peer, peer_same):
                 p.reset(scene.episode)
-                p.integrate(*scene.frames[0])  # move 1, not timed
+                p.reconstruct(*scene.frames[0])  # move 1, not timed (no surface yet: the reported pose)
             for t in range(1, args.moves):
                 order = list(contenders) if (r + s + t) % 2 == 0 else list(reversed(contenders))
                 for key in order:
@@ -368,6 +388,11 @@ def main(argv: list[str] | None = None) -> None:
         f"The peer's surface: median {statistics.median(f['surface'] for f in found_log):.0f} points above the "
         f"table; {statistics.median(segments):.0f} non-empty segments per move, each registered "
         f"{peer.config.top_k} models x {peer.config.hypotheses} yaws (Open3D, {o3d.__version__}).",
+        "Reconstruction includes the camera tracking in both: ours registers the frame to the fused model "
+        "(`tracking.register`, `TrackingConfig()` of the episode's perception) before fusing it; the peer's "
+        "Open3D point-to-plane registration to its surface took a median "
+        f"{statistics.median(peer.tracking_ms):.1f} ms of its reconstruction (`benchmarks/tracking.py` times both "
+        "alone).",
         f"The peer's NBV scores the candidates within the radius (median "
         f"{statistics.median(f['candidates'] for f in found_log):.0f} per move; ours scores all "
         f"{episode.nbv_config.max_candidates}, masked); with our cuboids it picks our next view in "

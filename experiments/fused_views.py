@@ -32,6 +32,7 @@ import table1
 from jaxcls import io, report
 from jaxcls.config import load_config
 from jaxcls.episode import protocol, scoring, setup, sources
+from jaxcls.perception import tracking
 from jaxcls.world.objects import object_set_from_config
 
 POSES = ("reported", "true")
@@ -42,6 +43,37 @@ def subset(seed: int, scene: int, k: int, index: int, num_views: int) -> np.ndar
     if k >= num_views:
         return np.arange(num_views)
     return np.random.default_rng([seed, scene, k, index]).choice(num_views, size=k, replace=False)
+
+
+def pose_errors(fused: np.ndarray, true: np.ndarray, table_height: float) -> dict[str, list[float]]:
+    """Each frame's pose error (fused [K, 4, 4] against true [K, 4, 4] T_wc), rounded for the record:
+    translation_mm, how far the frame's error G = fused @ true^-1 moves the scene's centre (5 cm above the
+    table's centre: where the objects are, so a rotation about the camera counts by its lever arm);
+    rotation_deg, G's angle; relative_mm, the same displacement after the frames' mean error is removed (what
+    blurs the fused model: a common offset of every frame moves the model but does not blur it)."""
+    centre = np.array([0.0, 0.0, table_height + 0.05, 1.0])
+    G = np.asarray(fused, np.float64) @ np.linalg.inv(np.asarray(true, np.float64))
+    moved = (G @ centre)[:, :3] - centre[:3]
+    rotation = [tracking.pose_error(g)[1] for g in G]
+    relative = np.linalg.norm(moved - moved.mean(axis=0), axis=1)
+    return {"translation_mm": np.round(np.linalg.norm(moved, axis=1) * 1e3, 3).tolist(),
+            "rotation_deg": np.round(rotation, 4).tolist(), "relative_mm": np.round(relative * 1e3, 3).tolist()}
+
+
+def error_table(records: list[dict], classifiers, views: list[int], num_views: int) -> str:
+    """Median and 95th percentile of the frames' pose errors (``pose_errors``) per camera-pose source and k."""
+    rows = []
+    c = next(iter(classifiers))
+    for pose in POSES:
+        for name, unit in (("translation_mm", "mm"), ("relative_mm", "mm, mean removed"), ("rotation_deg", "deg")):
+            cells = []
+            for k in views:
+                values = np.concatenate([r["pose_error"][name] for r in records if "pose_error" in r
+                                         and r["classifier"] == c and r["poses"] == pose
+                                         and r["views"] == min(k, num_views)] or [[np.nan]])
+                cells.append(f"{np.median(values):.2f} / {np.percentile(values, 95):.2f}")
+            rows.append((pose, f"{name.split('_')[0]} ({unit})", *cells))
+    return report.table(("camera poses", "error", *(f"k = {k}" for k in views)), rows)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -89,10 +121,13 @@ def main(argv: list[str] | None = None) -> None:
                             bar.update()
                             if record_key in done:
                                 continue
-                            trace = protocol.all_views(episodes[c], views.depth[chosen], poses[pose][chosen],
-                                                       episode_key)
+                            trace, fused = protocol.all_views(episodes[c], views.depth[chosen], poses[pose][chosen],
+                                                              episode_key)
+                            order = np.concatenate([chosen[1:], chosen[:1]])  # all_views fuses view 0 last
                             record = protocol.episode_record(jax.device_get(trace), truth, classifier=c, poses=pose,
                                                              views=min(k, V), scene=s, subset=i, run=0, start=-1)
+                            record["pose_error"] = pose_errors(np.asarray(fused), poses["true"][order],
+                                                               views.table_height)
                             io.append_jsonl(store, [record])
     records = list(io.read_jsonl(store))
     table_rows = []
@@ -108,7 +143,10 @@ def main(argv: list[str] | None = None) -> None:
     markdown = (f"### {row.label} against the views fused on `{config.dataset}`\n\n`{report.command_line(argv)}`\n\n"
                 f"{len(files)} scenes, {args.subsets} random view subsets per scene and k (one when k is every "
                 "view); F1 of the target objects, pooled over scenes, 95% scene-bootstrap interval.\n\n"
-                + report.table(("classifier", "camera poses", *(f"k = {k}" for k in args.views)), table_rows) + "\n")
+                + report.table(("classifier", "camera poses", *(f"k = {k}" for k in args.views)), table_rows) + "\n\n"
+                f"Pose error of the frames fused ({'tracked' if config.perception.tracking.on else 'as given'}; "
+                "median / 95th percentile over frames and scenes), the displacement of the scene's centre and "
+                "the rotation:\n\n" + error_table(records, classifiers, args.views, V) + "\n")
     io.write_text(Path(config.out_dir) / "fused_views.md", markdown)
     report.publish(markdown, args.out)
 

@@ -70,6 +70,7 @@ class Table1Config:
     # name: weights (a .msgpack path or a shipped name, "" = the shipped weights); no default, so that a
     # config's own list is the whole list (OmegaConf merges mappings into the defaults).
     classifiers: dict[str, str] = dataclasses.field(default_factory=dict)
+    decision: active.Decision = "evidence"  # how a segment's class is decided (``active.EpisodeConfig``)
     perception: PerceptionConfig = dataclasses.field(default_factory=setup.episode_perception)
     refine: RefineConfig = dataclasses.field(default_factory=setup.episode_refine)
     nbv: NBVConfig = dataclasses.field(default_factory=setup.episode_nbv)
@@ -203,7 +204,8 @@ def run_episodes(config: Table1Config, files: list[Path], dataset: DatasetConfig
 
 def _episode(config: Table1Config, row: protocol.Row, classifier: pointnet.Classifier, object_set,
              views: sources.Preloaded, scene_split: str) -> active.Episode:
-    base = setup.ActiveConfig(perception=config.perception, refine=config.refine, nbv=config.nbv)
+    base = setup.ActiveConfig(episode=active.EpisodeConfig(decision=config.decision), perception=config.perception,
+                              refine=config.refine, nbv=config.nbv)
     return row.episode(base, config.moves, classifier, object_set, views.intrinsics, views.table_height, scene_split)
 
 
@@ -211,7 +213,7 @@ def _row_records(config: Table1Config, row: protocol.Row, episode: active.Episod
                  truth: scoring.Truth, starts: np.ndarray, keys: jax.Array, runs: list[int]) -> list[dict]:
     """The records of ``runs`` of one row on one scene."""
     if row.kind is protocol.Kind.FULL:
-        trace = protocol.all_views(episode, views.depth, views.T_wc, keys[0])
+        trace, _ = protocol.all_views(episode, views.depth, views.T_wc, keys[0])
         return [protocol.episode_record(trace, truth, run=0, start=-1)]
     if row.kind is protocol.Kind.ORACLE:
         size = config.oracle_runs_per_call or (1 if jax.default_backend() == "cpu" else len(runs))

@@ -85,10 +85,13 @@ def _assert_states_equal(a, b, atol=1e-5, rho_atol=0.0):
     tie = (top[:, -1] - top[:, -2] <= 2 * rho_atol) if rho_atol > 0 else np.zeros(len(top), bool)
     assert (~tie).sum() >= 2, "fewer than two untied segments: the comparison says little"
 
+    # The class evidence sums each move's rho (x probability): it may move by rho's tolerance per move.
+    np.testing.assert_allclose(np.asarray(a.evidence), np.asarray(b.evidence), atol=MOVES * rho_atol + 1e-5)
+
     def untied(state):
         r = state.refinement
         keep = jnp.asarray(~tie)
-        return state.replace(stable=jnp.where(keep, state.stable, 0), refinement=r.replace(
+        return state.replace(stable=jnp.where(keep, state.stable, 0), evidence=0, refinement=r.replace(
             rho=0, refined=jnp.where(keep, r.refined, 0), model=jnp.where(keep, r.model, 0),
             pose=jnp.where(keep[:, None, None], r.pose, 0)))
 

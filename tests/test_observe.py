@@ -12,12 +12,14 @@ from jaxcls import perception
 from jaxcls.geometry import CameraConfig
 from jaxcls.perception import foreground, pointnet, segment, tsdf
 from jaxcls.perception.settings import PerceptionConfig, ShapeConfig, Spec
+from jaxcls.perception.tracking import TrackingConfig
 from jaxcls.world import scenes
 from jaxcls.world.setup import WorldConfig, make_world
 
 CAMERA = CameraConfig.kinect_v1(0.5)
 VIEWS = [20, 50, 80]
 SHAPES = ShapeConfig(surface_points=8192, points_per_segment=512)
+UNTRACKED = TrackingConfig(mode="reported")  # frames fused at the poses given, as the hand-wired chain does
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +35,8 @@ def _frames(table_height: float = 0.0, seed: int = 0):
 
 def test_observe_is_its_stages_composed(classifier):
     world, depth, poses = _frames()
-    spec = Spec.create(PerceptionConfig(shapes=SHAPES), world.intrinsics, world.table_height, classifier)
+    spec = Spec.create(PerceptionConfig(shapes=SHAPES, tracking=UNTRACKED), world.intrinsics, world.table_height,
+                       classifier)
     state = perception.init_state(spec)
     volume = perception.empty_volume(spec)
     for d, T in zip(depth, poses, strict=True):
@@ -95,7 +98,7 @@ def test_the_table_height_flows_from_the_world_to_perception():
                                atol=1e-9)
     segments = []
     for world, depth, poses in (low, high):
-        spec = Spec.create(PerceptionConfig(shapes=SHAPES), world.intrinsics, world.table_height)
+        spec = Spec.create(PerceptionConfig(shapes=SHAPES, tracking=UNTRACKED), world.intrinsics, world.table_height)
         assert spec.roi_center[2] == pytest.approx(0.25 + world.table_height)
         state = perception.init_state(spec)
         for d, T in zip(depth, poses, strict=True):

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from typing import Literal
 
 import jax
 import jax.numpy as jnp
@@ -39,6 +40,7 @@ from jaxcls.perception.settings import Spec
 from jaxcls.planning import nbv
 
 STABLE_DISTANCE = 0.05  # m: a segment is the same object as last move's nearest segment within this
+Decision = Literal["last", "evidence"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -64,6 +66,10 @@ class EpisodeConfig:
     # With the continuous policy: go to the view it found, off the fixed viewpoints (a source that renders
     # any pose, ``sources.Rendered``); the nearest viewpoint stands for it in the candidates and the history.
     off_grid: bool = False
+    # How a segment's class is decided: "last", from this move alone (Eq. 3: argmax rho; the prior with GR
+    # off); "evidence", from the class evidence its object has gathered over the moves (``refinement``).
+    decision: Decision = "evidence"
+    evidence_decay: float = bounded(1.0, ge=0.0, le=1.0)  # last move's evidence counts this much this move
     stop: StopConfig = dataclasses.field(default_factory=StopConfig)
 
     def __post_init__(self) -> None:
@@ -72,6 +78,8 @@ class EpisodeConfig:
             raise ValueError(f"episode.off_grid needs episode.policy=continuous, got {self.policy!r}")
         if self.policy not in nbv.POLICIES:
             raise ValueError(f"episode.policy: unknown policy {self.policy!r}; choose one of {sorted(nbv.POLICIES)}")
+        if self.decision not in ("last", "evidence"):
+            raise ValueError(f"episode.decision must be 'last' or 'evidence', got {self.decision!r}")
         if self.uncertainty not in nbv.UNCERTAINTY:
             raise ValueError(f"episode.uncertainty must be one of {nbv.UNCERTAINTY}, got {self.uncertainty!r}")
 
@@ -129,9 +137,10 @@ class EpisodeState:
     fused (``visited``) and the last one (``current``); path: [T] i32 the views fused, in order (-1 =
     not yet); cameras: [T, 3] m where the frames were taken (NaN = not yet); next_view: [] i32 where the
     policy sends the camera (the next frame's view; with ``off_grid``, the viewpoint nearest it); next_pose:
-    [4, 4] T_wc the next frame is taken from (the viewpoint's, or the continuous policy's own); stable: [N] i32
-    moves each segment's refined class has held; done: [] bool no further move (T reached or the adaptive
-    stop); key: the episode's PRNG key (split by each view choice).
+    [4, 4] T_wc the next frame is taken from (the viewpoint's, or the continuous policy's own, as the robot is
+    told it); stable: [N] i32 moves each segment's refined class has held; evidence: [N, M] f32 the class
+    evidence each segment's object has gathered (``refinement``); done: [] bool no further move (T reached or
+    the adaptive stop); key: the episode's PRNG key (split by each view choice).
     """
 
     observation: Observation
@@ -142,6 +151,7 @@ class EpisodeState:
     next_view: jax.Array
     next_pose: jax.Array
     stable: jax.Array
+    evidence: jax.Array
     done: jax.Array
     key: jax.Array
 
@@ -176,8 +186,13 @@ def reset(episode: Episode, viewpoints: jax.Array, start: int | jax.Array, key: 
     return EpisodeState(observation=observation.init_state(episode.spec), refinement=empty_refinement(N, k),
                         views=views, path=jnp.full(episode.config.moves, -1, jnp.int32),
                         cameras=jnp.full((episode.config.moves, 3), jnp.nan, jnp.float32), next_view=start,
-                        next_pose=viewpoints[start],
-                        stable=jnp.zeros(N, jnp.int32), done=jnp.zeros((), bool), key=key)
+                        next_pose=viewpoints[start], stable=jnp.zeros(N, jnp.int32),
+                        evidence=jnp.zeros(state_classes(episode), jnp.float32), done=jnp.zeros((), bool), key=key)
+
+
+def state_classes(episode: Episode) -> tuple[int, int]:
+    """(N, M): segments and classes, the shape of ``EpisodeState.evidence``."""
+    return episode.spec.num_segments, len(episode.spec.classifier.classes)
 
 
 # --- the stages of a move, each (episode, state, depth, T_wc) -> state ------------------------------------
@@ -188,6 +203,14 @@ def _perception_stage(stage):
 
     run.__doc__ = stage.__doc__
     return run
+
+
+def reconstruction(episode: Episode, state: EpisodeState, depth: jax.Array, T_wc: jax.Array) -> EpisodeState:
+    """Stage 1, reconstruction (``observation.reconstruct``: the camera tracked, the frame fused); the
+    camera's position in ``cameras`` becomes the tracked one."""
+    obs = observation.reconstruct(episode.spec, state.observation, depth, T_wc)
+    t = obs.frames - 1
+    return state.replace(observation=obs, cameras=state.cameras.at[t].set(obs.tracking.pose[:3, 3], mode="drop"))
 
 
 def arrive(episode: Episode, state: EpisodeState, depth: jax.Array | None = None,
@@ -233,9 +256,15 @@ def centroids(obs: Observation) -> jax.Array:
 
 def refinement(episode: Episode, state: EpisodeState, depth: jax.Array | None = None,
                T_wc: jax.Array | None = None) -> EpisodeState:
-    """Stage 4, geometric refinement (Eq. 2-4) of every segment, or the prior alone with GR off; then how
-    many moves each segment's refined class has held (a segment is last move's whose aligned model stands
-    within ``STABLE_DISTANCE`` in xy)."""
+    """Stage 4, geometric refinement (Eq. 2-4) of every segment, or the prior alone with GR off; the class
+    evidence of each segment's object; then how many moves each segment's refined class has held.
+
+    A segment is the same object as last move's whose aligned model stands nearest in xy, within
+    ``STABLE_DISTANCE``. Its evidence is ``evidence_decay`` x that object's evidence plus this move's: rho
+    of each candidate class (Eq. 2; 0 for the other classes), or PointNet's probabilities with GR off. With
+    ``decision = "evidence"`` its class is the evidence's argmax: a move whose segment fits every model
+    badly (a merge, a sliver) adds little and cannot overturn what earlier moves saw; with ``"last"``, this
+    move's class (Eq. 3). The pose and model stay this move's best registration."""
     obs = state.observation
     if episode.config.refinement:
         learned = episode.refine_config.yaw_source == "learned"
@@ -249,9 +278,23 @@ def refinement(episode: Episode, state: EpisodeState, depth: jax.Array | None = 
     d = jnp.linalg.norm(new.pose[:, None, :2, 3] - old.pose[None, :, :2, 3], axis=-1)
     d = jnp.where(old.valid[None, :], d, jnp.inf)
     match = jnp.argmin(d, axis=1)
-    same = (jnp.min(d, axis=1) <= STABLE_DISTANCE) & (old.refined[match] == new.refined)
+    tracked = jnp.min(d, axis=1) <= STABLE_DISTANCE
+    N, M = state.evidence.shape
+    if episode.config.refinement:  # the move's own class scores (refine.decision: rho, or probability x rho)
+        score = new.rho
+        if episode.refine_config.decision == "product":
+            score = score * jnp.take_along_axis(state.observation.probs, new.candidates, axis=1)
+        move = jnp.zeros((N, M), jnp.float32).at[jnp.arange(N)[:, None], new.candidates].max(score)
+    else:
+        move = state.observation.probs
+    carried = jnp.where(tracked[:, None], state.evidence[match], 0.0)
+    evidence = jnp.where(new.valid[:, None], episode.config.evidence_decay * carried + move, 0.0)
+    if episode.config.decision == "evidence":
+        decided = jnp.argmax(evidence, axis=1).astype(new.refined.dtype)
+        new = new.replace(refined=jnp.where(new.valid & (jnp.max(evidence, axis=1) > 0), decided, new.refined))
+    same = tracked & (old.refined[match] == new.refined)
     stable = jnp.where(new.valid, jnp.where(same, state.stable[match] + 1, 1), 0)
-    return state.replace(refinement=new, stable=stable)
+    return state.replace(refinement=new, stable=stable, evidence=evidence)
 
 
 def belief(episode: Episode, state: EpisodeState) -> nbv.Belief:
@@ -264,15 +307,20 @@ def belief(episode: Episode, state: EpisodeState) -> nbv.Belief:
 
 def planning(episode: Episode, state: EpisodeState, depth: jax.Array | None = None,
              T_wc: jax.Array | None = None) -> EpisodeState:
-    """Stage 5, next-best-view: the policy's next view (Eq. 5-8), and whether the episode is done."""
+    """Stage 5, next-best-view: the policy's next view (Eq. 5-8), and whether the episode is done. The
+    policy scores the viewpoints where the camera will be relative to the fused model: the reported
+    viewpoints corrected by tracking's hand-eye estimate (``HandEye.predict``; unchanged with tracking off)."""
     key, sub = jax.random.split(state.key)
+    hand_eye = state.observation.tracking.hand_eye
+    views = state.views.replace(T_wc=hand_eye.predict(state.views.T_wc))
     if episode.config.off_grid:  # the continuous policy's own view; its nearest viewpoint keeps the books
-        next_pose, _, _ = nbv.continuous_view(episode.policy, state.views, belief(episode, state),
-                                              episode.spec.intrinsics, episode.nbv_config)
+        model_pose, _, _ = nbv.continuous_view(episode.policy, views, belief(episode, state),
+                                               episode.spec.intrinsics, episode.nbv_config)
+        next_pose = hand_eye.unpredict(model_pose)
         position = state.views.T_wc[:, :3, 3]
         next_view = jnp.argmin(jnp.linalg.norm(position - next_pose[:3, 3], axis=-1)).astype(jnp.int32)
     else:
-        next_view = nbv.choose(episode.policy, state.views, belief(episode, state), sub, episode.spec.intrinsics,
+        next_view = nbv.choose(episode.policy, views, belief(episode, state), sub, episode.spec.intrinsics,
                                episode.nbv_config)
         next_pose = state.views.T_wc[next_view]
     stop = episode.config.stop
@@ -283,7 +331,8 @@ def planning(episode: Episode, state: EpisodeState, depth: jax.Array | None = No
     return state.replace(next_view=next_view, next_pose=next_pose, done=done, key=key)
 
 
-STAGES = (*((name, _perception_stage(fn)) for name, fn in observation.STAGES),
+STAGES = (*((name, reconstruction if name == "reconstruction" else _perception_stage(fn))
+            for name, fn in observation.STAGES),
           ("refinement", refinement), ("planning", planning))
 MODULES = tuple(name for name, _ in STAGES)  # the per-module times a move records
 
@@ -315,7 +364,9 @@ step_jit.__doc__ = "``step`` under one ``jax.jit`` (compiled once per episode se
 class Trace:
     """What ``rollout`` keeps of each move ([T, ...] stacked): view: the view fused; refinement: the move's
     ``Refinement``; probs: [N, M]; centroid: [N, 3] segment centroids; points: [N] i32 points per segment;
-    next_view; done: the move was not made (the episode had stopped)."""
+    next_view; tracking: [] i32 the frame's ``tracking.Status``; pose: [4, 4] T_wc it was fused at;
+    hand_eye: [4, 4] the hand-eye estimate Y after it (``tracking.HandEye``); done: the move was not made
+    (the episode had stopped)."""
 
     view: jax.Array
     refinement: Refinement
@@ -323,6 +374,9 @@ class Trace:
     centroid: jax.Array
     points: jax.Array
     next_view: jax.Array
+    tracking: jax.Array
+    pose: jax.Array
+    hand_eye: jax.Array
     done: jax.Array
 
 
@@ -331,6 +385,7 @@ def trace(state: EpisodeState, view: jax.Array, skipped: jax.Array | bool = Fals
     obs = state.observation
     return Trace(view=view, refinement=state.refinement, probs=obs.probs, centroid=centroids(obs),
                  points=jnp.sum(obs.segments.mask, axis=1).astype(jnp.int32), next_view=state.next_view,
+                 tracking=obs.tracking.status, pose=obs.tracking.pose, hand_eye=obs.tracking.hand_eye.eye,
                  done=jnp.asarray(skipped, bool))
 
 

@@ -28,12 +28,13 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import jaxlie
 import numpy as np
 
 from jaxcls.episode import active, scoring, setup
 from jaxcls.episode.setup import ActiveConfig
 from jaxcls.geometry import Intrinsics
-from jaxcls.perception import observation, pointnet
+from jaxcls.perception import observation, pointnet, tracking
 from jaxcls.planning import nbv
 from jaxcls.world.objects import ObjectSet
 
@@ -137,22 +138,25 @@ def _all_views(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, key: 
     state = active.reset(episode, T_wc, 0, key)
     order = jnp.concatenate([jnp.arange(1, V), jnp.zeros(1, jnp.int32)]).astype(jnp.int32)
 
-    def fuse(volume, frame):
-        return observation.fuse(episode.spec, volume, *frame), None
+    def fuse(obs, frame):  # each frame tracked and fused (``observation.reconstruct``)
+        obs = observation.reconstruct(episode.spec, obs, *frame)
+        return obs, obs.tracking.pose
 
-    volume, _ = jax.lax.scan(fuse, state.observation.volume, (depth[1:], T_wc[1:]))
+    obs, poses = jax.lax.scan(fuse, state.observation, (depth[1:], T_wc[1:]))
     # Every view is a visited one, its camera among those GR's visibility-aware rho sees the models from
-    # (the path and cameras span all V views here, not the episode's T moves).
-    state = state.replace(observation=state.observation.replace(volume=volume, frames=jnp.asarray(V - 1, jnp.int32)),
-                          path=order, cameras=T_wc[order, :3, 3],
+    # (the path and cameras span all V views here, not the episode's T moves; the last joins with its move).
+    state = state.replace(observation=obs, path=order, cameras=jnp.concatenate([poses[:, :3, 3], T_wc[:1, :3, 3]]),
                           views=state.views.replace(visited=jnp.ones(V, bool).at[0].set(False)))
     state = active.step(episode, state, depth[0], T_wc[0])
-    return jax.tree.map(lambda x: x[None], active.trace(state, jnp.asarray(0, jnp.int32)))
+    poses = jnp.concatenate([poses, state.observation.tracking.pose[None]])
+    return jax.tree.map(lambda x: x[None], active.trace(state, jnp.asarray(0, jnp.int32))), poses
 
 
-def all_views(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, key: jax.Array) -> active.Trace:
+def all_views(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, key: jax.Array
+              ) -> tuple[active.Trace, jax.Array]:
     """PointNetFull: views 1..V-1 fused, then a move on view 0 (fused, segmented, classified, refined, GR's
-    rho seeing the models from all V cameras): a ``Trace`` of one move ([1, ...] leaves)."""
+    rho seeing the models from all V cameras): a ``Trace`` of one move ([1, ...] leaves), and the poses
+    [V, 4, 4] every view was fused at (tracked, or as given with tracking off), views 1..V-1 then 0."""
     return _all_views(episode, jnp.asarray(depth, jnp.float32), jnp.asarray(T_wc, jnp.float32), key)
 
 
@@ -217,7 +221,9 @@ def episode_record(trace: active.Trace, truth: scoring.Truth, **keys: Any) -> di
     """The JSON record of one episode (``trace``: [T, ...] leaves of one run): ``keys`` (classifier, row,
     scene, run, start, ...), the views fused (``path``), the target objects' true classes (``true``: [K])
     and their prior and refined labels after every move (``prior``, ``refined``: [T][K]; -1 = no segment
-    matched the object). A move the episode did not make (it had stopped) repeats the last labels."""
+    matched the object); each frame's tracking status (``tracking.Status``) and the hand-eye estimate Y
+    after it (``hand_eye``: [T][6], its SE(3) log, translation m then rotation rad). A move the episode did
+    not make (it had stopped) repeats the last labels."""
     prior, refined = np.asarray(trace.refinement.prior), np.asarray(trace.refinement.refined)
     centroid, valid = np.asarray(trace.centroid), np.asarray(trace.refinement.valid)
     done = np.asarray(trace.done)
@@ -229,8 +235,11 @@ def episode_record(trace: active.Trace, truth: scoring.Truth, **keys: Any) -> di
         labels.append(scoring.object_labels(truth, centroid[t], valid[t], np.stack([prior[t], refined[t]]))
                       [:, truth.target])
     labels = np.stack(labels)  # [T, 2, K]
+    hand_eye = np.asarray(jaxlie.SE3.from_matrix(jnp.asarray(trace.hand_eye)).log(), np.float64)[~done]  # [T, 6]
     return {**keys, "path": np.asarray(trace.view)[~done].tolist(), "true": truth.label[truth.target].tolist(),
-            "prior": labels[:, 0].tolist(), "refined": labels[:, 1].tolist()}
+            "prior": labels[:, 0].tolist(), "refined": labels[:, 1].tolist(),
+            "tracking": [tracking.Status(int(s)).name.lower() for s in np.asarray(trace.tracking)[~done]],
+            "hand_eye": np.round(hand_eye, 6).tolist()}
 
 
 def per_scene(records: Sequence[dict[str, Any]], move: int, label: str = "refined"

@@ -7,8 +7,10 @@ module timed outside jit (``active.timed_step``), and a record of every move.
 A move's record (JSON-ready): move (1-based), view (fused), next_view (the policy's choice), times_ms per
 module (``active.MODULES``), stop (the adaptive stop fired), and per live segment: points, centroid,
 prior class and score, candidates with their rho, refined class, model and pose (model-to-world), how many
-moves its class has held. With a ``truth``: the target objects' scores for the prior and the refined
-labels, and each object's surface coverage.
+moves its class has held; tracking: the frame's registration (status ``accepted``, ``refused`` or
+``reported``, object pairs, RMS residual in mm, the pose it was fused at, frames accepted and refused so
+far, the hand-eye estimate as translation mm and rotation deg). With a ``truth``: the target objects'
+scores for the prior and the refined labels, and each object's surface coverage.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import numpy as np
 
 from jaxcls.episode import active, scoring
 from jaxcls.episode.sources import ViewSource
+from jaxcls.perception import tracking
 
 
 @dataclasses.dataclass
@@ -76,6 +79,7 @@ def move_record(episode: active.Episode, state: active.EpisodeState, times: dict
               "camera": _round(np.asarray(state.cameras)[moves - 1]), "next_camera": _round(state.next_pose[:3, 3]),
               "stop": bool(state.done) and moves < episode.config.moves,
               "times_ms": {k: round(v, 3) for k, v in times.items()}, "segments": segments}
+    record["tracking"] = tracking_record(obs.tracking)
     if truth is not None:
         labels = scoring.object_labels(truth, centroid, valid, np.stack([prior, refined]))
         record["scores"] = {name: dataclasses.asdict(scoring.target_scores(truth, lab, len(classes)))
@@ -84,6 +88,15 @@ def move_record(episode: active.Episode, state: active.EpisodeState, times: dict
         surface = obs.surface
         record["coverage"] = _round(scoring.coverage(truth, np.asarray(surface.points)[np.asarray(surface.mask)]), 3)
     return record
+
+
+def tracking_record(state: tracking.Tracking) -> dict[str, Any]:
+    """The JSON record of a frame's tracking (``tracking.Tracking``)."""
+    eye = tracking.pose_error(np.asarray(state.hand_eye.eye))
+    return {"status": tracking.Status(int(state.status)).name.lower(), "pairs": int(state.pairs),
+            "rms_mm": round(float(state.rms) * 1e3, 3), "pose": _round(state.pose, 5),
+            "accepted": int(state.accepted), "refused": int(state.refused),
+            "hand_eye": {"translation_mm": round(eye[0], 3), "rotation_deg": round(eye[1], 4)}}
 
 
 def run(episode: active.Episode, source: ViewSource, start: int, key: jax.Array,

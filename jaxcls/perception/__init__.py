@@ -1,6 +1,7 @@
 """A move's perception (paper Sec. 3.1-3.2), one module per stage, composed by ``observe``.
 
 - ``settings``: the config blocks (foreground, volume, segmentation, shapes) and the static ``Spec``;
+- ``tracking``: register each frame to the fused model (and the table) before fusion; hand-eye estimate;
 - ``foreground``: drop background and table pixels and points;
 - ``tsdf``: fuse posed depth frames into a TSDF; extract surface points with normals;
 - ``segment``: split the surface into N object segments (reference path and its JAX twin);
@@ -14,7 +15,18 @@ Perception imports the top-level helpers (``geometry``, ``math``, ``config``, ``
 training, the episode or the commands.
 """
 
-from jaxcls.perception import foreground, icp, observation, pointnet, pose, refine, segment, settings, tsdf
+from jaxcls.perception import (
+    foreground,
+    icp,
+    observation,
+    pointnet,
+    pose,
+    refine,
+    segment,
+    settings,
+    tracking,
+    tsdf,
+)
 from jaxcls.perception.observation import Observation, empty_volume, init_state, observe
 from jaxcls.perception.settings import (
     ForegroundConfig,
@@ -24,7 +36,8 @@ from jaxcls.perception.settings import (
     Spec,
     VolumeConfig,
 )
+from jaxcls.perception.tracking import TrackingConfig
 
 __all__ = ["ForegroundConfig", "Observation", "PerceptionConfig", "SegmentConfig", "ShapeConfig", "Spec",
-           "VolumeConfig", "empty_volume", "foreground", "icp", "init_state", "observation", "observe", "pointnet",
-           "pose", "refine", "segment", "settings", "tsdf"]
+           "TrackingConfig", "VolumeConfig", "empty_volume", "foreground", "icp", "init_state", "observation",
+           "observe", "pointnet", "pose", "refine", "segment", "settings", "tracking", "tsdf"]

@@ -1,7 +1,7 @@
-"""One move's perception, composed in one place: foreground -> integrate -> extract -> segment -> classify.
+"""One move's perception, composed in one place: track -> foreground -> integrate -> extract -> segment -> classify.
 
 ``observe(spec, state, depth, T_wc) -> state`` is the owner of the chain; every stage stays its own pure
-function in its module (``foreground``, ``tsdf``, ``segment``, ``pointnet``) and ``observe`` only composes
+function in its module (``tracking``, ``foreground``, ``tsdf``, ``segment``, ``pointnet``) and ``observe`` only composes
 them, so that the episode can extend a move with refinement and view selection without rewiring it.
 
 With the JAX segmentation (``spec.config.segmenter == "jax"``, the default) ``observe`` is pure JAX: jit
@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from jaxcls.perception import foreground, pointnet, tsdf
+from jaxcls.perception import foreground, pointnet, tracking, tsdf
 from jaxcls.perception.segment import Segments, segment, segment_jax
 from jaxcls.perception.settings import Spec
 
@@ -37,6 +37,8 @@ class Observation:
     probs: [N, M] f32 class probabilities of each segment (paper Eq. 1's softmax); M = 0 without a classifier.
     yaw: [N, M] f32 rad the yaw head's estimate per segment and class (``pointnet.predict``; 0 without a head).
     frames: [] i32 number of frames fused.
+    tracking: the camera tracking's state (``tracking.Tracking``): the pose the last frame was fused at, its
+    registration's outcome, frames accepted and refused, the running hand-eye estimate.
     """
 
     volume: tsdf.TSDFVolume
@@ -45,6 +47,7 @@ class Observation:
     probs: jax.Array
     yaw: jax.Array
     frames: jax.Array
+    tracking: tracking.Tracking
 
 
 def empty_volume(spec: Spec) -> tsdf.TSDFVolume:
@@ -63,7 +66,7 @@ def init_state(spec: Spec) -> Observation:
                         labels=jnp.full(P, -1, jnp.int32))
     return Observation(volume=empty_volume(spec), surface=surface, segments=segments,
                        probs=jnp.full((N, M), 1.0 / max(M, 1), jnp.float32), yaw=jnp.zeros((N, M), jnp.float32),
-                       frames=jnp.zeros((), jnp.int32))
+                       frames=jnp.zeros((), jnp.int32), tracking=tracking.Tracking.create(spec.config.tracking))
 
 
 def fuse(spec: Spec, volume: tsdf.TSDFVolume, depth: jax.Array, T_wc: jax.Array) -> tsdf.TSDFVolume:
@@ -85,11 +88,28 @@ def classify_segments(spec: Spec, segments: Segments) -> tuple[jax.Array, jax.Ar
 # The move's perception in stages, each ``(spec, state, depth, T_wc) -> state``: ``observe`` folds over them;
 # the episode's timed path runs them one by one with the same functions (``STAGES``).
 
+def track(spec: Spec, state: Observation, depth: jax.Array, T_wc: jax.Array) -> tracking.Tracking:
+    """The camera pose to fuse the frame at (``tracking.track``): ``T_wc`` as the robot reports it, corrected by
+    the hand-eye estimate and registered to the surface fused so far (and the table plane); with
+    ``tracking.mode = reported``, ``T_wc`` itself. Returns the new ``Tracking`` (its ``pose``)."""
+    return _track_jit(spec, state, jnp.asarray(depth, jnp.float32), jnp.asarray(T_wc, jnp.float32))
+
+
+@jax.jit
+def _track_jit(spec: Spec, state: Observation, depth: jax.Array, T_wc: jax.Array) -> tracking.Tracking:
+    """``track``'s body, one module-level jit (from Python a stage runs jitted; under a caller's jit it inlines)."""
+    surface = state.surface
+    return tracking.track(spec.config.tracking, state.tracking, depth, T_wc, spec.intrinsics, spec.table_height,
+                          surface.points, surface.normals, surface.mask, state.frames == 0)
+
+
 def reconstruct(spec: Spec, state: Observation, depth: jax.Array, T_wc: jax.Array) -> Observation:
-    """Stage 1, reconstruction: the frame fused into the TSDF and the surface extracted."""
-    volume = fuse(spec, state.volume, depth, T_wc)
+    """Stage 1, reconstruction: the camera tracked (``track``), the frame fused into the TSDF at the tracked
+    pose and the surface extracted. ``T_wc``: [4, 4] the pose the robot reports."""
+    tracked = track(spec, state, depth, T_wc)
+    volume = fuse(spec, state.volume, depth, tracked.pose)
     return state.replace(volume=volume, surface=tsdf.extract_surface(volume, spec.config.shapes.surface_points),
-                         frames=state.frames + 1)
+                         frames=state.frames + 1, tracking=tracked)
 
 
 def segmentation(spec: Spec, state: Observation, depth: jax.Array | None = None,

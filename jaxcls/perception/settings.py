@@ -8,6 +8,7 @@ YAML (the ``perception:`` block of a command's config)::
       segmentation: {dbscan_eps: 0.01, ...}                # DBSCAN, footprint votes, K-means, twin bounds
       shapes: {num_segments: 5, points_per_segment: 1024, surface_points: 16384}        # static shapes
       segmenter: jax                                       # or reference (scikit-learn, host)
+      tracking: {mode: frame_to_model, ...}                # each frame registered to the model before fusion
 
 The table height is not here: it belongs to the world (``SceneConfig.table_height``, a dataset's scene, a
 recording's ``meta.json``) and reaches perception through ``Spec.create(..., table_height=...)``. The
@@ -24,6 +25,7 @@ from flax import struct
 
 from jaxcls.config import bounded, check_bounds
 from jaxcls.geometry import Intrinsics
+from jaxcls.perception.tracking import TrackingConfig
 
 if TYPE_CHECKING:
     from jaxcls.perception.pointnet import Classifier
@@ -109,6 +111,7 @@ class PerceptionConfig:
     segmentation: SegmentConfig = dataclasses.field(default_factory=SegmentConfig)
     shapes: ShapeConfig = dataclasses.field(default_factory=ShapeConfig)
     segmenter: Segmenter = "jax"  # "reference": scikit-learn DBSCAN + K-means on the host
+    tracking: TrackingConfig = dataclasses.field(default_factory=TrackingConfig)  # the camera pose, before fusion
 
 
 @struct.dataclass
