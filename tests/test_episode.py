@@ -17,6 +17,7 @@ from jaxcls.config import ConfigError, load_config
 from jaxcls.episode import active, runner, scoring, setup, sources
 from jaxcls.geometry import CameraConfig
 from jaxcls.perception.settings import PerceptionConfig, ShapeConfig
+from jaxcls.perception.tracking import TrackingConfig
 from jaxcls.world import recording
 from jaxcls.world.dataset import SceneViews
 from jaxcls.world.scenes import SceneConfig
@@ -114,9 +115,14 @@ def test_the_timed_host_path_and_the_jitted_step_agree(episode, frames):
         assert all(t > 0 for t in times.values())
 
 
-def test_vmapped_step_equals_the_sequential_one(episode, frames):
+def test_vmapped_step_equals_the_sequential_one(world, frames):
     """Two episodes (other starts, other keys) stepped together under vmap give what stepping each gives,
-    move after move (each move from the same states)."""
+    move after move (each move from the same states). Frames fused at the poses given: a tracked pose differs
+    from the sequential one in its last float32 digits, which moves the fused surface chaotically downstream
+    (``tracking.track`` under vmap is checked in test_tracking.py)."""
+    perception = PerceptionConfig(shapes=SHAPES, tracking=TrackingConfig(mode="reported"))
+    episode = setup.make_episode(dataclasses.replace(_settings(), perception=perception), world.object_set,
+                                 world.intrinsics, world.table_height)
     starts, keys = [3, 21], [jax.random.PRNGKey(1), jax.random.PRNGKey(2)]
     alone = [active.reset(episode, frames.viewpoints, s, k) for s, k in zip(starts, keys, strict=True)]
     vstep = jax.jit(jax.vmap(active.step, in_axes=(None, 0, 0, 0)))
@@ -163,7 +169,8 @@ def test_the_continuous_policy_goes_off_the_fixed_viewpoints(world, frames):
     log = runner.run(off, sources.Rendered(world, jax.random.PRNGKey(0)), 2, jax.random.PRNGKey(0))
     first, second = log.moves[0], log.moves[1]
     np.testing.assert_allclose(first["camera"], world.viewpoints[2, :3, 3], atol=1e-4)
-    assert second["camera"] == first["next_camera"]
+    # Where the frame was fused: the tracked pose, within 2 mm of where the camera was sent (exact poses).
+    np.testing.assert_allclose(second["camera"], first["next_camera"], atol=2e-3)
     grid = np.linalg.norm(world.viewpoints[:, :3, 3] - np.asarray(second["camera"]), axis=-1)
     assert grid.min() > 1e-3 and second["view"] == int(grid.argmin())  # off the grid; its nearest viewpoint
     assert second["segments"]

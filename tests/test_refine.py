@@ -10,6 +10,7 @@ from jaxcls import metrics
 from jaxcls.geometry import CameraConfig
 from jaxcls.perception import Spec, init_state, observe, pointnet, pose, refine
 from jaxcls.perception.settings import PerceptionConfig
+from jaxcls.perception.tracking import TrackingConfig
 from jaxcls.world import WorldConfig, make_world
 
 
@@ -17,7 +18,9 @@ from jaxcls.world import WorldConfig, make_world
 def scene():
     world = make_world(WorldConfig(camera=CameraConfig.kinect_v1(0.5), backend="mujoco"), seed=3)
     classifier = pointnet.load_classifier()
-    spec = Spec.create(PerceptionConfig(), world.intrinsics, world.table_height, classifier)
+    # Fused at the exact poses given: this tests registration onto models, not the camera's (test_tracking.py).
+    spec = Spec.create(PerceptionConfig(tracking=TrackingConfig(mode="reported")), world.intrinsics,
+                       world.table_height, classifier)
     state = init_state(spec)
     views = [0, 10, 20]
     for depth, T in zip(world.render(views).depth, world.poses(views), strict=True):

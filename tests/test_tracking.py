@@ -136,7 +136,8 @@ def test_registration_agrees_with_open3d_point_to_plane_icp(world, model):
     peer sees only objects) and on every pixel (the peer's data; the default takes every second one)."""
     o3d = pytest.importorskip("open3d")
     reg = o3d.pipelines.registration
-    config = TrackingConfig(table=False, finest_stride=1)
+    # No table term, every pixel, a prior too weak to matter: Open3D's objective, on Open3D's pixels.
+    config = TrackingConfig(table=False, finest_stride=1, prior_translation=1.0, prior_rotation_deg=90.0)
     mask = np.asarray(model.surface.mask)
     target = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(model.surface.points, np.float64)[mask]))
     target.normals = o3d.utility.Vector3dVector(np.asarray(model.surface.normals, np.float64)[mask])
@@ -296,7 +297,7 @@ def test_hand_eye_estimate_recovers_a_known_error():
             assert shift < 0.1 and angle < 0.01, (k + 1, shift, angle)
         shift, angle = _gap(hand_eye.eye, Y)
         assert shift < 0.2 and angle < 0.01, (k + 1, shift, angle)
-    assert int(hand_eye.count) == 8 and bool(hand_eye.filled.all())
+    assert int(hand_eye.count) == 8 and int(hand_eye.filled.sum()) == min(8, config.window)
 
     # The ring buffer: a window of 4 keeps the last 4 frames (slot = count mod 4); count keeps counting.
     window = HandEye.identity(4)

@@ -66,8 +66,8 @@ class EpisodeConfig:
     # With the continuous policy: go to the view it found, off the fixed viewpoints (a source that renders
     # any pose, ``sources.Rendered``); the nearest viewpoint stands for it in the candidates and the history.
     off_grid: bool = False
-    # How a segment's class is decided: "last", from this move alone (Eq. 3: argmax rho; the prior with GR
-    # off); "evidence", from the class evidence its object has gathered over the moves (``refinement``).
+    # How a segment's refined class is decided (GR on): "last", from this move alone (Eq. 3); "evidence",
+    # from the class evidence its object has gathered over the moves (``refinement``). GR off: the prior.
     decision: Decision = "evidence"
     evidence_decay: float = bounded(1.0, ge=0.0, le=1.0)  # last move's evidence counts this much this move
     stop: StopConfig = dataclasses.field(default_factory=StopConfig)
@@ -262,9 +262,10 @@ def refinement(episode: Episode, state: EpisodeState, depth: jax.Array | None = 
     A segment is the same object as last move's whose aligned model stands nearest in xy, within
     ``STABLE_DISTANCE``. Its evidence is ``evidence_decay`` x that object's evidence plus this move's: rho
     of each candidate class (Eq. 2; 0 for the other classes), or PointNet's probabilities with GR off. With
-    ``decision = "evidence"`` its class is the evidence's argmax: a move whose segment fits every model
-    badly (a merge, a sliver) adds little and cannot overturn what earlier moves saw; with ``"last"``, this
-    move's class (Eq. 3). The pose and model stay this move's best registration."""
+    ``decision = "evidence"`` and GR on, its class is the evidence's argmax: a move whose segment fits every
+    model badly (a merge, a sliver) adds little and cannot overturn what earlier moves saw; with ``"last"``,
+    this move's class (Eq. 3). With GR off the class stays PointNet's (the prior, as the paper's rows
+    without GR). The pose and model stay this move's best registration."""
     obs = state.observation
     if episode.config.refinement:
         learned = episode.refine_config.yaw_source == "learned"
@@ -289,7 +290,7 @@ def refinement(episode: Episode, state: EpisodeState, depth: jax.Array | None = 
         move = state.observation.probs
     carried = jnp.where(tracked[:, None], state.evidence[match], 0.0)
     evidence = jnp.where(new.valid[:, None], episode.config.evidence_decay * carried + move, 0.0)
-    if episode.config.decision == "evidence":
+    if episode.config.refinement and episode.config.decision == "evidence":
         decided = jnp.argmax(evidence, axis=1).astype(new.refined.dtype)
         new = new.replace(refined=jnp.where(new.valid & (jnp.max(evidence, axis=1) > 0), decided, new.refined))
     same = tracked & (old.refined[match] == new.refined)
