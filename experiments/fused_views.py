@@ -24,6 +24,7 @@ from pathlib import Path
 
 import jax
 import numpy as np
+from scipy.spatial.transform import Rotation
 from tqdm.auto import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -32,7 +33,6 @@ import table1
 from jaxcls import io, report
 from jaxcls.config import load_config
 from jaxcls.episode import protocol, scoring, setup, sources
-from jaxcls.perception import tracking
 from jaxcls.world.objects import object_set_from_config
 
 POSES = ("reported", "true")
@@ -54,7 +54,7 @@ def pose_errors(fused: np.ndarray, true: np.ndarray, table_height: float) -> dic
     centre = np.array([0.0, 0.0, table_height + 0.05, 1.0])
     G = np.asarray(fused, np.float64) @ np.linalg.inv(np.asarray(true, np.float64))
     moved = (G @ centre)[:, :3] - centre[:3]
-    rotation = [tracking.pose_error(g)[1] for g in G]
+    rotation = np.degrees(Rotation.from_matrix(G[:, :3, :3]).magnitude())
     relative = np.linalg.norm(moved - moved.mean(axis=0), axis=1)
     return {"translation_mm": np.round(np.linalg.norm(moved, axis=1) * 1e3, 3).tolist(),
             "rotation_deg": np.round(rotation, 4).tolist(), "relative_mm": np.round(relative * 1e3, 3).tolist()}

@@ -332,8 +332,8 @@ def planning(episode: Episode, state: EpisodeState, depth: jax.Array | None = No
     return state.replace(next_view=next_view, next_pose=next_pose, done=done, key=key)
 
 
-STAGES = (*((name, reconstruction if name == "reconstruction" else _perception_stage(fn))
-            for name, fn in observation.STAGES),
+STAGES = (("reconstruction", reconstruction), ("segmentation", _perception_stage(observation.segmentation)),
+          ("classification", _perception_stage(observation.classification)),
           ("refinement", refinement), ("planning", planning))
 MODULES = tuple(name for name, _ in STAGES)  # the per-module times a move records
 
