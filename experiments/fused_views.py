@@ -1,7 +1,7 @@
 """PointNetFull against the number of views fused, with the camera poses the sensor reports and the true ones.
 
     python experiments/fused_views.py --config table1_real_like [key=value ...] [--views 1 4 11 33 100]
-        [--subsets 3] [--row full_gr] [--out RESULTS.md]
+        [--subsets 3] [--row full_gr] [--passes 2] [--out RESULTS.md]
 
 Table 1's PointNetFull fuses every viewpoint of a scene and is meant as the upper bound of any policy. On
 the real-like set it scores below the active policies. This experiment asks why: for each scene it fuses
@@ -9,7 +9,8 @@ the real-like set it scores below the active policies. This experiment asks why:
 move (segmentation, classification, GR) on them, once with the poses the episodes see (``T_wc``: the
 true poses times the sequence's hand-eye calibration error, ``sensor.pose_noise``) and once with the
 true poses (``T_wc_true``). If F1 with the true poses grows with k while F1 with the reported poses does
-not, the views' misregistration is what costs PointNetFull.
+not, the views' misregistration is what costs PointNetFull. With tracking on, the views are fused
+``--passes`` times (``protocol.all_views``: each pass with the hand-eye estimate the previous one ended with).
 
 The scenes, classifiers and move settings are a Table 1 config's (``experiments/table1.py``). Records
 stream to ``out_dir/fused_views.jsonl`` and a rerun resumes; ``out_dir/fused_views.md`` holds the table
@@ -82,11 +83,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--views", type=int, nargs="+", default=[1, 4, 11, 33, 100], help="views fused, k")
     parser.add_argument("--subsets", type=int, default=3, help="random subsets per scene and k < V")
     parser.add_argument("--row", default="full_gr", choices=["full", "full_gr"])
+    parser.add_argument("--passes", type=int, default=2, help="fusion passes with tracking (protocol.all_views)")
     parser.add_argument("--out", help="append the table to this Markdown file")
     parser.add_argument("overrides", nargs="*")
     args = parser.parse_intermixed_args(argv)
-    if min(args.views) < 1 or args.subsets < 1:
-        raise ValueError(f"--views must be >= 1 and --subsets >= 1 (got {args.views}, {args.subsets})")
+    if min(args.views) < 1 or args.subsets < 1 or args.passes < 1:
+        raise ValueError(f"--views, --subsets and --passes must be >= 1 (got {args.views}, {args.subsets}, "
+                         f"{args.passes})")
     config = load_config(table1.Table1Config, args.config, args.overrides)
     dataset, files = table1.open_dataset(config)
     object_set = object_set_from_config(dataset.objects)
@@ -97,7 +100,7 @@ def main(argv: list[str] | None = None) -> None:
     store = Path(config.out_dir) / "fused_views.jsonl"
 
     def key(r):
-        return r["classifier"], r["poses"], int(r["views"]), int(r["scene"]), int(r["subset"])
+        return r["classifier"], r["poses"], int(r["views"]), int(r["scene"]), int(r["subset"]), r.get("passes", 1)
 
     done = {key(r) for r in io.read_jsonl(store)}
     episodes = {}
@@ -117,19 +120,22 @@ def main(argv: list[str] | None = None) -> None:
                     for i in range(1 if k >= V else args.subsets):
                         chosen = subset(config.seed, s, k, i, V)
                         for pose in POSES:
-                            record_key = (c, pose, min(k, V), s, i)
+                            record_key = (c, pose, min(k, V), s, i, args.passes)
                             bar.update()
                             if record_key in done:
                                 continue
                             trace, fused = protocol.all_views(episodes[c], views.depth[chosen], poses[pose][chosen],
-                                                              episode_key)
+                                                              episode_key, args.passes)
                             order = np.concatenate([chosen[1:], chosen[:1]])  # all_views fuses view 0 last
                             record = protocol.episode_record(jax.device_get(trace), truth, classifier=c, poses=pose,
-                                                             views=min(k, V), scene=s, subset=i, run=0, start=-1)
+                                                             views=min(k, V), scene=s, subset=i, run=0, start=-1,
+                                                             passes=args.passes)
                             record["pose_error"] = pose_errors(np.asarray(fused), poses["true"][order],
                                                                views.table_height)
                             io.append_jsonl(store, [record])
-    records = list(io.read_jsonl(store))
+    records = [r for r in io.read_jsonl(store) if r.get("passes", 1) == args.passes]
+    tracked = (f"tracked, {args.passes} pass{'es' if args.passes > 1 else ''}" if config.perception.tracking.on
+               else "as given")
     table_rows = []
     for c in classifiers:
         for pose in POSES:
@@ -144,7 +150,7 @@ def main(argv: list[str] | None = None) -> None:
                 f"{len(files)} scenes, {args.subsets} random view subsets per scene and k (one when k is every "
                 "view); F1 of the target objects, pooled over scenes, 95% scene-bootstrap interval.\n\n"
                 + report.table(("classifier", "camera poses", *(f"k = {k}" for k in args.views)), table_rows) + "\n\n"
-                f"Pose error of the frames fused ({'tracked' if config.perception.tracking.on else 'as given'}; "
+                f"Pose error of the frames fused ({tracked}; "
                 "median / 95th percentile over frames and scenes), the displacement of the scene's centre and "
                 "the rotation:\n\n" + error_table(records, classifiers, args.views, V) + "\n")
     io.write_text(Path(config.out_dir) / "fused_views.md", markdown)

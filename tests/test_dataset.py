@@ -55,6 +55,25 @@ def test_dataset_matches_a_direct_render_and_resumes(tmp_path):
     np.testing.assert_array_equal(dataset.SceneViews.load(files[1]).depth, depth1)
 
 
+def test_worker_processes_write_what_one_process_writes(tmp_path):
+    """``workers=2`` (scenes rendered in spawned processes, real-like sensor: noise and pose error drawn there)
+    writes the same scene files as one process, and resumes the same way; a GPU-only backend is refused."""
+    extra = ["num_scenes=3"]
+    one = dataset.build_dataset(_config(tmp_path / "one", "configs/real_like.yaml", extra), show_progress=False)
+    two = dataset.build_dataset(_config(tmp_path / "two", "configs/real_like.yaml", [*extra, "workers=2"]),
+                                show_progress=False)
+    (two / "scene_001.npz").unlink()
+    dataset.build_dataset(_config(tmp_path / "two", "configs/real_like.yaml", [*extra, "workers=2"]),
+                          show_progress=False)
+    for i in range(3):
+        a, b = (dataset.SceneViews.load(dataset.scene_file(d, i)) for d in (one, two))
+        assert a.scene.to_dict() == b.scene.to_dict()
+        for name in ("depth", "object_id", "T_wc", "T_wc_true"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=f"scene {i}: {name}")
+    with pytest.raises(ValueError, match="backend=mujoco"):
+        dataset.build_dataset(_config(tmp_path / "mjx", extra=["workers=2", "backend=mjx"]), show_progress=False)
+
+
 def test_interrupted_run_leaves_no_partial_file_and_resumes(tmp_path, monkeypatch):
     cfg = _config(tmp_path)
     real = dataset.render_scene_views

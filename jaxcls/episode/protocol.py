@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
 from collections.abc import Sequence
 from typing import Any
 
@@ -132,17 +133,13 @@ def rollouts(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, starts:
                      jnp.asarray(starts, jnp.int32), keys)
 
 
-@jax.jit
-def _all_views(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, key: jax.Array) -> active.Trace:
+@functools.partial(jax.jit, static_argnames="passes")
+def _all_views(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, key: jax.Array, passes: int
+               ) -> tuple[active.Trace, jax.Array]:
     V = T_wc.shape[0]
     state = active.reset(episode, T_wc, 0, key)
     order = jnp.concatenate([jnp.arange(1, V), jnp.zeros(1, jnp.int32)]).astype(jnp.int32)
-
-    def fuse(obs, frame):  # each frame tracked and fused (``observation.reconstruct``)
-        obs = observation.reconstruct(episode.spec, obs, *frame)
-        return obs, obs.tracking.pose
-
-    obs, poses = jax.lax.scan(fuse, state.observation, (depth[1:], T_wc[1:]))
+    obs, poses = observation.reconstruct_views(episode.spec, state.observation, depth[1:], T_wc[1:], passes)
     # Every view is a visited one, its camera among those GR's visibility-aware rho sees the models from
     # (the path and cameras span all V views here, not the episode's T moves; the last joins with its move).
     state = state.replace(observation=obs, path=order, cameras=jnp.concatenate([poses[:, :3, 3], T_wc[:1, :3, 3]]),
@@ -152,12 +149,17 @@ def _all_views(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, key: 
     return jax.tree.map(lambda x: x[None], active.trace(state, jnp.asarray(0, jnp.int32))), poses
 
 
-def all_views(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, key: jax.Array
+def all_views(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, key: jax.Array, passes: int = 2
               ) -> tuple[active.Trace, jax.Array]:
     """PointNetFull: views 1..V-1 fused, then a move on view 0 (fused, segmented, classified, refined, GR's
     rho seeing the models from all V cameras): a ``Trace`` of one move ([1, ...] leaves), and the poses
-    [V, 4, 4] every view was fused at (tracked, or as given with tracking off), views 1..V-1 then 0."""
-    return _all_views(episode, jnp.asarray(depth, jnp.float32), jnp.asarray(T_wc, jnp.float32), key)
+    [V, 4, 4] every view was fused at (tracked, or as given with tracking off), views 1..V-1 then 0.
+
+    With tracking and its hand-eye estimate on, views 1..V-1 are fused ``passes`` times, each pass from an
+    empty volume with the hand-eye estimate the previous one ended with (``observation.reconstruct_views``:
+    the offline upper bound has every view before it fuses the first); with one pass they are tracked as an
+    episode tracks its frames."""
+    return _all_views(episode, jnp.asarray(depth, jnp.float32), jnp.asarray(T_wc, jnp.float32), key, passes)
 
 
 def _moves_to(episode: active.Episode, state: active.EpisodeState, depth: jax.Array, T_wc: jax.Array,

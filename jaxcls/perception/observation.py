@@ -112,6 +112,31 @@ def reconstruct(spec: Spec, state: Observation, depth: jax.Array, T_wc: jax.Arra
                          frames=state.frames + 1, tracking=tracked)
 
 
+def reconstruct_views(spec: Spec, state: Observation, depth: jax.Array, T_wc: jax.Array, passes: int = 1
+                      ) -> tuple[Observation, jax.Array]:
+    """Frames fused one after another (``reconstruct`` in a ``lax.scan``): depth [K, H, W] m, T_wc [K, 4, 4] the
+    reported poses. Returns the state after the last frame and the [K, 4, 4] poses the frames were fused at.
+
+    ``passes`` > 1 (tracking and its hand-eye estimate on; static): when every frame is at hand before the
+    first is fused (offline, PointNetFull), the frames are fused again from ``state``'s volume with the
+    hand-eye estimate the previous pass ended with, so the early frames too are fused at poses the converged
+    estimate predicts, not at poses tracked before it had seen enough frames; the last pass is returned.
+    """
+    if passes < 1:
+        raise ValueError(f"reconstruct_views: passes must be >= 1, got {passes}")
+
+    def fuse(obs: Observation, frame: tuple[jax.Array, jax.Array]) -> tuple[Observation, jax.Array]:
+        obs = reconstruct(spec, obs, *frame)
+        return obs, obs.tracking.pose
+
+    tracked = spec.config.tracking
+    out, poses = jax.lax.scan(fuse, state, (depth, T_wc))
+    for _ in range(passes - 1 if tracked.on and tracked.hand_eye else 0):
+        again = state.replace(tracking=state.tracking.replace(hand_eye=out.tracking.hand_eye))
+        out, poses = jax.lax.scan(fuse, again, (depth, T_wc))
+    return out, poses
+
+
 def segmentation(spec: Spec, state: Observation, depth: jax.Array | None = None,
                  T_wc: jax.Array | None = None) -> Observation:
     """Stage 2, segmentation of the surface: the JAX twin, or scikit-learn on the host (``"reference"``,

@@ -17,8 +17,10 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import multiprocessing
 import warnings
 import zipfile
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import jax
@@ -29,6 +31,7 @@ from jaxcls import geometry, io
 from jaxcls.config import bounded, check_bounds, load_config, save_config
 from jaxcls.world import recording, scenes
 from jaxcls.world.objects import object_set_from_config
+from jaxcls.world.render import resolve_backend
 from jaxcls.world.setup import WorldConfig, make_world
 
 
@@ -42,13 +45,16 @@ class DatasetConfig(WorldConfig):
     num_scenes: int = bounded(7, ge=1)
     seed: int = 0
     batch_size: int = bounded(50, ge=1)  # views rendered together
+    # Scenes rendered at once, each in its own process on the CPU (the MuJoCo renderer is single-threaded;
+    # the worker processes keep JAX on the CPU). 1 renders in this process.
+    workers: int = bounded(1, ge=1)
 
     def __post_init__(self) -> None:
         check_bounds(self, "")
 
     def output_defining(self) -> DatasetConfig:
         """This config without the fields that do not change what is written (where, how many at once)."""
-        return dataclasses.replace(self, out_dir="", batch_size=1)
+        return dataclasses.replace(self, out_dir="", batch_size=1, workers=1)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -148,15 +154,42 @@ def build_dataset(config: DatasetConfig, overwrite: bool = False, show_progress:
     save_config(config, config_file)
     object_set = object_set_from_config(config.objects)
     todo = [i for i in range(config.num_scenes) if not _finished(scene_file(out, i))]
-    seeds = scene_seeds(config.seed, config.num_scenes)
     with tqdm(total=len(todo) * config.viewpoints.count, desc=f"dataset {config.name}", unit="view",
               disable=not show_progress) as bar:
-        for i in todo:
-            bar.set_postfix(scene=i)
-            scene = scenes.sample_scene(object_set, config.scene, seeds[i], config.objects)
-            views = render_scene_views(config, scene, scene_key(config.seed, i), object_set, bar)
-            views.save(scene_file(out, i))
+        if config.workers == 1 or len(todo) <= 1:
+            for i in todo:
+                bar.set_postfix(scene=i)
+                _render_scene(config, i, object_set, bar)
+            return out
+        if resolve_backend(config.backend) != "mujoco":
+            raise ValueError(f"workers={config.workers}: scenes render in parallel with the CPU renderer only; "
+                             f"set backend=mujoco (backend={config.backend!r} resolves to "
+                             f"{resolve_backend(config.backend)!r}) or workers=1")
+        config = dataclasses.replace(config, backend="mujoco")
+        # Spawned, not forked (JAX is threaded); each worker renders and writes whole scenes.
+        context = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(min(config.workers, len(todo)), mp_context=context,
+                                 initializer=_cpu_worker) as pool:
+            for done in as_completed([pool.submit(_render_scene, config, i) for i in todo]):
+                bar.set_postfix(scene=done.result())
+                bar.update(config.viewpoints.count)
     return out
+
+
+def _cpu_worker() -> None:
+    """A rendering worker keeps JAX (the sensor model's noise) on the CPU: a GPU host's workers would each
+    claim most of the GPU's memory."""
+    jax.config.update("jax_platforms", "cpu")
+
+
+def _render_scene(config: DatasetConfig, index: int, object_set=None, progress: tqdm | None = None) -> int:
+    """Sample scene ``index`` of the dataset, render it from every viewpoint, write its file; returns ``index``."""
+    object_set = object_set if object_set is not None else object_set_from_config(config.objects)
+    scene = scenes.sample_scene(object_set, config.scene, scene_seeds(config.seed, config.num_scenes)[index],
+                                config.objects)
+    views = render_scene_views(config, scene, scene_key(config.seed, index), object_set, progress)
+    views.save(scene_file(config.out_dir, index))
+    return index
 
 
 def _finished(path: Path) -> bool:
