@@ -204,6 +204,31 @@ def test_demo_runs_reduced(tmp_path, capsys):
 
 # --- bad inputs: clear errors naming the file or key, nothing written -----------------------------------------
 
+def test_class_evidence_sums_or_keeps_the_best_and_a_bad_move_cannot_overturn_it():
+    """``active.gather_evidence`` over one object's moves (classes A, B, C): three moves favour A (0.5), then C
+    is seen well (0.9, 0.9). The sum ("evidence") turns to C once C's total passes A's, the best score
+    ("best") as soon as C's single score beats A's; a move fitting everything badly (0.1 each) changes neither
+    decision; decay 0 is the last move alone; the sum with decay 1 is the plain sum of the moves."""
+    moves = jnp.asarray([[0.5, 0.0, 0.1], [0.5, 0.0, 0.0], [0.5, 0.1, 0.0], [0.0, 0.0, 0.9], [0.1, 0.1, 0.1],
+                         [0.0, 0.0, 0.9]], jnp.float32)[:, None, :]  # [moves, N=1, M=3]
+
+    def decisions(**config):
+        config = active.EpisodeConfig(**config)
+        evidence, out = jnp.zeros((1, 3), jnp.float32), []
+        for move in moves:
+            evidence = active.gather_evidence(config, evidence, move)
+            out.append(int(jnp.argmax(evidence[0])))
+        return out, evidence
+
+    A, C = 0, 2
+    summed, total = decisions(decision="evidence")
+    np.testing.assert_allclose(np.asarray(total), np.asarray(moves.sum(0)), atol=1e-6)
+    assert summed == [A, A, A, A, A, C]  # C's 1.8 passes A's 1.6 at the sixth move; the bad fifth changes nothing
+    assert decisions(decision="best")[0] == [A, A, A, C, C, C]
+    assert decisions(decision="evidence", evidence_decay=0.0)[0] == [int(jnp.argmax(m[0])) for m in moves]
+    assert decisions(decision="evidence", evidence_decay=0.5)[0][3] == C  # A's 0.875 fades below C's 0.9
+
+
 def test_moves_zero_and_unknown_policy_are_config_errors():
     from jaxcls.commands.run import RunConfig
 

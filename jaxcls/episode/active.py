@@ -40,7 +40,8 @@ from jaxcls.perception.settings import Spec
 from jaxcls.planning import nbv
 
 STABLE_DISTANCE = 0.05  # m: a segment is the same object as last move's nearest segment within this
-Decision = Literal["last", "evidence"]
+Decision = Literal["last", "evidence", "best"]
+DECISIONS: tuple[str, ...] = ("last", "evidence", "best")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,8 +67,9 @@ class EpisodeConfig:
     # With the continuous policy: go to the view it found, off the fixed viewpoints (a source that renders
     # any pose, ``sources.Rendered``); the nearest viewpoint stands for it in the candidates and the history.
     off_grid: bool = False
-    # How a segment's refined class is decided (GR on): "last", from this move alone (Eq. 3); "evidence",
-    # from the class evidence its object has gathered over the moves (``refinement``). GR off: the prior.
+    # How a segment's refined class is decided (GR on): "last", from this move alone (Eq. 3); from the class
+    # evidence its object has gathered over the moves (``gather_evidence``): "evidence", each class's summed
+    # scores; "best", each class's best score of any move. GR off: the prior.
     decision: Decision = "evidence"
     evidence_decay: float = bounded(1.0, ge=0.0, le=1.0)  # last move's evidence counts this much this move
     stop: StopConfig = dataclasses.field(default_factory=StopConfig)
@@ -78,8 +80,8 @@ class EpisodeConfig:
             raise ValueError(f"episode.off_grid needs episode.policy=continuous, got {self.policy!r}")
         if self.policy not in nbv.POLICIES:
             raise ValueError(f"episode.policy: unknown policy {self.policy!r}; choose one of {sorted(nbv.POLICIES)}")
-        if self.decision not in ("last", "evidence"):
-            raise ValueError(f"episode.decision must be 'last' or 'evidence', got {self.decision!r}")
+        if self.decision not in DECISIONS:
+            raise ValueError(f"episode.decision must be one of {DECISIONS}, got {self.decision!r}")
         if self.uncertainty not in nbv.UNCERTAINTY:
             raise ValueError(f"episode.uncertainty must be one of {nbv.UNCERTAINTY}, got {self.uncertainty!r}")
 
@@ -254,18 +256,32 @@ def centroids(obs: Observation) -> jax.Array:
     return jnp.sum(w[..., None] * seg.points, axis=1) / jnp.maximum(jnp.sum(w, axis=1), 1.0)[:, None]
 
 
+def gather_evidence(config: EpisodeConfig, carried: jax.Array, move: jax.Array) -> jax.Array:
+    """[N, M] each segment's class evidence after this move: ``carried`` [N, M], its object's evidence after
+    the last move (0 for a new object), and ``move`` [N, M], this move's class scores. ``decision = "best"``:
+    each class's best score of any move, max(decay x carried, move): a class PointNet ranked among the top-k
+    only late, once the object was seen well, wins as soon as its score beats every earlier one; otherwise
+    (``"evidence"``, and ``"last"``, which keeps it for the record) the decayed sum decay x carried + move:
+    consistent moves add up. Under either a move that fits every class badly cannot overturn the earlier ones."""
+    decayed = config.evidence_decay * carried
+    if config.decision == "best":
+        return jnp.maximum(decayed, move)
+    return decayed + move
+
+
 def refinement(episode: Episode, state: EpisodeState, depth: jax.Array | None = None,
                T_wc: jax.Array | None = None) -> EpisodeState:
     """Stage 4, geometric refinement (Eq. 2-4) of every segment, or the prior alone with GR off; the class
     evidence of each segment's object; then how many moves each segment's refined class has held.
 
     A segment is the same object as last move's whose aligned model stands nearest in xy, within
-    ``STABLE_DISTANCE``. Its evidence is ``evidence_decay`` x that object's evidence plus this move's: rho
-    of each candidate class (Eq. 2; 0 for the other classes), or PointNet's probabilities with GR off. With
-    ``decision = "evidence"`` and GR on, its class is the evidence's argmax: a move whose segment fits every
-    model badly (a merge, a sliver) adds little and cannot overturn what earlier moves saw; with ``"last"``,
-    this move's class (Eq. 3). With GR off the class stays PointNet's (the prior, as the paper's rows
-    without GR). The pose and model stay this move's best registration."""
+    ``STABLE_DISTANCE``. Its evidence gathers that object's (``gather_evidence``) and this move's scores: rho
+    of each candidate class (Eq. 2; x PointNet's probability under ``refine.decision = product``; 0 for the
+    other classes), or PointNet's probabilities with GR off. With ``decision`` "evidence" or "best" and GR
+    on, its class is the evidence's argmax: a move whose segment fits every model badly (a merge, a sliver)
+    cannot overturn what earlier moves saw; with ``"last"``, this move's class (Eq. 3). With GR off the class
+    stays PointNet's (the prior, as the paper's rows without GR). The pose and model stay this move's best
+    registration."""
     obs = state.observation
     if episode.config.refinement:
         learned = episode.refine_config.yaw_source == "learned"
@@ -289,8 +305,8 @@ def refinement(episode: Episode, state: EpisodeState, depth: jax.Array | None = 
     else:
         move = state.observation.probs
     carried = jnp.where(tracked[:, None], state.evidence[match], 0.0)
-    evidence = jnp.where(new.valid[:, None], episode.config.evidence_decay * carried + move, 0.0)
-    if episode.config.refinement and episode.config.decision == "evidence":
+    evidence = jnp.where(new.valid[:, None], gather_evidence(episode.config, carried, move), 0.0)
+    if episode.config.refinement and episode.config.decision != "last":
         decided = jnp.argmax(evidence, axis=1).astype(new.refined.dtype)
         new = new.replace(refined=jnp.where(new.valid & (jnp.max(evidence, axis=1) > 0), decided, new.refined))
     same = tracked & (old.refined[match] == new.refined)
@@ -436,6 +452,6 @@ def timed_step(episode: Episode, state: EpisodeState, depth: jax.Array, T_wc: ja
     return state, times
 
 
-__all__ = ["MODULES", "STAGES", "Episode", "EpisodeConfig", "EpisodeState", "StopConfig", "Trace", "belief",
-           "centroids", "check_frame", "empty_refinement", "reset", "rollout", "rollout_jit", "seen_from",
-           "step", "step_jit", "timed_step", "trace"]
+__all__ = ["DECISIONS", "MODULES", "STAGES", "Episode", "EpisodeConfig", "EpisodeState", "StopConfig", "Trace",
+           "belief", "centroids", "check_frame", "empty_refinement", "gather_evidence", "reset", "rollout",
+           "rollout_jit", "seen_from", "step", "step_jit", "timed_step", "trace"]

@@ -129,11 +129,17 @@ def reconstruct_views(spec: Spec, state: Observation, depth: jax.Array, T_wc: ja
         obs = reconstruct(spec, obs, *frame)
         return obs, obs.tracking.pose
 
+    def one_pass(carry, _):  # from ``state`` with the hand-eye estimate the last pass ended with
+        hand_eye = carry[0]
+        out, poses = jax.lax.scan(fuse, state.replace(tracking=state.tracking.replace(hand_eye=hand_eye)),
+                                  (depth, T_wc))
+        return (out.tracking.hand_eye, out, poses), None
+
     tracked = spec.config.tracking
-    out, poses = jax.lax.scan(fuse, state, (depth, T_wc))
-    for _ in range(passes - 1 if tracked.on and tracked.hand_eye else 0):
-        again = state.replace(tracking=state.tracking.replace(hand_eye=out.tracking.hand_eye))
-        out, poses = jax.lax.scan(fuse, again, (depth, T_wc))
+    count = passes if tracked.on and tracked.hand_eye else 1
+    # The passes as a scan too: the frames' scan body is compiled once, whatever ``passes``.
+    init = (state.tracking.hand_eye, state, jnp.zeros(jnp.shape(T_wc), jnp.float32))
+    (_, out, poses), _ = jax.lax.scan(one_pass, init, None, length=count)
     return out, poses
 
 
