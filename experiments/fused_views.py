@@ -31,7 +31,7 @@ from tqdm.auto import tqdm
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import table1
 
-from jaxcls import io, report
+from jaxcls import compile_cache, io, report
 from jaxcls.config import load_config
 from jaxcls.episode import protocol, scoring, setup, sources
 from jaxcls.world.objects import object_set_from_config
@@ -90,6 +90,7 @@ def main(argv: list[str] | None = None) -> None:
     if min(args.views) < 1 or args.subsets < 1 or args.passes < 1:
         raise ValueError(f"--views, --subsets and --passes must be >= 1 (got {args.views}, {args.subsets}, "
                          f"{args.passes})")
+    compile_cache.enable()  # compiled programs kept on disk for the next run (jaxcls.compile_cache)
     config = load_config(table1.Table1Config, args.config, args.overrides)
     dataset, files = table1.open_dataset(config)
     object_set = object_set_from_config(dataset.objects)

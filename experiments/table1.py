@@ -36,7 +36,7 @@ import jax
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaxcls import io, metrics, precision, report, viz
+from jaxcls import compile_cache, io, metrics, precision, report, viz
 from jaxcls.config import ConfigError, bounded, check_bounds, load_config, resolve_config, save_config
 from jaxcls.episode import active, protocol, runner, scoring, setup, sources
 from jaxcls.perception import pointnet
@@ -367,6 +367,7 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_intermixed_args(argv)
     # No allocator.retain_freed_memory() here: batched episodes gain little from it.
     precision.full_float32_matmuls()  # no TF32 on a GPU (jaxcls.precision)
+    compile_cache.enable()  # the row programs kept on disk for the next run (jaxcls.compile_cache)
     config = load_config(Table1Config, args.config, args.overrides)
     out = Path(config.out_dir)
     _check_out_dir(config, out)

@@ -13,7 +13,7 @@ import os
 import sys
 from collections.abc import Callable, Sequence
 
-from jaxcls import __version__, allocator
+from jaxcls import __version__, allocator, compile_cache
 from jaxcls.commands import Command
 from jaxcls.config import ConfigError
 
@@ -142,6 +142,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if name not in COMMANDS:
         top.parse_args(argv[:1])  # prints the choices and exits with 2
     allocator.retain_freed_memory()  # a move's buffers reused, not page-faulted back in (jaxcls.allocator)
+    compile_cache.enable()  # compiled programs kept on disk for the next run (jaxcls.compile_cache)
     try:
         print(_run(name, argv[1:]))
     except KeyboardInterrupt:

@@ -16,7 +16,9 @@ TINY = 1e-12
 def safe_div(num: jax.Array, den: jax.Array, fallback: float | jax.Array = 0.0) -> jax.Array:
     """``num / den`` where ``|den| > 0``, else ``fallback``; finite gradients everywhere. Broadcasts."""
     ok = den != 0
-    return jnp.where(ok, num / jnp.where(ok, den, 1.0), fallback)
+    # ones_like, not 1.0: an integer ``den`` (a count) stays integer, and the quotient is a strong float32
+    # (a Python 1.0 would make it weakly typed, and a jit fed it back would compile again).
+    return jnp.where(ok, num / jnp.where(ok, den, jnp.ones_like(den)), fallback)
 
 
 def safe_norm(x: jax.Array, axis: int = -1, keepdims: bool = False) -> jax.Array:

@@ -6,15 +6,24 @@ and dies inside LLVM (a segmentation fault or 'Cannot allocate memory' while com
 ``experiments/table1.py`` met on long CPU runs). After a test, once the process holds more than
 ``_MAP_BUDGET`` of the limit, JAX's caches are cleared and the executables freed: later tests compile
 again what they need.
+
+The suite runs with the persistent compilation cache off (``JAXCLS_CACHE_DIR=off`` unless set): each test
+compiles what it checks, and test workers never share cache files; ``tests/test_compile_cache.py`` turns it
+on in folders of its own.
 """
 
 from __future__ import annotations
 
 import gc
+import os
 from pathlib import Path
 
 import jax
 import pytest
+
+from jaxcls import compile_cache
+
+os.environ.setdefault(compile_cache.ENV, "off")  # subprocesses (the CLI tests) inherit it
 
 _MAP_BUDGET = 0.5  # share of vm.max_map_count a worker may hold before its compiled programs are freed
 

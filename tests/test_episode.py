@@ -115,6 +115,20 @@ def test_the_timed_host_path_and_the_jitted_step_agree(episode, frames):
         assert all(t > 0 for t in times.values())
 
 
+def test_moves_after_the_first_compile_nothing(episode, frames):
+    """Three moves of the timed host path (``jaxcls run``'s): after move 1 no jitted stage traces (hence
+    compiles) again; a state leaf that changed its type across a move (e.g. a weakly typed ``rho`` from a
+    count divided by a Python float) would compile every stage it enters a second time."""
+    programs = [active._arrive_jit, active.step_jit, *active._STAGE_JITS.values()]
+    state = active.reset(episode, frames.viewpoints, 3, jax.random.PRNGKey(5))
+    sizes = []
+    for _ in range(3):
+        depth, T_wc = frames.frame(int(state.next_view))
+        state, _ = active.timed_step(episode, state, depth, T_wc.astype(np.float32))
+        sizes.append([p._cache_size() for p in programs])
+    assert sizes[1] == sizes[0] and sizes[2] == sizes[0], sizes
+
+
 def test_vmapped_step_equals_the_sequential_one(world, frames):
     """Two episodes (other starts, other keys) stepped together under vmap give what stepping each gives,
     move after move (each move from the same states). Frames fused at the poses given: a tracked pose differs

@@ -24,7 +24,7 @@ FORBIDDEN = {
     "jaxcls.episode": ("jaxcls.commands", "jaxcls.cli", "jaxcls.learn"),
     # The shared helpers at the top sit below every layer.
     **{f"jaxcls.{m}": ("jaxcls.world", "jaxcls.perception", "jaxcls.learn", "jaxcls.commands", "jaxcls.cli")
-       for m in ("allocator", "geometry", "math", "config", "io", "report", "viz")},
+       for m in ("allocator", "compile_cache", "geometry", "math", "config", "io", "report", "viz")},
 }
 
 
