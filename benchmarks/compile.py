@@ -52,7 +52,7 @@ def _demo(cache: str, out_dir: Path, overrides: list[str]) -> dict:
     counts = json.loads(next(line for line in done.stdout.splitlines() if line.startswith("COUNTS "))[7:])
     log = json.loads((out_dir / "episode.json").read_text())
     moves = [{k: v for k, v in move.items() if k != "times_ms"} for move in log["moves"]]  # labels, views, rho
-    return {"wall": wall, **counts, "curve": moves}
+    return {"wall": wall, **counts, "moves": moves}
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -69,9 +69,8 @@ def main(argv: list[str] | None = None) -> None:
             for setting in (*first, "warm"):
                 cache = "off" if setting == "off" else str(folder)
                 runs[setting].append(_demo(cache, Path(tmp) / f"demo_{setting}_{r}", args.overrides))
-                print(setting, r, {k: v for k, v in runs[setting][-1].items() if k != "curve"}, file=sys.stderr)
-    curves = {s: [run["curve"] for run in rs] for s, rs in runs.items()}
-    same = all(c == curves["off"][0] for cs in curves.values() for c in cs)
+                print(setting, r, {k: v for k, v in runs[setting][-1].items() if k != "moves"}, file=sys.stderr)
+    same = all(run["moves"] == runs["off"][0]["moves"] for rs in runs.values() for run in rs)
     rows = []
     for setting, rs in runs.items():
         walls = [run["wall"] for run in rs]
