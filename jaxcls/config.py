@@ -9,11 +9,18 @@ the resolved config beside its outputs.
 Ranges are declared where a field is defined, with ``bounded(default, ge=..., lt=...)``; the block's
 ``__post_init__`` calls ``check_bounds(self)`` (Python callers), and ``load_config`` checks the whole tree
 first so that the error names the dotted key (``sensor.random_dropout``) and the file it came from.
+
+Choices are ``enum.StrEnum``s owned by the module that acts on them (``perception.settings.Segmenter``,
+``planning.nbv.PolicyName``, ...), their members named as the YAML spells them: OmegaConf refuses any other
+value naming the key and the choices; Python callers may pass the value (``segmenter="reference"``) and the
+block's ``check_bounds`` turns it into the member. Code acts on a choice through its registry or the member
+(``Segmenter.reference.on_host``), never by comparing strings (``tests/test_layout.py`` checks).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import enum
 import math
 from collections.abc import Sequence
 from importlib import resources
@@ -85,11 +92,20 @@ def bounded(default: Any, *, ge: float | None = None, gt: float | None = None, l
 
 
 def check_bounds(config: Any, prefix: str = "") -> None:
-    """Raise ValueError naming ``prefix + field`` for the first field of ``config`` outside its bounds.
+    """Raise ValueError naming ``prefix + field`` for the first field of ``config`` outside its bounds, or
+    for a choice (a field whose default is an ``enum.Enum`` member) that is not one of its enum's values; a
+    choice given as its value (``"reference"`` from Python code) becomes the member.
 
     Call it from a config block's ``__post_init__``; nested blocks check themselves when built.
     """
     for f in dataclasses.fields(config):
+        kind, value = type(f.default), getattr(config, f.name)
+        if isinstance(f.default, enum.Enum) and not isinstance(value, kind):
+            try:
+                object.__setattr__(config, f.name, kind(value))
+            except ValueError:
+                raise ValueError(f"{prefix}{f.name} must be one of {[str(m.value) for m in kind]}, got {value!r}"
+                                 ) from None
         bounds = f.metadata.get("bounds")
         if bounds is not None and (why := bounds.violation(getattr(config, f.name))) is not None:
             raise ValueError(f"{prefix}{f.name} {why}")

@@ -82,6 +82,12 @@ class Intrinsics:
         """[3, 3] the OpenCV camera matrix K."""
         return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1]])
 
+    def project(self, x: np.ndarray | jax.Array, y: np.ndarray | jax.Array, inv_z: np.ndarray | jax.Array
+                ) -> tuple[np.ndarray | jax.Array, np.ndarray | jax.Array]:
+        """(u, v) pixel coordinates of camera-frame coordinates ``x, y`` (m) with ``inv_z`` = 1 / z (the caller
+        guards z <= 0): the OpenCV pinhole, u = fx x / z + cx, v = fy y / z + cy. NumPy or JAX, any shape."""
+        return self.fx * x * inv_z + self.cx, self.fy * y * inv_z + self.cy
+
     def validate_mujoco(self) -> None:
         """MuJoCo renders square pixels about the image centre; anything else cannot be rendered exactly."""
         if not (math.isclose(self.fx, self.fy, rel_tol=1e-6)
@@ -212,27 +218,29 @@ def yaw_matrix_np(yaw: np.ndarray) -> np.ndarray:
     return R
 
 
-def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:
+def look_at(eye: np.ndarray | jax.Array, target: np.ndarray | jax.Array, up: np.ndarray = (0.0, 0.0, 1.0),
+            xp=np) -> np.ndarray | jax.Array:
     """[..., 4, 4] ``T_wc`` of OpenCV cameras at ``eye: [..., 3]`` looking at ``target: [..., 3]``.
 
-    Image "down" points along -``up``; a camera looking straight along ``up`` uses world y as its up.
+    Image "down" points along -``up``; a camera looking straight along ``up`` uses world y as its up. With
+    NumPy (the default) an eye on its target is a ValueError; with ``xp=jax.numpy`` it is traceable and
+    differentiable (the caller keeps the eye off the target).
     """
-    eye, target = np.broadcast_arrays(np.asarray(eye, float), np.asarray(target, float))
+    eye, target = xp.broadcast_arrays(xp.asarray(eye, float), xp.asarray(target, float))
     forward = target - eye
-    dist = np.linalg.norm(forward, axis=-1, keepdims=True)
-    if np.any(dist < 1e-9):
+    dist = xp.linalg.norm(forward, axis=-1, keepdims=True)
+    if xp is np and np.any(dist < 1e-9):
         raise ValueError("look_at: eye and target coincide")
     forward = forward / dist
-    up = np.broadcast_to(np.asarray(up, float), forward.shape)
-    parallel = np.abs(np.sum(forward * up, axis=-1, keepdims=True)) > 1 - 1e-6
-    up = np.where(parallel, np.array([0.0, 1.0, 0.0]), up)
-    right = np.cross(forward, up)
-    right /= np.linalg.norm(right, axis=-1, keepdims=True)
-    down = np.cross(forward, right)
-    T = np.zeros((*forward.shape[:-1], 4, 4))
-    T[..., :3, 0], T[..., :3, 1], T[..., :3, 2], T[..., :3, 3] = right, down, forward, eye
-    T[..., 3, 3] = 1.0
-    return T
+    up = xp.broadcast_to(xp.asarray(up, float), forward.shape)
+    parallel = xp.abs(xp.sum(forward * up, axis=-1, keepdims=True)) > 1 - 1e-6
+    up = xp.where(parallel, xp.asarray([0.0, 1.0, 0.0]), up)
+    right = xp.cross(forward, up)
+    right = right / xp.linalg.norm(right, axis=-1, keepdims=True)
+    down = xp.cross(forward, right)
+    top = xp.concatenate([xp.stack([right, down, forward], axis=-1), eye[..., None]], axis=-1)  # [..., 3, 4]
+    bottom = xp.broadcast_to(xp.asarray([0.0, 0.0, 0.0, 1.0]), (*top.shape[:-2], 1, 4))
+    return xp.concatenate([top, bottom], axis=-2)
 
 
 def hemisphere_viewpoints(center: np.ndarray, count: int = 100, radius: float = 1.0,

@@ -65,3 +65,16 @@ def test_saved_config_loads_back_identically(tmp_path):
     cfg = Outer(name="q", radius=0.25, views=(4, 5, 6), inner=Inner(count=1, mode="b"))
     path = save_config(cfg, tmp_path / "run" / "config.yaml")
     assert load_config(Outer, path) == cfg
+
+
+def test_absolute_thresholds_are_checked_against_the_volumes_voxels():
+    from jaxcls.commands.run import RunConfig
+    from jaxcls.perception.settings import PerceptionConfig, VolumeConfig
+
+    PerceptionConfig(volume=VolumeConfig(resolution=256))  # finer voxels: the metres span more of them
+    with pytest.raises(ConfigError, match=r"perception\.segmentation\.dbscan_eps = 0\.01 m is 1\.07 voxels.*"
+                                          r"resolution 64 = 9\.4 mm.*set it to >= 0\.0141"):
+        load_config(RunConfig, None, ["perception.volume.resolution=64"])
+    load_config(RunConfig, None, ["perception.volume.resolution=64", "perception.segmentation.dbscan_eps=0.015"])
+    with pytest.raises(ConfigError, match=r"perception\.foreground\.table_eps = 0\.004 m is 0\.85 voxels"):
+        load_config(RunConfig, None, ["perception.foreground.table_eps=0.004"])

@@ -58,6 +58,18 @@ def test_look_at_straight_down_is_well_defined():
     np.testing.assert_allclose(T[:3, 2], [0, 0, -1], atol=1e-12)
 
 
+def test_look_at_in_jax_matches_numpy_and_has_gradients():
+    import jax
+    import jax.numpy as jnp
+
+    rng = np.random.default_rng(3)
+    eyes, target = rng.normal(size=(6, 3)) + [0, 0, 1.0], np.array([0.0, 0.1, 0.2])
+    np.testing.assert_allclose(np.asarray(geometry.look_at(jnp.asarray(eyes), target, xp=jnp)),
+                               geometry.look_at(eyes, target), atol=1e-5)
+    grad = jax.grad(lambda e: geometry.look_at(e, jnp.asarray(target), xp=jnp)[:3, 0].sum())(jnp.asarray(eyes[0]))
+    assert np.all(np.isfinite(np.asarray(grad))) and np.any(np.asarray(grad) != 0)
+
+
 def test_backproject_inverts_projection():
     intr = geometry.Intrinsics.kinect_v1(0.1)
     T = geometry.look_at([0.4, -0.3, 0.7], [0.0, 0.05, 0.02])
@@ -66,8 +78,7 @@ def test_backproject_inverts_projection():
     world = np.asarray(geometry.backproject(depth, intr, T))
     cam = (world - T[:3, 3]) @ T[:3, :3]
     np.testing.assert_allclose(cam[..., 2], depth, rtol=1e-6)
-    u = intr.fx * cam[..., 0] / cam[..., 2] + intr.cx
-    v = intr.fy * cam[..., 1] / cam[..., 2] + intr.cy
+    u, v = intr.project(cam[..., 0], cam[..., 1], 1.0 / cam[..., 2])  # the one pinhole projection
     uu, vv = np.meshgrid(np.arange(intr.width), np.arange(intr.height))
     np.testing.assert_allclose(u, uu, atol=1e-4)
     np.testing.assert_allclose(v, vv, atol=1e-4)

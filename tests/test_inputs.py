@@ -234,18 +234,18 @@ def _volume():
     return tsdf.create_volume(np.zeros(3), size=0.4, resolution=8)
 
 
-def test_tsdf_integrate_refuses_bad_poses():
+def test_tsdf_check_frame_refuses_bad_poses():
     depth = jnp.ones((SMALL_INTRINSICS.height, SMALL_INTRINSICS.width))
     T = np.eye(4)
     T[2, 3] = 1.0
     nan_pose = T.copy()
     nan_pose[0, 3] = np.nan
     with pytest.raises(ValueError, match="not rigid"):
-        tsdf.integrate(_volume(), depth, SMALL_INTRINSICS, jnp.asarray(nan_pose))
+        tsdf.check_frame(depth, SMALL_INTRINSICS, jnp.asarray(nan_pose))
     scaled = T.copy()
     scaled[:3, :3] *= 1.5
     with pytest.raises(ValueError, match="not rigid"):
-        tsdf.integrate(_volume(), depth, SMALL_INTRINSICS, jnp.asarray(scaled))
+        tsdf.check_frame(depth, SMALL_INTRINSICS, jnp.asarray(scaled))
 
 
 def test_wrong_depth_shape_names_the_shapes():

@@ -186,7 +186,7 @@ def test_the_moves_cheaper_settings_and_the_product_rule(scene):
 
     world, classifier, state, truth, library = scene
     cameras = world.poses([0, 10, 20])[:, :3, 3].astype(np.float32)
-    fast = episode_refine()
+    fast = episode_refine().resolve(yaw_head=True)
     orders = np.asarray(classifier.yaw_orders, np.int32)
     out = refine.refine_jit(state.segments.points, state.segments.mask, state.probs, library, fast,
                             world.table_height, cameras, yaw=state.yaw, yaw_orders=orders)

@@ -24,8 +24,8 @@ traced leaves.
 from __future__ import annotations
 
 import dataclasses
+import enum
 import time
-from typing import Literal
 
 import jax
 import jax.numpy as jnp
@@ -35,13 +35,21 @@ from flax import struct
 from jaxcls.config import bounded, check_bounds
 from jaxcls.perception import observation, pose
 from jaxcls.perception.observation import Observation
-from jaxcls.perception.refine import ModelLibrary, RefineConfig, Refinement, refine
+from jaxcls.perception.refine import ModelLibrary, RefineConfig, Refinement, YawSource, refine
 from jaxcls.perception.settings import Spec
 from jaxcls.planning import nbv
 
 STABLE_DISTANCE = 0.05  # m: a segment is the same object as last move's nearest segment within this
-Decision = Literal["last", "evidence", "best"]
-DECISIONS: tuple[str, ...] = ("last", "evidence", "best")
+
+
+class Decision(enum.StrEnum):
+    """How a segment's refined class is decided (GR on): ``last``, from this move alone (Eq. 3); from the
+    class evidence its object has gathered over the moves (``gather_evidence``): ``evidence``, each class's
+    summed scores; ``best``, each class's best score of any move. GR off: the prior, whatever this says."""
+
+    last = "last"
+    evidence = "evidence"
+    best = "best"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,29 +69,19 @@ class EpisodeConfig:
     """The ``episode:`` block: how many moves, which policy, GR on or off, when to stop early."""
 
     moves: int = bounded(10, ge=1)  # T: frames fused (the paper's 10)
-    policy: str = "vis_occl_hist"  # a name of ``planning.nbv.POLICIES``
+    policy: nbv.PolicyName = nbv.PolicyName.vis_occl_hist  # its parameters: the ``nbv:`` block
     refinement: bool = True  # GR (Eq. 2-4); off: the prior class, the model upright under the centroid
-    uncertainty: str = "rho_margin"  # what vis_occl_hist_unc weights segments by (``nbv.UNCERTAINTY``)
     # With the continuous policy: go to the view it found, off the fixed viewpoints (a source that renders
     # any pose, ``sources.Rendered``); the nearest viewpoint stands for it in the candidates and the history.
     off_grid: bool = False
-    # How a segment's refined class is decided (GR on): "last", from this move alone (Eq. 3); from the class
-    # evidence its object has gathered over the moves (``gather_evidence``): "evidence", each class's summed
-    # scores; "best", each class's best score of any move. GR off: the prior.
-    decision: Decision = "evidence"
+    decision: Decision = Decision.evidence  # how a segment's refined class is decided (``Decision``)
     evidence_decay: float = bounded(1.0, ge=0.0, le=1.0)  # last move's evidence counts this much this move
     stop: StopConfig = dataclasses.field(default_factory=StopConfig)
 
     def __post_init__(self) -> None:
         check_bounds(self, "episode.")
-        if self.off_grid and self.policy != "continuous":
-            raise ValueError(f"episode.off_grid needs episode.policy=continuous, got {self.policy!r}")
-        if self.policy not in nbv.POLICIES:
-            raise ValueError(f"episode.policy: unknown policy {self.policy!r}; choose one of {sorted(nbv.POLICIES)}")
-        if self.decision not in DECISIONS:
-            raise ValueError(f"episode.decision must be one of {DECISIONS}, got {self.decision!r}")
-        if self.uncertainty not in nbv.UNCERTAINTY:
-            raise ValueError(f"episode.uncertainty must be one of {nbv.UNCERTAINTY}, got {self.uncertainty!r}")
+        if self.off_grid and self.policy is not nbv.PolicyName.continuous:
+            raise ValueError(f"episode.off_grid needs episode.policy=continuous, got {self.policy}")
 
 
 @struct.dataclass
@@ -108,15 +106,13 @@ class Episode:
     def create(cls, spec: Spec, library: ModelLibrary, config: EpisodeConfig | None = None,
                refine_config: RefineConfig | None = None, nbv_config: nbv.NBVConfig | None = None) -> Episode:
         """Check that the pieces fit (a classifier, of the library's classes; a yaw head if GR's yaws are
-        learned) and stack the model cuboids."""
+        learned), resolve GR's yaw source for these weights (``RefineConfig.resolve``: the episode keeps what
+        runs) and stack the model cuboids."""
         config, refine_config = config or EpisodeConfig(), refine_config or RefineConfig()
         if spec.classifier is None:
             raise ValueError("episode: the perception spec has no classifier (Spec.create(..., classifier=...))")
         spec.classifier.check_classes(library.classes, "model library")
-        learned = refine_config.yaw_source == "learned"
-        if learned and not spec.classifier.config.yaw_head:
-            raise ValueError("episode: refine.yaw_source 'learned' needs weights with a yaw head "
-                             "(model.yaw_head=true); use refine.yaw_source=hypotheses")
+        refine_config = refine_config.resolve(spec.classifier.config.yaw_head, "the classifier's weights")
         points = np.asarray(library.targets.points, np.float32)  # [L, S, 3]
         lo, hi = points.min(axis=1), points.max(axis=1)
         pick = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], bool)  # [8, 3]
@@ -127,7 +123,8 @@ class Episode:
 
     @property
     def policy(self) -> nbv.Policy:
-        return nbv.policy(self.config.policy)
+        """The episode's policy with its parameters (``episode.policy``, the ``nbv:`` block)."""
+        return self.nbv_config.policy(self.config.policy)
 
 
 @struct.dataclass
@@ -178,7 +175,7 @@ def reset(episode: Episode, viewpoints: jax.Array, start: int | jax.Array, key: 
     viewpoints = jnp.asarray(viewpoints, jnp.float32)
     if viewpoints.ndim != 3 or viewpoints.shape[1:] != (4, 4):
         raise ValueError(f"episode: viewpoints must be [V, 4, 4] camera-to-world poses, got {viewpoints.shape}")
-    if not isinstance(start, jax.core.Tracer) and not 0 <= int(start) < viewpoints.shape[0]:
+    if isinstance(start, int | np.integer) and not 0 <= start < viewpoints.shape[0]:
         raise ValueError(f"episode: start view {int(start)} is outside 0..{viewpoints.shape[0] - 1} "
                          f"({viewpoints.shape[0]} viewpoints)")
     N = episode.spec.num_segments
@@ -264,7 +261,7 @@ def gather_evidence(config: EpisodeConfig, carried: jax.Array, move: jax.Array) 
     (``"evidence"``, and ``"last"``, which keeps it for the record) the decayed sum decay x carried + move:
     consistent moves add up. Under either a move that fits every class badly cannot overturn the earlier ones."""
     decayed = config.evidence_decay * carried
-    if config.decision == "best":
+    if config.decision is Decision.best:
         return jnp.maximum(decayed, move)
     return decayed + move
 
@@ -284,7 +281,7 @@ def refinement(episode: Episode, state: EpisodeState, depth: jax.Array | None = 
     registration."""
     obs = state.observation
     if episode.config.refinement:
-        learned = episode.refine_config.yaw_source == "learned"
+        learned = episode.refine_config.yaw_source is YawSource.learned
         new = refine(obs.segments.points, obs.segments.mask, obs.probs, episode.library, episode.refine_config,
                      episode.spec.table_height, seen_from(state), yaw=obs.yaw if learned else None,
                      yaw_orders=episode.yaw_orders if learned else None)
@@ -298,15 +295,14 @@ def refinement(episode: Episode, state: EpisodeState, depth: jax.Array | None = 
     tracked = jnp.min(d, axis=1) <= STABLE_DISTANCE
     N, M = state.evidence.shape
     if episode.config.refinement:  # the move's own class scores (refine.decision: rho, or probability x rho)
-        score = new.rho
-        if episode.refine_config.decision == "product":
-            score = score * jnp.take_along_axis(state.observation.probs, new.candidates, axis=1)
+        score = episode.refine_config.decision.scores(
+            new.rho, jnp.take_along_axis(state.observation.probs, new.candidates, axis=1))
         move = jnp.zeros((N, M), jnp.float32).at[jnp.arange(N)[:, None], new.candidates].max(score)
     else:
         move = state.observation.probs
     carried = jnp.where(tracked[:, None], state.evidence[match], 0.0)
     evidence = jnp.where(new.valid[:, None], gather_evidence(episode.config, carried, move), 0.0)
-    if episode.config.refinement and episode.config.decision != "last":
+    if episode.config.refinement and episode.config.decision is not Decision.last:
         decided = jnp.argmax(evidence, axis=1).astype(new.refined.dtype)
         new = new.replace(refined=jnp.where(new.valid & (jnp.max(evidence, axis=1) > 0), decided, new.refined))
     same = tracked & (old.refined[match] == new.refined)
@@ -318,7 +314,8 @@ def belief(episode: Episode, state: EpisodeState) -> nbv.Belief:
     """What the planner is told: each live segment's refined model cuboid and pose, its uncertainty, the TSDF."""
     r = state.refinement
     return nbv.Belief(corners=episode.corners[jnp.maximum(r.model, 0)], poses=r.pose, live=r.valid,
-                      uncertainty=nbv.uncertainty(r.rho, state.observation.probs, episode.config.uncertainty),
+                      uncertainty=nbv.uncertainty(r.rho, state.observation.probs,
+                                                  episode.nbv_config.vis_occl_hist_unc.uncertainty),
                       volume=state.observation.volume)
 
 
@@ -362,11 +359,7 @@ def check_frame(episode: Episode, depth: np.ndarray | jax.Array, T_wc: np.ndarra
 def step(episode: Episode, state: EpisodeState, depth: jax.Array, T_wc: jax.Array) -> EpisodeState:
     """One move on the frame (depth [H, W] m, 0 = no return; T_wc [4, 4]) seen from ``state.next_view``:
     fuse, segment, classify, refine, choose the next view. A state already ``done`` comes back unchanged.
-    Pure; ``step_jit`` is its module-level jit (JAX segmentation only)."""
-    if episode.spec.config.segmenter == "reference" and any(
-            isinstance(a, jax.core.Tracer) for a in jax.tree.leaves((state, depth, T_wc))):
-        raise ValueError("episode: segmenter 'reference' runs on the host; it cannot be traced (use "
-                         "perception.segmenter=jax, or episode.runner.run, which runs the stages one by one)")
+    Pure; ``step_jit`` is its module-level jit."""
     new = arrive(episode, state, depth, T_wc)
     for _, stage in STAGES:
         new = stage(episode, new, depth, T_wc)
@@ -443,15 +436,34 @@ def timed_step(episode: Episode, state: EpisodeState, depth: jax.Array, T_wc: ja
         return state, dict.fromkeys(MODULES, 0.0)
     state = _arrive_jit(episode, state, depth, T_wc)
     times = {}
-    for name, fn in STAGES:
-        host = name == "segmentation" and episode.spec.config.segmenter == "reference"
+    for name, stage in _STAGE_JITS.items():
         t0 = clock()
-        state = (fn if host else _STAGE_JITS[name])(episode, state, depth, T_wc)
+        state = stage(episode, state, depth, T_wc)
         jax.block_until_ready(state)
         times[name] = (clock() - t0) * 1e3
     return state, times
 
 
-__all__ = ["DECISIONS", "MODULES", "STAGES", "Episode", "EpisodeConfig", "EpisodeState", "StopConfig", "Trace",
-           "belief", "centroids", "check_frame", "empty_refinement", "gather_evidence", "reset", "rollout",
-           "rollout_jit", "seen_from", "step", "step_jit", "timed_step", "trace"]
+__all__ = [
+    "MODULES",
+    "STAGES",
+    "Decision",
+    "Episode",
+    "EpisodeConfig",
+    "EpisodeState",
+    "StopConfig",
+    "Trace",
+    "belief",
+    "centroids",
+    "check_frame",
+    "empty_refinement",
+    "gather_evidence",
+    "reset",
+    "rollout",
+    "rollout_jit",
+    "seen_from",
+    "step",
+    "step_jit",
+    "timed_step",
+    "trace",
+]

@@ -67,10 +67,8 @@ class Row:
 
     def episode(self, base: ActiveConfig, moves: int, classifier: pointnet.Classifier, object_set: ObjectSet,
                 intrinsics: Intrinsics, table_height: float, scene_split: str = "test") -> active.Episode:
-        """This row's episode (``settings``) with ``classifier``; weights without a yaw head take GR's yaw
-        hypotheses instead of the learned yaw."""
-        if base.refine.yaw_source == "learned" and not classifier.config.yaw_head:
-            base = dataclasses.replace(base, refine=dataclasses.replace(base.refine, yaw_source="hypotheses"))
+        """This row's episode (``settings``) with ``classifier`` (GR's ``refine.yaw_source=auto`` takes the
+        learned yaw with a yaw head, else evenly spaced hypotheses: ``RefineConfig.resolve``)."""
         return setup.make_episode(self.settings(base, moves), object_set, intrinsics, table_height, classifier,
                                   scene_split)
 

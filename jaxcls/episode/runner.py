@@ -178,8 +178,7 @@ def picture_data(episode: active.Episode, state: active.EpisodeState, depth: np.
     cam = points @ T_cw[:3, :3].T + T_cw[:3, 3]
     intr = episode.spec.intrinsics
     front = cam[:, 2] > 1e-6
-    pixels = np.stack([intr.fx * cam[front, 0] / cam[front, 2] + intr.cx,
-                       intr.fy * cam[front, 1] / cam[front, 2] + intr.cy], axis=-1)
+    pixels = np.stack(intr.project(cam[front, 0], cam[front, 1], 1.0 / cam[front, 2]), axis=-1)
     return {"depth": np.asarray(depth), "pixels": pixels, "pixel_labels": [lb for lb, f in zip(labels, front,
                                                                                                   strict=True) if f],
             "cuboids": cuboids[valid], "cuboid_labels": [refined[n] for n in np.flatnonzero(valid)],

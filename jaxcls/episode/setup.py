@@ -28,12 +28,13 @@ def episode_perception() -> PerceptionConfig:
 
 def episode_refine() -> RefineConfig:
     """GR as a move runs it: of each candidate class only the model nearest the segment in height, 2 yaws from
-    the yaw head's estimate (its symmetric copy or one ring), the best of them finished alone, pruning's rho
+    the yaw head's estimate (its symmetric copy or one ring; weights without a yaw head: 2 evenly spaced yaws,
+    with a warning, ``refine.yaw_source=auto``), the best of them finished alone, pruning's rho
     from 8 neighbours per sample: ~8x less work than ``RefineConfig()`` with 4 models per class and as
     accurate in episodes (RESULTS.md, the move's GR settings); the class by PointNet's probability x rho
     (``decision="product"``): on 30 held-out scenes the paper's argmax rho (Eq. 3, ``refine.decision=rho``)
     costs 0.068 F1 after one view, 0.028 after five."""
-    return RefineConfig(yaw_source="learned", hypotheses=2, prune_per="class", prune_neighbours=8,
+    return RefineConfig(yaw_source="auto", hypotheses=2, prune_per="class", prune_neighbours=8,
                         decision="product", models_per_class=1)
 
 

@@ -6,7 +6,8 @@
 - ``tsdf``: fuse posed depth frames into a TSDF; extract surface points with normals;
 - ``segment``: split the surface into N object segments (reference path and its JAX twin);
 - ``pointnet``: PointNet class scores of segments and top-k candidates (weights shipped in ``weights/``);
-- ``observation``: the chain above as one pure function, ``observe``, over an ``Observation`` state;
+- ``observation``: the chain above as one pure function, ``perceive`` (``observe``: from the host, the frame
+  validated first), over an ``Observation`` state;
 - ``pose``: initial model poses of a segment (upright on the table, yaw hypotheses);
 - ``icp``: point-to-plane ICP of a segment onto a model and the registration ratio (Eq. 2);
 - ``refine``: geometric refinement, every candidate registered in one call (Eq. 2-4).
@@ -27,7 +28,7 @@ from jaxcls.perception import (
     tracking,
     tsdf,
 )
-from jaxcls.perception.observation import Observation, empty_volume, init_state, observe
+from jaxcls.perception.observation import Observation, empty_volume, init_state, observe, perceive
 from jaxcls.perception.settings import (
     ForegroundConfig,
     PerceptionConfig,
@@ -40,4 +41,4 @@ from jaxcls.perception.tracking import TrackingConfig
 
 __all__ = ["ForegroundConfig", "Observation", "PerceptionConfig", "SegmentConfig", "ShapeConfig", "Spec",
            "TrackingConfig", "VolumeConfig", "empty_volume", "foreground", "icp", "init_state", "observation",
-           "observe", "pointnet", "pose", "refine", "segment", "settings", "tracking", "tsdf"]
+           "observe", "perceive", "pointnet", "pose", "refine", "segment", "settings", "tracking", "tsdf"]

@@ -28,8 +28,9 @@ the initial pose with rho = 0; nothing returns NaN.
 from __future__ import annotations
 
 import dataclasses
+import enum
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -47,8 +48,22 @@ if TYPE_CHECKING:  # perception reads models, it does not import the world
     from jaxcls.world.objects import ObjectModel
 
 HIGHEST = jax.lax.Precision.HIGHEST
-Dof = Literal["yaw", "full"]
-Lookup = Literal["grid", "brute"]
+
+
+class Dof(enum.StrEnum):
+    """What ICP solves for: ``yaw``, translation + yaw about world z (upright objects), or ``full`` 6-DoF."""
+
+    yaw = "yaw"
+    full = "full"
+
+
+class Lookup(enum.StrEnum):
+    """Closest-sample search: ``grid`` (a precomputed lookup, O(points) gathers) or ``brute`` (every
+    sample, exact)."""
+
+    grid = "grid"
+    brute = "brute"
+
 _HOP_NEIGHBOURS = 8  # samples looked at per step of the closest-sample walk
 _MIN_SPREAD = 1e-8  # m^2: a segment whose second principal variance is below this is a line or a point
 
@@ -60,7 +75,7 @@ class ICPConfig:
     iterations: int = bounded(20, ge=1)  # Gauss-Newton steps (a fixed count under lax.scan)
     max_correspondence: float = bounded(0.02, gt=0.0)  # pairs farther apart are not used in a step
     inlier_distance: float = bounded(0.01, gt=0.0)  # rho's inlier threshold (Eq. 2)
-    dof: Dof = "yaw"  # "yaw": translation + yaw about world z (upright objects); "full": 6-DoF
+    dof: Dof = Dof.yaw  # "yaw": translation + yaw about world z (upright objects); "full": 6-DoF
     tolerance: float = bounded(1e-5, ge=0.0)  # converged once a step moves less (rad and m)
     points: int = bounded(512, ge=1)  # segment points used (an even stride over the segment's slots)
     model_points: int = bounded(2048, ge=1)  # model surface samples (the first ones: they are random)
@@ -70,14 +85,10 @@ class ICPConfig:
     neighbours: int = bounded(32, ge=8)  # nearest samples kept per sample (rho's model side reads them all)
     # Closest-sample search: "grid" (the lookup above, O(points) gathers) or "brute" (every sample, exact;
     # O(points x samples): for comparison, measured in BENCHMARKS.md on both backends).
-    lookup: Lookup = "grid"
+    lookup: Lookup = Lookup.grid
 
     def __post_init__(self) -> None:
         check_bounds(self, "icp.")
-        if self.dof not in ("yaw", "full"):
-            raise ValueError(f"icp.dof must be 'yaw' or 'full', got {self.dof!r}")
-        if self.lookup not in ("grid", "brute"):
-            raise ValueError(f"icp.lookup must be 'grid' or 'brute', got {self.lookup!r}")
 
 
 class Target(struct.PyTreeNode):
@@ -167,7 +178,7 @@ def model_target(model: ObjectModel, config: ICPConfig = ICPConfig(), samples: i
                   grid=jnp.asarray(np.asarray(index, np.int16).reshape(1, G**3, -1)),
                   origin=jnp.asarray(low[None], jnp.float32), cell=jnp.asarray(cell[None], jnp.float32),
                   neighbours=jnp.asarray(np.asarray(neighbours, np.int16).reshape(1, count, -1)),
-                  which=jnp.int32(0), resolution=G, hops=config.hops, brute=config.lookup == "brute")
+                  which=jnp.int32(0), resolution=G, hops=config.hops, brute=config.lookup is Lookup.brute)
 
 
 def closest(target: Target, x: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -229,7 +240,7 @@ def _step(T_mw: jax.Array, x: jax.Array, w0: jax.Array, target: Target, config: 
     pc = p - c
     r = jnp.sum((p - q) * n, axis=-1)  # point-to-plane residuals
     cross = jnp.cross(pc, n)
-    if config.dof == "full":
+    if config.dof is Dof.full:
         J = jnp.concatenate([cross, n], axis=-1)  # [P, 6]: d r / d (w, t)
     else:
         axis = T_mw[:3, 2]  # world z in the model frame: the only rotation allowed
@@ -240,7 +251,7 @@ def _step(T_mw: jax.Array, x: jax.Array, w0: jax.Array, target: Target, config: 
     damping = 1e-6 * jnp.trace(A) / k + 1e-12  # Levenberg: keeps unconstrained directions still
     delta = jnp.linalg.solve(A + damping * jnp.eye(k, dtype=A.dtype), b)
     delta = jnp.where((count >= k) & jnp.all(jnp.isfinite(delta)), delta, 0.0)
-    omega = delta[:3] if config.dof == "full" else delta[0] * T_mw[:3, 2]
+    omega = delta[:3] if config.dof is Dof.full else delta[0] * T_mw[:3, 2]
     t = delta[-3:]
     R = jaxlie.SO3.exp(omega).as_matrix()
     step = jnp.eye(4, dtype=T_mw.dtype).at[:3, :3].set(R).at[:3, 3].set(c + t - R @ c)
@@ -259,6 +270,16 @@ class Alignment(struct.PyTreeNode):
     valid: jax.Array
 
 
+class _Iterate(NamedTuple):
+    """ICP's loop state: T_mw [4, 4] the world-to-model estimate, done [] bool (converged or invalid), steps
+    [] i32 iterations made, inliers [] i32 of the last one."""
+
+    T_mw: jax.Array
+    done: jax.Array
+    steps: jax.Array
+    inliers: jax.Array
+
+
 def align(source: jax.Array, mask: jax.Array, target: Target, T_init: jax.Array, config: ICPConfig = ICPConfig()
           ) -> Alignment:
     """The ICP alone, without rho's model side (``icp`` adds it): a cheap score for pruning hypotheses.
@@ -267,7 +288,7 @@ def align(source: jax.Array, mask: jax.Array, target: Target, T_init: jax.Array,
     valid = (jnp.sum(mask) >= 3) & (_spread(x, mask.astype(x.dtype)) >= _MIN_SPREAD)
     T_init = jnp.asarray(T_init, jnp.float32)
 
-    def body(carry, _):
+    def body(carry: _Iterate, _) -> tuple[_Iterate, None]:
         T_mw, done, steps, inliers = carry
         step, now = _step(T_mw, x, mask, target, config)
         moved = jnp.maximum(jnp.linalg.norm(jaxlie.SO3.from_matrix(step[:3, :3]).log()),
@@ -275,9 +296,9 @@ def align(source: jax.Array, mask: jax.Array, target: Target, T_init: jax.Array,
         T_new = jnp.where(done, T_mw, jnp.einsum("ij,jk->ik", step, T_mw, precision=HIGHEST))
         T_new = _orthonormalise(T_new)
         inliers = jnp.where(done, inliers, now)
-        return (T_new, done | (moved < config.tolerance), steps + (~done).astype(jnp.int32), inliers), None
+        return _Iterate(T_new, done | (moved < config.tolerance), steps + (~done).astype(jnp.int32), inliers), None
 
-    start = (invert_rigid(T_init), ~valid, jnp.int32(0), jnp.int32(0))
+    start = _Iterate(invert_rigid(T_init), ~valid, jnp.int32(0), jnp.int32(0))
     (T_mw, _, steps, inliers), _ = jax.lax.scan(body, start, None, length=config.iterations)
     return Alignment(pose=jnp.where(valid, invert_rigid(T_mw), T_init), iterations=steps, valid=valid,
                      fitness=jnp.where(valid, safe_div(inliers, jnp.sum(mask)), 0.0))

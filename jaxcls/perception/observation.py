@@ -1,12 +1,13 @@
 """One move's perception, composed in one place: track -> foreground -> integrate -> extract -> segment -> classify.
 
-``observe(spec, state, depth, T_wc) -> state`` is the owner of the chain; every stage stays its own pure
-function in its module (``tracking``, ``foreground``, ``tsdf``, ``segment``, ``pointnet``) and ``observe`` only composes
-them, so that the episode can extend a move with refinement and view selection without rewiring it.
+``perceive(spec, state, depth, T_wc) -> state`` is the owner of the chain; every stage stays its own pure
+function in its module (``tracking``, ``foreground``, ``tsdf``, ``segment``, ``pointnet``) and ``perceive`` only
+composes them, so that the episode can extend a move with refinement and view selection without rewiring it.
 
-With the JAX segmentation (``spec.config.segmenter == "jax"``, the default) ``observe`` is pure JAX: jit
-it, ``vmap`` it over episodes (``in_axes=(None, 0, 0, 0)``), scan it over frames. With ``"reference"``
-(scikit-learn on the host) it runs stage by stage, each stage jitted, the segmentation on the host.
+``perceive`` is pure JAX: jit it, ``vmap`` it over episodes (``in_axes=(None, 0, 0, 0)``), scan it over
+frames. ``observe`` is the host's entry: it validates the frame, then perceives. The segmenter is chosen
+by ``spec.config.segmenter`` (``SEGMENTERS``): the JAX twin (the default) or scikit-learn, which runs on
+the host through a callback inside the same program.
 
     spec = Spec.create(PerceptionConfig(), intrinsics, table_height, pointnet.load_classifier())
     state = init_state(spec)
@@ -24,7 +25,7 @@ from flax import struct
 
 from jaxcls.perception import foreground, pointnet, tracking, tsdf
 from jaxcls.perception.segment import Segments, segment, segment_jax
-from jaxcls.perception.settings import Spec
+from jaxcls.perception.settings import Segmenter, Spec
 
 
 @struct.dataclass
@@ -143,11 +144,13 @@ def reconstruct_views(spec: Spec, state: Observation, depth: jax.Array, T_wc: ja
     return out, poses
 
 
+SEGMENTERS = {Segmenter.jax: segment_jax, Segmenter.reference: segment}  # (spec, points, normals, mask) -> Segments
+
+
 def segmentation(spec: Spec, state: Observation, depth: jax.Array | None = None,
                  T_wc: jax.Array | None = None) -> Observation:
-    """Stage 2, segmentation of the surface: the JAX twin, or scikit-learn on the host (``"reference"``,
-    not traceable)."""
-    segment_fn = segment if spec.config.segmenter == "reference" else segment_jax
+    """Stage 2, segmentation of the surface by ``spec.config.segmenter`` (``SEGMENTERS``)."""
+    segment_fn = SEGMENTERS[spec.config.segmenter]
     return state.replace(segments=segment_fn(spec, state.surface.points, state.surface.normals, state.surface.mask))
 
 
@@ -161,35 +164,33 @@ def classification(spec: Spec, state: Observation, depth: jax.Array | None = Non
 STAGES = (("reconstruction", reconstruct), ("segmentation", segmentation), ("classification", classification))
 
 
-def _perceive(spec: Spec, state: Observation, depth: jax.Array, T_wc: jax.Array) -> Observation:
-    """The composition itself: the ``STAGES`` in order."""
-    for _, stage in STAGES:
-        state = stage(spec, state, depth, T_wc)
-    return state
-
-
 def check_observation_inputs(spec: Spec, depth: np.ndarray | jax.Array, T_wc: np.ndarray | jax.Array) -> None:
     """Host-side validation of a frame (shapes, a rigid finite pose), with errors naming what is wrong."""
     foreground.check_depth_shape(spec, depth, T_wc, "observe")
     tsdf.check_frame(depth, spec.intrinsics, T_wc)
 
 
-def observe(spec: Spec, state: Observation, depth: jax.Array, T_wc: jax.Array) -> Observation:
-    """One move's perception: fuse the frame's foreground, extract the surface, segment it, classify.
+def perceive(spec: Spec, state: Observation, depth: jax.Array, T_wc: jax.Array) -> Observation:
+    """One move's perception as a pure function (jit it, vmap it, scan it): the ``STAGES`` in order.
 
-    depth: [H, W] z-depth, m (0 = no return); T_wc: [4, 4] camera-to-world pose of the frame.
-    Pure: returns a new state. Called with concrete arrays, the frame is validated first; under jit or
-    vmap (JAX segmentation only) the composed stages are traced into the caller's program.
+    depth: [H, W] z-depth, m (0 = no return); T_wc: [4, 4] camera-to-world pose of the frame. Only the shapes
+    are checked (they are static); ``observe`` is the host's entry, which validates the frame first.
     """
-    traced = any(isinstance(a, jax.core.Tracer) for a in jax.tree.leaves((spec, state, depth, T_wc)))
-    reference = spec.config.segmenter == "reference"
-    if traced:
-        if reference:
-            raise ValueError("observe: segmenter 'reference' runs scikit-learn on the host and cannot be traced "
-                             "(jit/vmap); use perception.segmenter=jax")
-        return _perceive(spec, state, depth, T_wc)
-    # From Python the stages run one by one, each its own module-level jit: on the CPU as fast as the
-    # hand-wired chain was, while one XLA program of foreground + integration is ~1.8 ms slower there
-    # (benchmarks/ab_move.py). Under the caller's jit/vmap they trace into one program (the GPU's shape).
+    foreground.check_depth_shape(spec, depth, T_wc, "observe")
+    for _, stage in STAGES:
+        state = stage(spec, state, depth, T_wc)
+    return state
+
+
+def observe(spec: Spec, state: Observation, depth: np.ndarray | jax.Array, T_wc: np.ndarray | jax.Array
+            ) -> Observation:
+    """One move's perception from the host: the frame validated (``check_observation_inputs``: shapes, a
+    rigid finite pose, errors naming the problem), then ``perceive``: fuse the frame's foreground, extract
+    the surface, segment it, classify. Returns a new state.
+
+    The stages run one by one, each its own module-level jit: on the CPU as fast as a hand-wired chain,
+    while one XLA program of foreground + integration is ~1.8 ms slower there (benchmarks/ab_move.py).
+    Under a caller's jit/vmap (the GPU's shape) use ``perceive``: the stages trace into one program.
+    """
     check_observation_inputs(spec, depth, T_wc)
-    return _perceive(spec, state, depth, T_wc)
+    return perceive(spec, state, jnp.asarray(depth, jnp.float32), jnp.asarray(T_wc, jnp.float32))

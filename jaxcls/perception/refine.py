@@ -19,8 +19,10 @@ by ``hypotheses`` evenly spaced yaws).
 from __future__ import annotations
 
 import dataclasses
+import enum
+import warnings
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
@@ -33,8 +35,44 @@ from jaxcls.perception import icp, pose
 if TYPE_CHECKING:  # perception reads models, it does not import the world
     from jaxcls.world.objects import ObjectModel, ObjectSet
 
-LibraryKind = Literal["known", "category"]
-YawSource = Literal["hypotheses", "learned"]
+
+
+class LibraryKind(enum.StrEnum):
+    """Which models stand for a class: the instances the scenes are drawn from (the paper's "a CAD model
+    for each object class") or the training instances only (the scene's shapes unseen)."""
+
+    known = "known"
+    category = "category"
+
+
+class YawSource(enum.StrEnum):
+    """Where the initial yaws come from: ``hypotheses``, evenly spaced over a full turn (a); ``learned``,
+    around the classifier's yaw-head estimate, its symmetric copies, then ``yaw_spread`` apart (b; needs
+    weights with a yaw head); ``auto``, learned with a yaw head, else hypotheses (``RefineConfig.resolve``,
+    which ``Episode.create`` calls: what ran is the resolved choice)."""
+
+    hypotheses = "hypotheses"
+    learned = "learned"
+    auto = "auto"
+
+
+# What the best hypothesis is kept per after pruning: each (segment, model), or each (segment, candidate
+# class) with its best (model, yaw). (Built by call: ``class`` is a keyword, and YAML spells it so.)
+PrunePer = enum.StrEnum("PrunePer", {"model": "model", "class": "class"})
+
+
+class Decision(enum.StrEnum):
+    """The refined class of a segment: ``rho``, argmax rho over the candidates (the paper's Eq. 3);
+    ``product``, argmax of PointNet's probability times rho (the prior's confidence weighs in: a partial
+    segment that another class's model happens to fit as well no longer flips a confident prior)."""
+
+    rho = "rho"
+    product = "product"
+
+    def scores(self, rho: jax.Array, prior: jax.Array) -> jax.Array:
+        """[..., k] what the candidates are ranked by: their ``rho`` [..., k], times PointNet's probability of
+        each candidate ``prior`` [..., k] under ``product``."""
+        return rho * prior if self is Decision.product else rho
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,22 +86,17 @@ class RefineConfig:
         default_factory=lambda: icp.ICPConfig(iterations=12, points=256, inlier_distance=0.005))
     top_k: int = bounded(3, ge=1)  # candidate classes per segment (Eq. 1's top-k)
     hypotheses: int = bounded(8, ge=1)  # initial yaws per model
-    # Where they come from: "hypotheses" = evenly spaced over a full turn (a); "learned" = around the
-    # classifier's yaw-head estimate (b; ``refine(yaw=...)``), its symmetric copies, then yaw_spread apart.
-    yaw_source: YawSource = "hypotheses"
+    yaw_source: YawSource = YawSource.hypotheses  # where they come from (``YawSource``)
     yaw_spread: float = bounded(0.5, gt=0.0)  # rad between the rings of learned hypotheses
     prune_after: int = bounded(3, ge=1)  # iterations on every hypothesis before the best goes on (= iterations: none)
     # What the best hypothesis is kept per: "model" = each (segment, model) goes on with its best yaw (every
     # instance of a candidate class finishes), "class" = each (segment, candidate class) goes on with its best
     # (model, yaw): J times fewer full registrations with J models per class (the episode's choice).
-    prune_per: Literal["model", "class"] = "model"
+    prune_per: PrunePer = PrunePer.model
     # The pruning rho reads this many of each sample's nearest samples (``icp.registration_ratio``'s
     # ``neighbours``; None: all of ``icp.neighbours``): a cheaper, lower estimate that ranks hypotheses alike.
     prune_neighbours: int | None = None
-    # The refined class: "rho" = argmax rho over the candidates (the paper's Eq. 3); "product" = argmax of
-    # PointNet's probability times rho (the prior's confidence weighs in: a partial segment that another
-    # class's model happens to fit as well no longer flips a confident prior).
-    decision: Literal["rho", "product"] = "rho"
+    decision: Decision = Decision.rho  # the refined class (``Decision``)
     # Pruning reads every k-th of the segment's ``icp.points`` points so that at most this many remain (None:
     # all): the hypotheses are only ranked there, the survivors finish on all of them.
     prune_points: int | None = None
@@ -72,19 +105,28 @@ class RefineConfig:
     models_per_class: int | None = bounded(None, ge=1)
     # Which models stand for a class: "known" = the instances the scenes are drawn from (the paper's "a CAD
     # model for each object class"), "category" = the training instances only (the scene's shapes unseen).
-    library: LibraryKind = "known"
+    library: LibraryKind = LibraryKind.known
 
     def __post_init__(self) -> None:
         check_bounds(self, "refine.")
-        if self.decision not in ("rho", "product"):
-            raise ValueError(f"refine.decision must be 'rho' or 'product', got {self.decision!r}")
-        if self.prune_per not in ("model", "class"):
-            raise ValueError(f"refine.prune_per must be 'model' or 'class', got {self.prune_per!r}")
-        if self.yaw_source not in ("hypotheses", "learned"):
-            raise ValueError(f"refine.yaw_source must be 'hypotheses' or 'learned', got {self.yaw_source!r}")
         if self.prune_after > self.icp.iterations:
             raise ValueError(f"refine.prune_after ({self.prune_after}) must be <= refine.icp.iterations "
                              f"({self.icp.iterations})")
+
+    def resolve(self, yaw_head: bool, weights: str = "the classifier") -> RefineConfig:
+        """These settings as they run with a classifier that has a yaw head or not: ``yaw_source=auto``
+        becomes ``learned`` or ``hypotheses`` (with a warning saying so: ``hypotheses`` evenly spaced yaws per
+        model); ``learned`` without a head is a ValueError naming ``weights`` and what to set."""
+        source = self.yaw_source
+        if source is YawSource.learned and not yaw_head:
+            raise ValueError(f"refine.yaw_source=learned needs weights with a yaw head; {weights} has none "
+                             f"(set refine.yaw_source=hypotheses, or auto, and refine.hypotheses, e.g. 8)")
+        if source is YawSource.auto:
+            source = YawSource.learned if yaw_head else YawSource.hypotheses
+            if not yaw_head:
+                warnings.warn(f"refine.yaw_source=auto: {weights} has no yaw head, so GR registers "
+                              f"{self.hypotheses} evenly spaced yaws per model (refine.hypotheses)", stacklevel=2)
+        return dataclasses.replace(self, yaw_source=source)
 
 
 class ModelLibrary(struct.PyTreeNode):
@@ -131,10 +173,8 @@ def library_models(object_set: ObjectSet, kind: LibraryKind, scene_split: str = 
     """The models that stand for the classes (``RefineConfig.library``): ``known`` = the instances of the
     split the scenes are drawn from (``"train"``, ``"test"`` or ``"all"``), ``category`` = the training
     instances only."""
-    if kind == "category":
+    if LibraryKind(kind) is LibraryKind.category:
         return tuple(object_set.train)
-    if kind != "known":
-        raise ValueError(f"refine.library must be 'known' or 'category', got {kind!r}")
     return tuple(object_set.split(scene_split))
 
 
@@ -165,7 +205,9 @@ def refine(points: jax.Array, mask: jax.Array, probs: jax.Array, library: ModelL
     (``icp.registration_ratio``). With ``config.yaw_source = "learned"``: yaw [N, M] rad the yaw head's
     estimates (``pointnet.estimate_yaw``) and yaw_orders [M] i32 their symmetry orders
     (``Classifier.yaw_orders``). Pure; see ``refine_jit``."""
-    learned = config.yaw_source == "learned"
+    if config.yaw_source is YawSource.auto:
+        raise ValueError("refine: yaw_source 'auto' must be resolved first (RefineConfig.resolve)")
+    learned = config.yaw_source is YawSource.learned
     if learned and (yaw is None or yaw_orders is None):
         raise ValueError("refine: yaw_source 'learned' needs yaw [N, M] (pointnet.estimate_yaw) and yaw_orders [M]")
     # Every registration (and its rho) reads the same icp.points of each segment: sampled once, here.
@@ -216,7 +258,7 @@ def refine(points: jax.Array, mask: jax.Array, probs: jax.Array, library: ModelL
     poses, score, valid = jax.vmap(hypotheses)(pair_segment, pair_class, models.reshape(-1))  # [N k J, H]
     score = jnp.where(valid & model_ok.reshape(-1)[:, None], score, -1.0)
     n = jnp.arange(N)
-    if config.prune_per == "model":
+    if config.prune_per is PrunePer.model:
         h = jnp.argmax(score, axis=1)
         pick = jnp.arange(score.shape[0])
         rho, poses, valid = jax.vmap(finish)(pair_segment, models.reshape(-1), poses[pick, h], valid[pick, h])
@@ -237,10 +279,8 @@ def refine(points: jax.Array, mask: jax.Array, probs: jax.Array, library: ModelL
             models, j[..., None], axis=2).reshape(-1), chosen, ok)
         class_rho = jnp.where(class_valid, rho, 0.0).reshape(N, k)
         class_pose, class_valid = class_pose.reshape(N, k, 4, 4), class_valid.reshape(N, k)
-    if config.decision == "product":
-        c = jnp.argmax(class_rho * jnp.take_along_axis(probs, candidates, axis=1), axis=1)
-    else:
-        c = jnp.argmax(class_rho, axis=1)  # Eq. 3 (ties: the higher PointNet score, the earlier candidate)
+    # Eq. 3 (ties: the higher PointNet score, the earlier candidate)
+    c = jnp.argmax(config.decision.scores(class_rho, jnp.take_along_axis(probs, candidates, axis=1)), axis=1)
     segment_valid = jnp.any(class_valid, axis=1)
     chosen_j = jnp.take_along_axis(j, c[:, None], axis=1)[:, 0]
     chosen_pose = class_pose[n, c]

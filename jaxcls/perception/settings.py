@@ -18,7 +18,8 @@ volume's centre is given relative to the table top's centre, so it follows the t
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING, Literal
+import enum
+from typing import TYPE_CHECKING
 
 import numpy as np
 from flax import struct
@@ -30,14 +31,22 @@ from jaxcls.perception.tracking import TrackingConfig
 if TYPE_CHECKING:
     from jaxcls.perception.pointnet import Classifier
 
-Segmenter = Literal["jax", "reference"]
+
+
+class Segmenter(enum.StrEnum):
+    """Which implementation segments the surface (``perception.segment``): ``jax``, the JAX twin (the
+    default: one program with the rest of the move, vmappable, on any device); ``reference``, scikit-learn
+    DBSCAN and K-means on the host, reached from the move's program through ``jax.pure_callback``."""
+
+    jax = "jax"
+    reference = "reference"
 
 
 @dataclasses.dataclass(frozen=True)
 class ForegroundConfig:
     """Which depth pixels and surface points are objects: above the table band, nearer than ``max_depth``."""
 
-    table_eps: float = bounded(0.01, ge=0.0)  # points with z <= table height + table_eps are table (2 voxels)
+    table_eps: float = bounded(0.01, ge=0.0)  # points with z <= table height + table_eps are table (>= 1 voxel)
     max_depth: float = bounded(1.5, gt=0.0)  # depth beyond this is background, m (views are 1 m away)
 
     def __post_init__(self) -> None:
@@ -110,8 +119,26 @@ class PerceptionConfig:
     volume: VolumeConfig = dataclasses.field(default_factory=VolumeConfig)
     segmentation: SegmentConfig = dataclasses.field(default_factory=SegmentConfig)
     shapes: ShapeConfig = dataclasses.field(default_factory=ShapeConfig)
-    segmenter: Segmenter = "jax"  # "reference": scikit-learn DBSCAN + K-means on the host
+    segmenter: Segmenter = Segmenter.jax  # or reference: scikit-learn DBSCAN + K-means on the host
     tracking: TrackingConfig = dataclasses.field(default_factory=TrackingConfig)  # the camera pose, before fusion
+
+    def __post_init__(self) -> None:
+        check_bounds(self, "perception.")
+        # The absolute thresholds are set in metres for the default volume; each holds only while it spans
+        # enough voxels of this one (surface points lie about a voxel apart).
+        voxel = self.volume.voxel_size
+        for key, value, least, why in (
+                ("foreground.table_eps", self.foreground.table_eps, 1.0, "the table's surface points lie within "
+                 "a voxel of its height"),
+                ("segmentation.dbscan_eps", self.segmentation.dbscan_eps, 1.5, "surface points lie about a voxel "
+                 "apart: DBSCAN must bridge one"),
+                ("segmentation.footprint_cell", self.segmentation.footprint_cell, 0.5, "the footprint's closing "
+                 "bridges gaps of one cell")):
+            if value < least * voxel:
+                raise ValueError(f"perception.{key} = {value:g} m is {value / voxel:.2f} voxels of this volume "
+                                 f"(volume.size {self.volume.size:g} m / resolution {self.volume.resolution} = "
+                                 f"{voxel * 1e3:.1f} mm); it needs >= {least:g} voxels ({why}): set it to >= "
+                                 f"{least * voxel:.4f}, or raise volume.resolution")
 
 
 @struct.dataclass

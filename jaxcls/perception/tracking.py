@@ -44,7 +44,6 @@ from __future__ import annotations
 import dataclasses
 import enum
 import math
-from typing import Literal
 
 import jax
 import jax.numpy as jnp
@@ -59,7 +58,14 @@ from jaxcls.math import normalize, safe_div
 from jaxcls.perception import foreground
 
 HIGHEST = jax.lax.Precision.HIGHEST
-TrackingMode = Literal["reported", "frame_to_model"]
+
+
+class TrackingMode(enum.StrEnum):
+    """Where a frame is fused: at its ``reported`` pose (tracking off), or where ``frame_to_model``
+    registration puts it."""
+
+    reported = "reported"
+    frame_to_model = "frame_to_model"
 
 
 class Status(enum.IntEnum):
@@ -74,7 +80,7 @@ class Status(enum.IntEnum):
 class TrackingConfig:
     """The ``perception.tracking`` block: frame-to-model registration before fusion. Lengths in metres."""
 
-    mode: TrackingMode = "frame_to_model"  # "reported": every frame fused at its reported pose (tracking off)
+    mode: TrackingMode = TrackingMode.frame_to_model  # reported: every frame fused at its reported pose (off)
     levels: int = bounded(2, ge=1)  # image pyramid levels, coarse to fine
     finest_stride: int = bounded(2, ge=1)  # every n-th pixel at the finest level (x2 per coarser level)
     iterations: int = bounded(4, ge=1)  # Gauss-Newton steps per level
@@ -103,12 +109,10 @@ class TrackingConfig:
 
     def __post_init__(self) -> None:
         check_bounds(self, "tracking.")
-        if self.mode not in ("reported", "frame_to_model"):
-            raise ValueError(f"tracking.mode must be 'reported' (tracking off) or 'frame_to_model', got {self.mode!r}")
 
     @property
     def on(self) -> bool:
-        return self.mode == "frame_to_model"
+        return self.mode is TrackingMode.frame_to_model
 
     def strides(self) -> tuple[int, ...]:
         """Pixel strides of the pyramid, coarse to fine."""
@@ -251,8 +255,7 @@ def _object_pairs(T: jax.Array, q: jax.Array, n: jax.Array, qmask: jax.Array, po
     z = qc[:, 2]
     facing = qmask & (z > 1e-3) & (jnp.sum(nc * qc, axis=-1) < 0)
     inv_z = 1.0 / jnp.where(facing, z, 1.0)
-    u = jnp.round(intrinsics.fx * qc[:, 0] * inv_z + intrinsics.cx)
-    v = jnp.round(intrinsics.fy * qc[:, 1] * inv_z + intrinsics.cy)
+    u, v = (jnp.round(c) for c in intrinsics.project(qc[:, 0], qc[:, 1], inv_z))
     inside = facing & (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
     pixel = jnp.where(inside, v * W + u, 0).astype(jnp.int32)
     p = points.reshape(-1, 3)[pixel]

@@ -89,17 +89,23 @@ def create_volume(center: np.ndarray | jax.Array, size: float = 0.6, resolution:
                       origin=jnp.asarray(origin, jnp.float32), voxel_size=voxel_size, truncation=truncation)
 
 
+def check_frame_shapes(depth: np.ndarray | jax.Array, intrinsics: Intrinsics, T_wc: np.ndarray | jax.Array,
+                       where: str = "check_frame") -> None:
+    """The shapes of a frame (static, so checked under jit too): depth [H, W] of ``intrinsics``, T_wc [4, 4]."""
+    expected = (intrinsics.height, intrinsics.width)
+    shape = tuple(np.shape(depth))
+    if shape != expected:
+        raise ValueError(f"{where}: depth has shape {shape}, the intrinsics expect [H, W] = {list(expected)}")
+    if tuple(np.shape(T_wc)) != (4, 4):
+        raise ValueError(f"{where}: pose T_wc must be [4, 4], got shape {tuple(np.shape(T_wc))}")
+
+
 def check_frame(depth: np.ndarray | jax.Array, intrinsics: Intrinsics, T_wc: np.ndarray | jax.Array) -> None:
     """Host-side validation of one frame before it reaches the jitted ``integrate`` (which cannot raise).
 
     depth: [H, W] z-depth, m; T_wc: [4, 4] rigid camera-to-world pose. Raises ValueError naming the problem.
     """
-    expected = (intrinsics.height, intrinsics.width)
-    shape = tuple(np.shape(depth))
-    if shape != expected:
-        raise ValueError(f"check_frame: depth has shape {shape}, the intrinsics expect [H, W] = {list(expected)}")
-    if tuple(np.shape(T_wc)) != (4, 4):
-        raise ValueError(f"check_frame: pose T_wc must be [4, 4], got shape {tuple(np.shape(T_wc))}")
+    check_frame_shapes(depth, intrinsics, T_wc)
     if not bool(geometry.is_rigid(np.asarray(T_wc))):
         raise ValueError("check_frame: pose T_wc is not rigid (finite, orthonormal rotation with det +1, "
                          f"last row 0 0 0 1):\n{np.asarray(T_wc)}")
@@ -135,8 +141,7 @@ def _integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_w
     x, y, z = camera_coord(0), camera_coord(1), camera_coord(2)
     in_front = z > 1e-6
     inv_z = 1.0 / jnp.where(in_front, z, 1.0)
-    u = jnp.round(intrinsics.fx * x * inv_z + intrinsics.cx)
-    v = jnp.round(intrinsics.fy * y * inv_z + intrinsics.cy)
+    u, v = (jnp.round(c) for c in intrinsics.project(x, y, inv_z))
     inside = in_front & (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
     pixel = jnp.where(inside, v * W + u, 0.0).astype(jnp.int32)
     d = depth.at[pixel].get(mode="promise_in_bounds")
@@ -159,11 +164,11 @@ def integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_wc
     dropped); T_wc: [4, 4] camera-to-world. Voxels in front of the observed surface, or behind it by less
     than the truncation, are updated; the others keep their value. Differentiable w.r.t. ``depth``.
 
-    Called with concrete arrays, the frame is validated first (``check_frame``: shapes, a rigid finite
-    pose); under ``jit``/``vmap`` (traced arrays) only the shapes are checked and the jitted core runs.
+    Pure and jit-able (a module-level jit: called under another jit it inlines); it cannot raise on values,
+    so a host frame is validated first with ``check_frame`` (shapes, a rigid finite pose), as
+    ``observation.observe`` does (the shapes, being static, are checked here).
     """
-    if not any(isinstance(a, jax.core.Tracer) for a in (depth, T_wc)):
-        check_frame(depth, intrinsics, T_wc)
+    check_frame_shapes(depth, intrinsics, T_wc, "integrate")
     return _integrate_jit(volume, depth, intrinsics, T_wc, max_depth)
 
 

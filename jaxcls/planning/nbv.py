@@ -35,12 +35,14 @@ visited -> the nearest unvisited viewpoint, or a random candidate when every vie
 from __future__ import annotations
 
 import dataclasses
-from typing import ClassVar
+import enum
+from typing import ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
 from flax import struct
 
+from jaxcls import geometry
 from jaxcls.config import bounded, check_bounds
 from jaxcls.geometry import Intrinsics
 from jaxcls.math import safe_div
@@ -48,50 +50,160 @@ from jaxcls.perception.tsdf import TSDFVolume
 from jaxcls.planning import information, visibility
 
 
+class PolicyName(enum.StrEnum):
+    """The registered policies (``episode.policy``; ``POLICIES`` maps each to its config class)."""
+
+    random = "random"
+    vis_no_occl = "vis_no_occl"
+    vis_occl = "vis_occl"
+    vis_occl_hist = "vis_occl_hist"
+    vis_occl_hist_unc = "vis_occl_hist_unc"
+    info_gain = "info_gain"
+    continuous = "continuous"
+
+
+class History(enum.StrEnum):
+    """Eq. 6 over the visited views: the ``min`` distance decides (the paper's intent, DESIGN.md) or the
+    literal ``max`` over the visited views of 1 - G (the ablation)."""
+
+    min = "min"
+    max = "max"
+
+
+class Uncertainty(enum.StrEnum):
+    """What ``uncertainty`` measures (see there)."""
+
+    rho_margin = "rho_margin"
+    entropy = "entropy"
+    one_minus_rho = "one_minus_rho"
+
+
 @dataclasses.dataclass(frozen=True)
 class Random:
     """The paper's Random: a uniformly random unvisited candidate."""
 
-    name: ClassVar[str] = "random"
+    name: ClassVar[PolicyName] = PolicyName.random
+
+    def choose(self, views: Views, belief: Belief, key: jax.Array, intrinsics: Intrinsics,
+               config: NBVConfig) -> jax.Array:
+        index, ok = candidates(views, config)
+        position = views.T_wc[:, :3, 3]
+        fresh = ok & ~views.visited[index]
+        draw = jax.random.uniform(key, index.shape)
+        pick = index[jnp.argmax(jnp.where(fresh, draw, -1.0))]
+        d = jnp.linalg.norm(position - position[views.current], axis=-1)
+        unvisited = jnp.where(views.visited, jnp.inf, d)
+        fallback = jnp.where(jnp.isfinite(jnp.min(unvisited)), jnp.argmin(unvisited),
+                             index[jnp.argmax(jnp.where(ok, draw, -1.0))])
+        return jnp.where(jnp.any(fresh), pick, jnp.where(jnp.any(ok), fallback, index[0])).astype(jnp.int32)
+
+
+def _visible(belief: Belief, views: Views, index: jax.Array, intrinsics: Intrinsics, config: NBVConfig,
+             mode: visibility.Mode) -> jax.Array:
+    """[K, N] Eq. 5's visible pixels of each live cuboid at the viewpoints ``index`` [K]."""
+    return visibility.counts(belief.corners, belief.poses, belief.live, views.T_wc[index], intrinsics,
+                             dataclasses.replace(config.visibility, mode=mode))
+
+
+def _argmax_candidate(U: jax.Array, index: jax.Array, ok: jax.Array) -> jax.Array:
+    """[] i32 Eq. 8 over the candidates within the radius (ties: the nearest, ``index`` is sorted); none
+    within it: the nearest other viewpoint."""
+    best = index[jnp.argmax(jnp.where(ok, U, -jnp.inf))]
+    return jnp.where(jnp.any(ok), best, index[0]).astype(jnp.int32)
+
+
+def _with_history(total: jax.Array, views: Views, index: jax.Array, config: NBVConfig) -> jax.Array:
+    """[K] Eq. 7: the history weight times ``total`` [K] normalised by its maximum; U = W where nothing
+    counts anywhere."""
+    weight = history_weight(views, index, config)
+    return jnp.where(jnp.max(total) > 0, weight * safe_div(total, jnp.max(total)), weight)
+
+
+class _ScoresCandidates:
+    """A policy that scores every candidate (``utilities``: [K] Eq. 7, or its own utility) and takes the
+    best (Eq. 8)."""
+
+    def utilities(self, views: Views, belief: Belief, index: jax.Array, intrinsics: Intrinsics,
+                  config: NBVConfig) -> jax.Array:
+        raise NotImplementedError
+
+    def choose(self, views: Views, belief: Belief, key: jax.Array, intrinsics: Intrinsics,
+               config: NBVConfig) -> jax.Array:
+        index, ok = candidates(views, config)
+        return _argmax_candidate(self.utilities(views, belief, index, intrinsics, config), index, ok)
 
 
 @dataclasses.dataclass(frozen=True)
-class VisNoOccl:
-    """The paper's VisNoOccl: visibility without occlusion, no history."""
+class VisNoOccl(_ScoresCandidates):
+    """The paper's VisNoOccl: visibility without occlusion (each cuboid counted alone), no history."""
 
-    name: ClassVar[str] = "vis_no_occl"
+    name: ClassVar[PolicyName] = PolicyName.vis_no_occl
+
+    def utilities(self, views: Views, belief: Belief, index: jax.Array, intrinsics: Intrinsics,
+                  config: NBVConfig) -> jax.Array:
+        total = jnp.sum(_visible(belief, views, index, intrinsics, config, visibility.Mode.no_occlusion), axis=1)
+        return safe_div(total, jnp.max(total))
 
 
 @dataclasses.dataclass(frozen=True)
-class VisOccl:
+class VisOccl(_ScoresCandidates):
     """The paper's VisOccl: visibility through the z-buffer, no history."""
 
-    name: ClassVar[str] = "vis_occl"
+    name: ClassVar[PolicyName] = PolicyName.vis_occl
+
+    def utilities(self, views: Views, belief: Belief, index: jax.Array, intrinsics: Intrinsics,
+                  config: NBVConfig) -> jax.Array:
+        total = jnp.sum(_visible(belief, views, index, intrinsics, config, visibility.Mode.paper), axis=1)
+        return safe_div(total, jnp.max(total))
 
 
 @dataclasses.dataclass(frozen=True)
-class VisOcclHist:
+class VisOcclHist(_ScoresCandidates):
     """The paper's VisOcclHist: visibility through the z-buffer times the history weight (Eq. 6-8)."""
 
-    name: ClassVar[str] = "vis_occl_hist"
+    name: ClassVar[PolicyName] = PolicyName.vis_occl_hist
+
+    def utilities(self, views: Views, belief: Belief, index: jax.Array, intrinsics: Intrinsics,
+                  config: NBVConfig) -> jax.Array:
+        total = jnp.sum(_visible(belief, views, index, intrinsics, config, visibility.Mode.paper), axis=1)
+        return _with_history(total, views, index, config)
 
 
 @dataclasses.dataclass(frozen=True)
-class VisOcclHistUnc:
+class VisOcclHistUnc(_ScoresCandidates):
     """Beyond the paper: VisOcclHist with each segment's visibility weighted by how unsure the system still
-    is of it (``Belief.uncertainty``, see ``uncertainty``), so views go to the objects not yet recognised."""
+    is of it (``Belief.uncertainty``, measured by ``uncertainty``: see there), so views go to the objects
+    not yet recognised."""
 
-    name: ClassVar[str] = "vis_occl_hist_unc"
+    name: ClassVar[PolicyName] = PolicyName.vis_occl_hist_unc
+    uncertainty: Uncertainty = Uncertainty.rho_margin  # what the episode's belief measures for it
+
+    def __post_init__(self) -> None:
+        check_bounds(self, "nbv.vis_occl_hist_unc.")
+
+    def utilities(self, views: Views, belief: Belief, index: jax.Array, intrinsics: Intrinsics,
+                  config: NBVConfig) -> jax.Array:
+        if belief.uncertainty is None:
+            raise ValueError("nbv: vis_occl_hist_unc needs Belief.uncertainty [N] (nbv.uncertainty)")
+        seen = _visible(belief, views, index, intrinsics, config, visibility.Mode.paper)
+        return _with_history(jnp.sum(seen * belief.uncertainty[None, :], axis=1), views, index, config)
 
 
 @dataclasses.dataclass(frozen=True)
-class InfoGain:
+class InfoGain(_ScoresCandidates):
     """Beyond the paper: volumetric information gain on the TSDF (``information.gain``: unobserved voxels
     the view's rays reach before an observed surface), normalised over the candidates, times the history
     weight (Eq. 6)."""
 
-    name: ClassVar[str] = "info_gain"
+    name: ClassVar[PolicyName] = PolicyName.info_gain
     gain: information.GainConfig = dataclasses.field(default_factory=information.GainConfig)
+
+    def utilities(self, views: Views, belief: Belief, index: jax.Array, intrinsics: Intrinsics,
+                  config: NBVConfig) -> jax.Array:
+        if belief.volume is None:
+            raise ValueError("nbv: info_gain needs Belief.volume (the fused TSDF)")
+        g = information.gain(belief.volume, views.T_wc[index], intrinsics, self.gain)
+        return _with_history(g, views, index, config)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,41 +211,65 @@ class Continuous:
     """Beyond the paper: gradient ascent of the soft utility (``visibility.soft_counts`` times the history
     weight, normalised by the best soft candidate) over the camera's place on the view sphere (azimuth,
     elevation; it looks at the sphere's centre), from the ``starts`` best discrete candidates; the best
-    iterate is kept (so it never ends below its start), then snapped to the nearest viewpoint (``snap``;
-    ``continuous_view`` gives the unsnapped pose, for views rendered on demand)."""
+    iterate is kept (so it never ends below its start), then snapped to the nearest viewpoint
+    (``continuous_view`` gives the unsnapped pose: ``episode.off_grid`` goes there, for views rendered on
+    demand)."""
 
-    name: ClassVar[str] = "continuous"
-    steps: int = 20
-    step_size: float = 0.05  # rad per normalised gradient step
-    starts: int = 3
-    snap: bool = True
+    name: ClassVar[PolicyName] = PolicyName.continuous
+    steps: int = bounded(20, ge=1)
+    step_size: float = bounded(0.05, gt=0.0)  # rad per normalised gradient step
+    starts: int = bounded(3, ge=1)  # the best discrete candidates the ascents start from
+
+    def __post_init__(self) -> None:
+        check_bounds(self, "nbv.continuous.")
+
+    def choose(self, views: Views, belief: Belief, key: jax.Array, intrinsics: Intrinsics,
+               config: NBVConfig) -> jax.Array:
+        T, _, _ = continuous_view(self, views, belief, intrinsics, config)
+        d = jnp.linalg.norm(views.T_wc[:, :3, 3] - T[:3, 3], axis=-1).at[views.current].set(jnp.inf)
+        return jnp.argmin(d).astype(jnp.int32)
 
 
 Policy = Random | VisNoOccl | VisOccl | VisOcclHist | VisOcclHistUnc | InfoGain | Continuous
-POLICIES: dict[str, type] = {p.name: p for p in (Random, VisNoOccl, VisOccl, VisOcclHist, VisOcclHistUnc, InfoGain,
-                                                 Continuous)}
+POLICIES: dict[PolicyName, type[Policy]] = {p.name: p for p in (Random, VisNoOccl, VisOccl, VisOcclHist, VisOcclHistUnc,
+                                                                InfoGain, Continuous)}
 
 
-def policy(name: str) -> Policy:
-    """The policy config registered as ``name`` (``POLICIES``)."""
+def policy(name: PolicyName | str) -> Policy:
+    """The policy registered as ``name`` (``POLICIES``) with its default parameters (``NBVConfig.policy``
+    gives it with a config's)."""
     if name not in POLICIES:
-        raise ValueError(f"nbv: unknown policy {name!r}; choose one of {sorted(POLICIES)}")
-    return POLICIES[name]()
+        raise ValueError(f"nbv: unknown policy {name!r}; choose one of {[str(p) for p in PolicyName]}")
+    return POLICIES[PolicyName(name)]()
 
 
 @dataclasses.dataclass(frozen=True)
 class NBVConfig:
-    """Candidate set, history weight and visibility settings of a move's view choice."""
+    """The ``nbv:`` block: candidate set, history weight, visibility, and the parameters of the policies
+    that have any (``policy`` puts them together with the episode's choice)::
+
+        nbv:
+          radius: 0.5
+          continuous: {steps: 20, step_size: 0.05, starts: 3}
+          info_gain: {gain: {...}}
+          vis_occl_hist_unc: {uncertainty: rho_margin}
+    """
 
     radius: float = bounded(0.5, gt=0.0)  # m: candidates lie within this of the current view (the paper's r)
     max_candidates: int = bounded(32, ge=1)  # the nearest ones, a static shape
-    history: str = "min"  # Eq. 6 over the visited views: "min" distance (the intent) or the literal "max"
+    history: History = History.min  # Eq. 6 over the visited views (``History``)
     visibility: visibility.VisibilityConfig = dataclasses.field(default_factory=visibility.VisibilityConfig)
+    vis_occl_hist_unc: VisOcclHistUnc = dataclasses.field(default_factory=VisOcclHistUnc)
+    info_gain: InfoGain = dataclasses.field(default_factory=InfoGain)
+    continuous: Continuous = dataclasses.field(default_factory=Continuous)
 
     def __post_init__(self) -> None:
         check_bounds(self, "nbv.")
-        if self.history not in ("min", "max"):
-            raise ValueError(f"nbv.history must be 'min' or 'max', got {self.history!r}")
+
+    def policy(self, name: PolicyName | str) -> Policy:
+        """The policy ``name`` with this block's parameters for it (the paper's policies have none)."""
+        configured = {p.name: p for p in (self.vis_occl_hist_unc, self.info_gain, self.continuous)}
+        return configured.get(PolicyName(name)) or policy(name)
 
 
 class Views(struct.PyTreeNode):
@@ -171,27 +307,23 @@ class Belief(struct.PyTreeNode):
     volume: TSDFVolume | None = None
 
 
-UNCERTAINTY = ("rho_margin", "entropy", "one_minus_rho")
-
-
-def uncertainty(rho: jax.Array, probs: jax.Array, kind: str = "rho_margin") -> jax.Array:
+def uncertainty(rho: jax.Array, probs: jax.Array, kind: Uncertainty = Uncertainty.rho_margin) -> jax.Array:
     """[N] in [0, 1]: how unsure the system is of each segment's refined class.
 
     rho: [N, k] refinement's rho per candidate (``Refinement.rho``); probs: [N, M] calibrated class scores.
-    ``"rho_margin"`` (the default): 1 - (best rho - second best), ``"entropy"``: the scores' entropy over
-    log M, ``"one_minus_rho"``: 1 - best rho. On segments of cluttered scenes the rho margin predicts a wrong
+    ``rho_margin`` (the default): 1 - (best rho - second best), ``entropy``: the scores' entropy over
+    log M, ``one_minus_rho``: 1 - best rho. On segments of cluttered scenes the rho margin predicts a wrong
     refined class best (AUROC 0.92-0.93 against 0.79-0.82 for the entropy and 0.56-0.60 for 1 - rho;
     RESULTS.md, next-best-view)."""
-    if kind == "rho_margin":
+    kind = Uncertainty(kind)
+    if kind is Uncertainty.rho_margin:
         top = jax.lax.top_k(rho, min(2, rho.shape[1]))[0]
         margin = top[:, 0] - (top[:, 1] if top.shape[1] > 1 else 0.0)
         return jnp.clip(1.0 - margin, 0.0, 1.0)
-    if kind == "entropy":
+    if kind is Uncertainty.entropy:
         p = jnp.clip(probs, 1e-12, 1.0)
         return jnp.clip(-jnp.sum(p * jnp.log(p), axis=1) / jnp.log(probs.shape[1]), 0.0, 1.0)
-    if kind == "one_minus_rho":
-        return jnp.clip(1.0 - jnp.max(rho, axis=1), 0.0, 1.0)
-    raise ValueError(f"nbv.uncertainty: kind must be one of {UNCERTAINTY}, got {kind!r}")
+    return jnp.clip(1.0 - jnp.max(rho, axis=1), 0.0, 1.0)
 
 
 def candidates(views: Views, config: NBVConfig) -> tuple[jax.Array, jax.Array]:
@@ -212,34 +344,9 @@ def history_weight(views: Views, index: jax.Array, config: NBVConfig) -> jax.Arr
     d = jnp.linalg.norm(position[index][:, None, :] - position[None, :, :], axis=-1)  # [K, V]
     sigma = config.radius / 2
     one_minus_g = 1.0 - jnp.exp(-(d**2) / (2 * sigma**2))
-    if config.history == "min":
+    if config.history is History.min:
         return jnp.min(jnp.where(views.visited[None], one_minus_g, 1.0), axis=1)
     return jnp.max(jnp.where(views.visited[None], one_minus_g, 0.0), axis=1)
-
-
-def utilities(policy_config: Policy, views: Views, belief: Belief, index: jax.Array, intrinsics: Intrinsics,
-              config: NBVConfig) -> jax.Array:
-    """[K] Eq. 7 at the viewpoints ``index`` for a visibility policy (0 where nothing is seen anywhere and
-    no history counts)."""
-    if isinstance(policy_config, InfoGain):
-        if belief.volume is None:
-            raise ValueError("nbv: info_gain needs Belief.volume (the fused TSDF)")
-        g = information.gain(belief.volume, views.T_wc[index], intrinsics, policy_config.gain)
-        weight = history_weight(views, index, config)
-        return jnp.where(jnp.max(g) > 0, weight * safe_div(g, jnp.max(g)), weight)
-    mode = "no_occlusion" if isinstance(policy_config, VisNoOccl) else "paper"
-    seen = visibility.counts(belief.corners, belief.poses, belief.live, views.T_wc[index], intrinsics,
-                             dataclasses.replace(config.visibility, mode=mode))
-    if isinstance(policy_config, VisOcclHistUnc):
-        if belief.uncertainty is None:
-            raise ValueError("nbv: vis_occl_hist_unc needs Belief.uncertainty [N] (nbv.uncertainty)")
-        seen = seen * belief.uncertainty[None, :]
-    total = jnp.sum(seen, axis=1)  # O_i (Eq. 5; weighted by uncertainty for vis_occl_hist_unc)
-    normalised = safe_div(total, jnp.max(total))
-    if isinstance(policy_config, VisOcclHist | VisOcclHistUnc):
-        weight = history_weight(views, index, config)
-        return jnp.where(jnp.max(total) > 0, weight * normalised, weight)
-    return normalised
 
 
 def _sphere(views: Views) -> tuple[jax.Array, jax.Array]:
@@ -255,11 +362,16 @@ def _camera(angles: jax.Array, centre: jax.Array, radius: jax.Array) -> jax.Arra
     axes, image down along -z as ``geometry.look_at``)."""
     a, e = angles[0], angles[1]
     eye = centre + radius * jnp.stack([jnp.cos(e) * jnp.cos(a), jnp.cos(e) * jnp.sin(a), jnp.sin(e)])
-    forward = (centre - eye) / radius
-    right = jnp.cross(forward, jnp.array([0.0, 0.0, 1.0]))
-    right = right / jnp.maximum(jnp.linalg.norm(right), 1e-9)
-    down = jnp.cross(forward, right)
-    return jnp.eye(4).at[:3, 0].set(right).at[:3, 1].set(down).at[:3, 2].set(forward).at[:3, 3].set(eye)
+    return geometry.look_at(eye, centre, xp=jnp)
+
+
+class _Ascent(NamedTuple):
+    """The continuous policy's gradient ascent: x [2] (azimuth, elevation) rad now, best_x [2] the best
+    iterate so far, best_u [] its soft utility."""
+
+    x: jax.Array
+    best_x: jax.Array
+    best_u: jax.Array
 
 
 def continuous_view(policy_config: Continuous, views: Views, belief: Belief, intrinsics: Intrinsics,
@@ -292,7 +404,7 @@ def continuous_view(policy_config: Continuous, views: Views, belief: Belief, int
     value_and_grad = jax.value_and_grad(utility)
 
     def ascend(angles):
-        def step(carry, _):
+        def step(carry: _Ascent, _) -> tuple[_Ascent, None]:
             x, best_x, best_u = carry
             u, g = value_and_grad(x)
             better = u > best_u
@@ -300,9 +412,10 @@ def continuous_view(policy_config: Continuous, views: Views, belief: Belief, int
             g = jnp.nan_to_num(g)
             x = x + policy_config.step_size * g / jnp.maximum(jnp.linalg.norm(g), 1e-12)
             x = x.at[1].set(jnp.clip(x[1], 0.02, jnp.pi / 2 - 0.02))
-            return (x, best_x, best_u), None
+            return _Ascent(x, best_x, best_u), None
 
-        (x, best_x, best_u), _ = jax.lax.scan(step, (angles, angles, -jnp.inf), None, length=policy_config.steps)
+        start = _Ascent(angles, angles, jnp.asarray(-jnp.inf, jnp.float32))
+        (x, best_x, best_u), _ = jax.lax.scan(step, start, None, length=policy_config.steps)
         u = utility(x)
         return jnp.where(u > best_u, x, best_x), jnp.maximum(u, best_u)
 
@@ -313,27 +426,9 @@ def continuous_view(policy_config: Continuous, views: Views, belief: Belief, int
 
 def choose(policy_config: Policy, views: Views, belief: Belief, key: jax.Array, intrinsics: Intrinsics,
            config: NBVConfig = NBVConfig()) -> jax.Array:
-    """[] i32: the next viewpoint (Eq. 8, or the policy's own rule); see the module docstring for the
-    choices made on degenerate inputs. Pure and jit-able (``choose_jit``)."""
-    index, ok = candidates(views, config)
-    position = views.T_wc[:, :3, 3]
-    nearest_other = index[0]
-    if isinstance(policy_config, Random):
-        fresh = ok & ~views.visited[index]
-        draw = jax.random.uniform(key, index.shape)
-        pick = index[jnp.argmax(jnp.where(fresh, draw, -1.0))]
-        d = jnp.linalg.norm(position - position[views.current], axis=-1)
-        unvisited = jnp.where(views.visited, jnp.inf, d)
-        fallback = jnp.where(jnp.isfinite(jnp.min(unvisited)), jnp.argmin(unvisited),
-                             index[jnp.argmax(jnp.where(ok, draw, -1.0))])
-        return jnp.where(jnp.any(fresh), pick, jnp.where(jnp.any(ok), fallback, nearest_other)).astype(jnp.int32)
-    if isinstance(policy_config, Continuous):
-        T, _, _ = continuous_view(policy_config, views, belief, intrinsics, config)
-        d = jnp.linalg.norm(position - T[:3, 3], axis=-1).at[views.current].set(jnp.inf)
-        return jnp.argmin(d).astype(jnp.int32)
-    U = utilities(policy_config, views, belief, index, intrinsics, config)
-    best = index[jnp.argmax(jnp.where(ok, U, -jnp.inf))]  # ties: the nearest candidate (index is sorted)
-    return jnp.where(jnp.any(ok), best, nearest_other).astype(jnp.int32)
+    """[] i32: the next viewpoint by ``policy_config``'s own kernel (Eq. 8, or the policy's own rule); see
+    the module docstring for the choices made on degenerate inputs. Pure and jit-able (``choose_jit``)."""
+    return policy_config.choose(views, belief, key, intrinsics, config)
 
 
 choose_jit = jax.jit(choose, static_argnames=("policy_config", "intrinsics", "config"))

@@ -25,7 +25,7 @@ counts [V, N] f32 pixels (0 for dead segments).
 from __future__ import annotations
 
 import dataclasses
-from typing import Literal
+import enum
 
 import jax
 import jax.numpy as jnp
@@ -35,7 +35,16 @@ from jaxcls.geometry import Intrinsics, invert_rigid, pixel_rays
 from jaxcls.math import safe_div, safe_norm
 
 HIGHEST = jax.lax.Precision.HIGHEST
-Mode = Literal["paper", "exact", "no_occlusion"]
+
+
+class Mode(enum.StrEnum):
+    """How cuboids hide each other (see the module docstring)."""
+
+    paper = "paper"
+    exact = "exact"
+    no_occlusion = "no_occlusion"
+
+
 NEAR = 0.01  # m: the near plane cuboids are clipped at
 # The 12 edges of a cuboid whose corner k has bits (x, y, z) = (k >> 2 & 1, k >> 1 & 1, k & 1).
 EDGES = tuple((a, a | bit) for bit in (1, 2, 4) for a in range(8) if not a & bit)
@@ -47,14 +56,12 @@ class VisibilityConfig:
     """Resolution and temperatures of the visibility count."""
 
     scale: float = bounded(0.25, gt=0.0, le=1.0)  # of the sensor's resolution (0.25: 160 x 120 for 640 x 480)
-    mode: Mode = "paper"
+    mode: Mode = Mode.paper
     edge_temperature: float = bounded(0.5, gt=0.0)  # pixels: soft coverage's sigmoid width
     depth_temperature: float = bounded(0.02, gt=0.0)  # m: soft depth ordering's softmax temperature
 
     def __post_init__(self) -> None:
         check_bounds(self, "visibility.")
-        if self.mode not in ("paper", "exact", "no_occlusion"):
-            raise ValueError(f"visibility.mode must be 'paper', 'exact' or 'no_occlusion', got {self.mode!r}")
 
 
 def scaled(intrinsics: Intrinsics, scale: float) -> Intrinsics:
@@ -110,7 +117,7 @@ def _projected_hull(cam: jax.Array, intrinsics: Intrinsics) -> tuple[jax.Array, 
     pts = jnp.concatenate([cam, cut], axis=0)
     valid = jnp.concatenate([z >= NEAR, crosses])
     zs = jnp.where(valid, pts[:, 2], 1.0)
-    uv = jnp.stack([intrinsics.fx * pts[:, 0] / zs + intrinsics.cx, intrinsics.fy * pts[:, 1] / zs + intrinsics.cy], -1)
+    uv = jnp.stack(intrinsics.project(pts[:, 0], pts[:, 1], 1.0 / zs), -1)
     start, direction, kept = _hull(jnp.where(valid[:, None], uv, 0.0), valid)
     return start, direction, kept, jnp.sum(valid) >= 3
 
@@ -153,7 +160,7 @@ def _slab_depth(rays: jax.Array, corners: jax.Array, pose_cm: jax.Array) -> jax.
 
 def _counts_one_view(corners: jax.Array, poses: jax.Array, live: jax.Array, T_wc: jax.Array, intrinsics: Intrinsics,
                      mode: Mode) -> jax.Array:
-    if mode == "exact":
+    if mode is Mode.exact:
         rays = jnp.asarray(pixel_rays(intrinsics).reshape(-1, 3), jnp.float32)  # z = 1: t is the z-depth
         T_cm = jnp.einsum("ij,njk->nik", invert_rigid(T_wc), poses, precision=HIGHEST)
         depth = jax.vmap(lambda m, T: _slab_depth(rays, m, T))(corners, T_cm)  # [N, P]
@@ -168,7 +175,7 @@ def _counts_one_view(corners: jax.Array, poses: jax.Array, live: jax.Array, T_wc
     u = jnp.arange(intrinsics.width, dtype=jnp.float32)
     inside = (u >= lower[..., None]) & (u <= upper[..., None])  # [N, H, W]
     inside = inside & (live & front)[:, None, None]
-    if mode == "no_occlusion":
+    if mode is Mode.no_occlusion:
         return jnp.sum(inside, axis=(1, 2)).astype(jnp.float32)
     order = jnp.argsort(jax.vmap(_segment_depth)(cam), stable=True)  # near to far (ties: lower index first)
     free = jnp.ones(inside.shape[1:], bool)

@@ -4,6 +4,7 @@ segment ordering and packing (``xp`` = numpy or jax.numpy where a function serve
 from __future__ import annotations
 
 import functools
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -69,12 +70,24 @@ def _pointer_jumps(G: int) -> int:
 _PAIR_SHIFTS = ((0, 1), (1, 0), (1, 1), (1, -1))  # each 8-neighbour pair once
 
 
-def _merge_step(xp, alive, peak, saddle, centre, size, group):
+class _Merging(NamedTuple):
+    """The persistence merge's state over K basins: alive [K] bool; saddle [K, K] the highest saddle between
+    two basins (-inf: none); centre [K, 2] cells; size [K] cells; group [K] the basin each one has joined."""
+
+    alive: np.ndarray | jax.Array
+    saddle: np.ndarray | jax.Array
+    centre: np.ndarray | jax.Array
+    size: np.ndarray | jax.Array
+    group: np.ndarray | jax.Array
+
+
+def _merge_step(xp, state: _Merging, peak) -> _Merging:
     """One persistence merge: the live basin with the lowest peak - saddle (to a higher live basin) joins
     that basin. A basin with no saddle to a higher one (a separate DBSCAN cluster) is separated from it by
     empty space, where the field is 0: its cost is its peak, and it joins the nearest higher basin (the
     paper's merge of cluster centres), so fragments go early and separate objects last.
     Shared by both paths (``xp`` = numpy or jax.numpy)."""
+    alive, saddle, centre, size, group = state
     K = peak.shape[0]
     ar = xp.arange(K)
     higher = alive[None, :] & (ar[None, :] != ar[:, None]) & (
@@ -103,7 +116,7 @@ def _merge_step(xp, alive, peak, saddle, centre, size, group):
         centre = centre.at[t].set((centre[t] * size[t] + centre[i] * size[i]) / (size[t] + size[i]))
         size = size.at[t].add(size[i])
         alive = alive.at[i].set(False)
-    return alive, saddle, centre, size, xp.where(group == i, t, group)
+    return _Merging(alive, saddle, centre, size, xp.where(group == i, t, group))
 
 
 def _basin_centres(basin: np.ndarray | jax.Array, K: int, xp=np):

@@ -3,6 +3,8 @@ hole filling, the exact distance transform, Gaussian blur, nearest seeds (each t
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -31,6 +33,14 @@ def _morph(m: jax.Array, dilate: bool) -> jax.Array:
     return out
 
 
+class _Propagation(NamedTuple):
+    """Label propagation's loop state: parent [G * G] i32 each cell's label, changed [] bool, rounds [] i32."""
+
+    parent: jax.Array
+    changed: jax.Array
+    rounds: jax.Array
+
+
 def _components(occ: jax.Array, max_iters: int, neighbours=_NEIGHBOURS) -> jax.Array:
     """[G, G] i32 connected component of each occupied cell (``neighbours``: 8 by default), named by its
     largest flat cell index; -1 off.
@@ -44,8 +54,8 @@ def _components(occ: jax.Array, max_iters: int, neighbours=_NEIGHBOURS) -> jax.A
     occ_flat = occ.reshape(-1)
     parent = cells
 
-    def step(state):
-        parent, _, i = state
+    def step(state: _Propagation) -> _Propagation:
+        parent = state.parent
         rep = jnp.where(occ, parent.reshape(G, G), -1)
         nb = rep
         for di, dj in neighbours:
@@ -54,9 +64,10 @@ def _components(occ: jax.Array, max_iters: int, neighbours=_NEIGHBOURS) -> jax.A
         new = parent.at[target].max(nb.reshape(-1), mode="drop")
         for _ in range(4):
             new = new[new]
-        return new, jnp.any(new != parent), i + 1
+        return _Propagation(new, jnp.any(new != parent), state.rounds + 1)
 
-    parent, _, _ = jax.lax.while_loop(lambda s: s[1] & (s[2] < max_iters), step, (parent, jnp.array(True), 0))
+    start = _Propagation(parent, jnp.array(True), jnp.int32(0))
+    parent = jax.lax.while_loop(lambda s: s.changed & (s.rounds < max_iters), step, start).parent
     return jnp.where(occ, parent.reshape(G, G), -1)
 
 

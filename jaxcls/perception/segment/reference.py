@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -15,6 +17,7 @@ from jaxcls.perception.segment.common import (
     _gaussian_kernel,
     _grid_size,
     _merge_step,
+    _Merging,
     _order_segments,
     _pointer_jumps,
     _vote_targets,
@@ -133,10 +136,10 @@ def cluster_reference(spec: Spec, x: np.ndarray, normals: np.ndarray) -> np.ndar
     occ, field = footprint_field_reference(spec, y, normals[good])
     basin, peak = _basins_np(field, occ)
     K = len(peak)
-    state = (np.ones(K, bool), _saddles_np(basin, field, K), *_basin_centres(basin, K), np.arange(K))
+    state = _Merging(np.ones(K, bool), _saddles_np(basin, field, K), *_basin_centres(basin, K), np.arange(K))
     for _ in range(K - N):
-        state = _merge_step(np, state[0], peak, *state[1:])
-    group = state[-1]
+        state = _merge_step(np, state, peak)
+    group = state.group
     ij = _cell_of(y, spec)
     _, part = np.unique(group[basin[ij[:, 0], ij[:, 1]]], return_inverse=True)
     ys = y * np.array([1.0, 1.0, cfg.kmeans_z_weight])
@@ -151,20 +154,29 @@ def cluster_reference(spec: Spec, x: np.ndarray, normals: np.ndarray) -> np.ndar
     return labels
 
 
+def _labels_host(spec: Spec, points: np.ndarray, normals: np.ndarray, fg: np.ndarray) -> np.ndarray:
+    """[P] i32 ``cluster_reference``'s labels of the foreground points ``fg`` [P] (-1 elsewhere)."""
+    labels = np.full(len(points), -1, np.int32)
+    labels[fg] = cluster_reference(spec, np.asarray(points, np.float64)[fg], np.asarray(normals, np.float64)[fg])
+    return labels
+
+
 def segment(spec: Spec, points: np.ndarray | jax.Array, normals: np.ndarray | jax.Array,
             mask: np.ndarray | jax.Array) -> Segments:
-    """Reference segmentation (host, scikit-learn) of a padded cloud into exactly N segments.
+    """Reference segmentation (scikit-learn on the host) of a padded cloud into exactly N segments.
 
     points, normals: [P, 3] (m, unit); mask: [P] bool. Foreground is ``foreground_mask``; segments are
     ordered by centroid x then y and packed by ``pack_segments``. Fewer foreground points than N, or
-    none: all masks empty, labels -1.
+    none: all masks empty, labels -1. The clustering runs on the host through ``jax.pure_callback``, so
+    this traces into a jitted move like the JAX twin (vmapped: one episode after another).
     """
     check_cloud_shape(points, mask, "segment", normals)
-    points = np.asarray(points, np.float32)
-    fg = np.asarray(foreground_mask(spec, points, mask))
-    points = np.where(fg[:, None], points, 0.0).astype(np.float32)
-    normals = np.where(fg[:, None], np.nan_to_num(np.asarray(normals, np.float32)), 0.0).astype(np.float32)
-    labels = np.full(len(points), -1, np.int64)
-    labels[fg] = cluster_reference(spec, points[fg].astype(np.float64), normals[fg].astype(np.float64))
-    labels = _order_segments(jnp.asarray(labels, jnp.int32), jnp.asarray(points), spec.num_segments)
+    points = jnp.asarray(points, jnp.float32)
+    fg = foreground_mask(spec, points, mask)
+    points = jnp.where(fg[:, None], points, 0.0)
+    normals = jnp.where(fg[:, None], jnp.nan_to_num(jnp.asarray(normals, jnp.float32)), 0.0)
+    host = functools.partial(_labels_host, spec.replace(classifier=None))
+    labels = jax.pure_callback(host, jax.ShapeDtypeStruct(fg.shape, jnp.int32), points, normals, fg,
+                               vmap_method="sequential")
+    labels = _order_segments(labels, points, spec.num_segments)
     return pack_segments(points, normals, labels, spec.num_segments, spec.points_per_segment)

@@ -3,6 +3,8 @@ jittable and vmappable over episodes."""
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -15,6 +17,7 @@ from jaxcls.perception.segment.common import (
     _cell_of,
     _grid_size,
     _merge_step,
+    _Merging,
     _order_segments,
     _pointer_jumps,
     _vote_targets,
@@ -117,6 +120,22 @@ def _saddles(basin: jax.Array, field: jax.Array, K: int) -> jax.Array:
     return saddle.reshape(K, K)
 
 
+class _Lloyd(NamedTuple):
+    """K-means' loop state: label [M] i32, centres [K, D], changed [] bool (a label moved), rounds [] i32."""
+
+    label: jax.Array
+    centres: jax.Array
+    changed: jax.Array
+    rounds: jax.Array
+
+
+class _Split(NamedTuple):
+    """The splitting loop's state: part [P] i32 each point's part, rounds [] i32."""
+
+    part: jax.Array
+    rounds: jax.Array
+
+
 def _kmeans(x: jax.Array, weight: jax.Array, init: jax.Array, iters: int) -> tuple[jax.Array, jax.Array]:
     """Lloyd's K-means of ``x: [M, D]`` with ``weight: [M]`` (0 = absent), from ``init: [K, D]``, for at most
     ``iters`` rounds, stopping when no label changes (scikit-learn's rule with ``tol=0``). A centre that
@@ -131,16 +150,14 @@ def _kmeans(x: jax.Array, weight: jax.Array, init: jax.Array, iters: int) -> tup
         sums = jax.ops.segment_sum(x * weight[:, None], label, num_segments=K)
         return jnp.where(total[:, None] > 0, sums / jnp.maximum(total, 1e-12)[:, None], c)
 
-    def body(state):
-        label, c, _, i = state
-        c = update(label, c)
+    def body(state: _Lloyd) -> _Lloyd:
+        c = update(state.label, state.centres)
         new = assign(c)
-        return new, c, jnp.any((new != label) & (weight > 0)), i + 1
+        return _Lloyd(new, c, jnp.any((new != state.label) & (weight > 0)), state.rounds + 1)
 
-    label = assign(init)
-    label, centres, _, _ = jax.lax.while_loop(lambda s: s[2] & (s[3] < iters), body,
-                                              (label, init, jnp.array(True), 0))
-    return label, centres
+    start = _Lloyd(assign(init), init, jnp.array(True), jnp.int32(0))
+    end = jax.lax.while_loop(lambda s: s.changed & (s.rounds < iters), body, start)
+    return end.label, end.centres
 
 
 _SPLIT_SAMPLE = 4096  # points a 2-means split fits its centres on
@@ -172,11 +189,13 @@ def _split_until_n(part: jax.Array, y: jax.Array, kept: jax.Array, spec: Spec) -
         half = jnp.sum((ys - c[1]) ** 2, axis=1) < jnp.sum((ys - c[0]) ** 2, axis=1)
         return jnp.where((count[g] >= 2) & sel & half, n, part)
 
-    def needed(state):  # a while loop, not a cond: under vmap it stops when no episode needs a split
-        part, i = state
-        return (jnp.max(jnp.where(kept, part, -1)) + 1 < N) & (i < N - 1)
+    def needed(state: _Split) -> jax.Array:  # a while loop, not a cond: under vmap it stops when no episode needs it
+        return (jnp.max(jnp.where(kept, state.part, -1)) + 1 < N) & (state.rounds < N - 1)
 
-    return jax.lax.while_loop(needed, lambda s: (body(s[1], s[0]), s[1] + 1), (part, 0))[0]
+    def split(state: _Split) -> _Split:
+        return _Split(body(state.rounds, state.part), state.rounds + 1)
+
+    return jax.lax.while_loop(needed, split, _Split(part, jnp.int32(0))).part
 
 
 def cluster_jax(spec: Spec, x: jax.Array, normals: jax.Array, valid: jax.Array) -> jax.Array:
@@ -188,9 +207,8 @@ def cluster_jax(spec: Spec, x: jax.Array, normals: jax.Array, valid: jax.Array) 
     basin, peak, exists = _basins(field, occ, K)
     centre, size = _basin_centres(basin, K, xp=jnp)
 
-    state = (exists, _saddles(basin, field, K), centre, size, jnp.arange(K))
-    group = jax.lax.while_loop(lambda s: jnp.sum(s[0]) > N, lambda s: _merge_step(jnp, s[0], peak, *s[1:]),
-                               state)[-1]
+    state = _Merging(exists, _saddles(basin, field, K), centre, size, jnp.arange(K))
+    group = jax.lax.while_loop(lambda s: jnp.sum(s.alive) > N, lambda s: _merge_step(jnp, s, peak), state).group
     ij = _cell_of(x, spec, xp=jnp)
     part = group[jnp.maximum(basin[ij[:, 0], ij[:, 1]], 0)]
     present = jnp.zeros(K, bool).at[part].max(kept)

@@ -121,8 +121,7 @@ class NativeRenderer:
         for box in corners:
             if np.any(box[:, 2] < _NEAR):
                 return np.ones(intr.height * intr.width, bool)
-            u = intr.fx * box[:, 0] / box[:, 2] + intr.cx
-            v = intr.fy * box[:, 1] / box[:, 2] + intr.cy
+            u, v = intr.project(box[:, 0], box[:, 1], 1.0 / box[:, 2])
             u0, u1 = max(int(np.floor(u.min())) - 1, 0), min(int(np.ceil(u.max())) + 2, intr.width)
             v0, v1 = max(int(np.floor(v.min())) - 1, 0), min(int(np.ceil(v.max())) + 2, intr.height)
             if u0 < u1 and v0 < v1:
