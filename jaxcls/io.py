@@ -6,6 +6,8 @@ half-written result (a reader sees the old content or the new one, never a mix).
 - ``atomic_folder(folder)``: a folder built in a hidden temporary sibling and swapped into place.
 - ``append_jsonl(path, records)`` / ``read_jsonl(path)``: a log that grows a record per line, each append
   flushed to disk; a line torn by an interruption is dropped on read and cut off before the next append.
+- ``check_out_dir(folder)``: an output folder checked before any work (not a file, writable), so that a run
+  never computes for minutes and then fails to save.
 """
 
 from __future__ import annotations
@@ -14,10 +16,42 @@ import contextlib
 import json
 import os
 import shutil
+import tempfile
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, Any
+
+
+def check_out_dir(folder: str | os.PathLike, key: str = "out_dir", whole: bool = False) -> Path:
+    """Refuse an output folder that cannot be written, before any work is done: ``folder`` (or a folder on
+    its path) is a file, or the folder the run will write in cannot be written. Creates nothing; returns
+    ``folder`` resolved. Raises ValueError (a file) or OSError (no write access) naming ``key``.
+
+    whole: the folder is written whole beside itself and renamed into place (``atomic_folder``), or may go to
+    a numbered sibling, so its parent must be writable; else files are written into the folder itself (its
+    nearest existing ancestor when it does not exist yet). Writability is probed by creating and removing a
+    hidden file, so that it holds for read-only mounts and whatever the permission bits say to root.
+    """
+    path = Path(folder).expanduser().resolve()
+    if not path.name:
+        raise ValueError(f"{key}: must name a folder below the root, got {str(folder)!r}")
+    existing = next(p for p in (path, *path.parents) if p.exists() or p.is_symlink())
+    if not existing.is_dir():
+        if existing == path:
+            raise ValueError(f"{key}: {folder} is a file, not a folder; choose another {key} (--overwrite "
+                             "replaces a folder's content, never a file)")
+        raise ValueError(f"{key}: {folder} lies under {existing}, which is a file, not a folder; choose another "
+                         f"{key}")
+    probe_in = existing
+    if whole and existing == path:
+        probe_in = path.parent
+    try:
+        with tempfile.NamedTemporaryFile(dir=probe_in, prefix=".jaxcls-write-check-"):
+            pass
+    except OSError as e:
+        raise OSError(f"{key}: cannot write in {probe_in} ({e.strerror or e}); choose a writable {key}") from None
+    return path
 
 
 @contextlib.contextmanager

@@ -11,6 +11,7 @@ import numpy as np
 from matplotlib import colormaps
 from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 from matplotlib.ticker import MaxNLocator
 
@@ -57,16 +58,31 @@ def plot_scene(scene: Scene, T_wc: np.ndarray, views: Sequence[int], depth: np.n
     eyes = T_wc[:, :3, 3]
     ax.scatter(*eyes.T, s=8, c="tab:blue", label="viewpoints")
     ax.scatter(*eyes[list(views)].T, s=40, c="tab:red", label="shown")
+    # Objects as markers coloured by class, o a target, x clutter: no names drawn at the table's centre
+    # (they sat on top of each other there); the legend names the classes and the two markers.
     for obj in scene.objects:
         ax.scatter(obj.position[0], obj.position[1], scene.table_height, s=30, color=colours[obj.class_name],
                    marker="o" if obj.target else "x")
-        ax.text(obj.position[0], obj.position[1], scene.table_height + 0.05, obj.class_name, fontsize=7)
     ax.set_box_aspect((1, 1, 0.5))
-    ax.set_title(f"{len(T_wc)} viewpoints, {scene.num_objects} objects", fontsize=9)
+    _label_metres(ax)
+    clutter = sum(not o.target for o in scene.objects)
+    ax.set_title(f"{len(T_wc)} viewpoints, {scene.num_objects} objects"
+                 + (f" ({clutter} clutter)" if clutter else ""), fontsize=9)
+    roles = [Line2D([], [], ls="", marker="o", color="k", label="target object")]
+    if clutter:
+        roles.append(Line2D([], [], ls="", marker="x", color="k", label="clutter object (not scored)"))
     handles = [Patch(color=c, label=name) for name, c in colours.items()]
-    ax.legend(handles=[*ax.get_legend_handles_labels()[0], *handles], fontsize=7, loc="upper left")
+    ax.legend(handles=[*ax.get_legend_handles_labels()[0], *roles, *handles], fontsize=7, loc="upper left")
     figure.tight_layout()
     return figure
+
+
+def _label_metres(ax) -> None:
+    """World axes of a 3-D panel labelled with their units."""
+    ax.set_xlabel("x (m)", fontsize=7, labelpad=-2)
+    ax.set_ylabel("y (m)", fontsize=7, labelpad=-2)
+    ax.set_zlabel("z (m)", fontsize=7, labelpad=-5)
+    ax.tick_params(labelsize=6, pad=0)
 
 
 def training_curve(history: list[dict]) -> Figure:
@@ -141,11 +157,12 @@ def episode_move(title: str, depth: np.ndarray, pixels: np.ndarray, pixel_labels
     points: [P, 3] world segment points, point_labels: [P]; viewpoints: [V, 4, 4] T_wc; path: views fused in
     order; chosen: the next view; classes: every class name (fixes the colours)."""
     colours = class_colours(classes)
-    figure = Figure(figsize=(15, 4.2))
+    figure = Figure(figsize=(16, 4.4))
     ax = figure.add_subplot(1, 4, 1)
-    ax.imshow(np.where(depth > 0, depth, np.nan), cmap="viridis")
-    ax.set_title("depth (m)", fontsize=9)
+    image = ax.imshow(np.where(depth > 0, depth, np.nan), cmap="viridis")
+    ax.set_title("depth (no return: blank)", fontsize=9)
     ax.axis("off")
+    figure.colorbar(image, ax=ax, fraction=0.035, pad=0.02).set_label("depth (m)", fontsize=8)
     ax = figure.add_subplot(1, 4, 2)
     ax.imshow(np.where(depth > 0, depth, np.nan), cmap="Greys", alpha=0.5)
     if len(pixels):
@@ -163,14 +180,16 @@ def episode_move(title: str, depth: np.ndarray, pixels: np.ndarray, pixel_labels
         for a, b in _CUBOID_EDGES:
             ax.plot(*np.stack([corners[a], corners[b]]).T, color=colours[label], lw=1)
     ax.set_box_aspect((1, 1, 0.6))
-    ax.set_title("aligned models (cuboids)", fontsize=9)
+    _label_metres(ax)
+    ax.set_title("segments and aligned models (cuboids), world frame", fontsize=9)
     ax = figure.add_subplot(1, 4, 4, projection="3d")
     eyes = np.asarray(viewpoints)[:, :3, 3]
-    ax.scatter(*eyes.T, s=5, c="lightgrey")
+    ax.scatter(*eyes.T, s=5, c="lightgrey", label="viewpoints")
     ax.plot(*eyes[list(path)].T, "-o", color="tab:blue", ms=3, lw=1, label="visited")
-    ax.scatter(*eyes[path[-1]], s=40, c="tab:blue")
+    ax.scatter(*eyes[path[-1]], s=40, c="tab:blue", label="current view")
     ax.scatter(*eyes[chosen], s=60, c="tab:red", marker="*", label="next")
     ax.set_box_aspect((1, 1, 0.5))
+    _label_metres(ax)
     ax.legend(fontsize=7, loc="upper left")
     ax.set_title("views", fontsize=9)
     figure.suptitle(title, fontsize=10)
@@ -209,18 +228,33 @@ def score_curves(panels: dict[str, dict[str, tuple[Sequence[float], Sequence[flo
     return figure
 
 
+# Wide and solid, then narrow, dashed and hollow on top of it: a curve equal to the one before stays visible.
+_CURVE_STYLES = [dict(ls="-", marker="o", ms=7, lw=3, alpha=0.6), dict(ls="--", marker="s", ms=4, lw=1.5, mfc="none"),
+                 dict(ls="-", marker="^", ms=7, lw=3, alpha=0.6), dict(ls="--", marker="D", ms=4, lw=1.5, mfc="none")]
+
+
 def episode_curves(curves: dict[str, Sequence[float]], ylabel: str = "score") -> Figure:
-    """Scores over moves: ``curves`` maps a label ("refined F1", ...) to one value per move (moves from 1)."""
-    figure = Figure(figsize=(5, 3.5))
+    """Scores over moves: ``curves`` maps a label ("refined F1", ...) to one value per move (moves from 1).
+
+    Each curve has its own line style and marker, wide under narrow, so that curves with the same values
+    stay visible one over the other; their labels say so ("F1 prior (= F1 refined)"). The legend sits
+    beside the axes, never over a curve."""
+    figure = Figure(figsize=(6.8, 3.5))
     ax = figure.add_subplot(1, 1, 1)
-    for label, values in curves.items():
-        ax.plot(np.arange(1, len(values) + 1), values, "-o", ms=3, label=label)
+    drawn: list[tuple[str, np.ndarray]] = []
+    for i, (label, values) in enumerate(curves.items()):
+        values = np.asarray(values, float)
+        same = [other for other, v in drawn if v.shape == values.shape and np.allclose(v, values, equal_nan=True)]
+        drawn.append((label, values))
+        if same:
+            label = f"{label} (= {same[0]})"
+        ax.plot(np.arange(1, len(values) + 1), values, label=label, **_CURVE_STYLES[i % len(_CURVE_STYLES)])
     ax.set_xlabel("moves (views fused)")
     ax.set_ylabel(ylabel)
-    ax.set_ylim(0, 1.02)
+    ax.set_ylim(0, 1.05)
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0, frameon=False)
     figure.tight_layout()
     return figure
 

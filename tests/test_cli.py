@@ -26,8 +26,10 @@ JAXCLS = [str(_SCRIPT)] if _SCRIPT.is_file() else [sys.executable, "-m", "jaxcls
 
 
 def run_jaxcls(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    """``jaxcls args...`` as a user types it, in ``cwd``."""
-    env = {**os.environ, "JAX_PLATFORMS": os.environ.get("JAX_PLATFORMS", "cpu")}
+    """``jaxcls args...`` as a user types it, in ``cwd`` (this checkout's package first on the path)."""
+    repo = str(Path(jaxcls.__file__).resolve().parent.parent)
+    env = {**os.environ, "JAX_PLATFORMS": os.environ.get("JAX_PLATFORMS", "cpu"),
+           "PYTHONPATH": os.pathsep.join(p for p in (repo, os.environ.get("PYTHONPATH")) if p)}
     return subprocess.run([*JAXCLS, *args], cwd=cwd, capture_output=True, text=True, env=env, timeout=300)
 
 

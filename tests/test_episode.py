@@ -205,6 +205,7 @@ def test_run_accepts_a_recorded_sequence_and_scores_it(tmp_path, world, frames, 
     log = json.loads((out / "episode.json").read_text())
     assert log["start"] == 4 and len(log["moves"]) == 2 and all(0 <= m["next_view"] < 12 for m in log["moves"])
     assert "scores" in log["moves"][0] and (out / "report.md").is_file() and (out / "curves.png").is_file()
+    assert "yaw_source: learned" in (out / "config.yaml").read_text()  # what ran: refine.yaw_source=auto resolved
 
 
 def test_demo_runs_reduced(tmp_path, capsys):

@@ -8,8 +8,10 @@ from jaxcls.commands import Argument, Command
 
 
 def _run(config: None, args: argparse.Namespace) -> str:
+    from jaxcls import io
     from jaxcls.world.dataset import export_recording
 
+    io.check_out_dir(args.folder, key="folder", whole=True)  # a file, or a place that cannot be written
     return f"recording in {export_recording(args.scene_views, args.folder, overwrite=args.overwrite)}"
 
 

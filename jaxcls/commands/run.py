@@ -9,7 +9,7 @@ half; an existing one is kept and the run goes beside it, see ``show.free_folder
     <out_dir>/
       config.yaml     the resolved config
       episode.json    every move's record (``episode.runner``) and the scene's objects
-      report.md       the final per-object table against the truth, the per-move table
+      report.md       "N of M objects right", the final per-object table against the truth, the per-move table
       curves.png      F1 and accuracy over moves, prior and refined (with a scene to score against)
       moves/move_NN.png   with ``pictures``: depth, segments by refined class, aligned cuboids, the views
 """
@@ -37,7 +37,7 @@ class RunConfig(ActiveConfig, WorldConfig):
 
     source: str = ""  # "": render scene `seed`; a dataset scene .npz or folder; a recording folder
     scene_index: int = bounded(0, ge=0)  # the scene of a dataset folder
-    seed: int = 0  # the scene drawn (source "") and the episode's key
+    seed: int = bounded(0, ge=0, lt=2**32)  # the scene drawn (source "") and the episode's key: 32-bit unsigned
     start: int = bounded(0, ge=0)  # the first viewpoint
     out_dir: str = "runs/run"
     pictures: bool = False  # a picture per move in <out_dir>/moves
@@ -84,17 +84,64 @@ def _object_table(log) -> list[tuple]:
     return rows
 
 
+def right_counts(log) -> dict[str, tuple[int, int]]:
+    """{"prior": (right, targets), "refined": (right, targets)} after the last move: the target objects whose
+    label is their class (clutter is never scored)."""
+    last = log.moves[-1]
+    targets = [k for k, obj in enumerate(log.objects) if obj["target"]]
+
+    def right(labels: list[int]) -> int:
+        return sum(labels[k] >= 0 and log.classes[labels[k]] == log.objects[k]["class"] for k in targets)
+
+    return {kind: (right(last["labels"][kind]), len(targets)) for kind in ("prior", "refined")}
+
+
+def right_line(log) -> str:
+    """The report's tally of the target objects: "**3 of 5 objects right** after 10 moves (refined class; ...)"."""
+    counts = right_counts(log)
+    (n, m), (n_prior, _) = counts["refined"], counts["prior"]
+    clutter = sum(not obj["target"] for obj in log.objects)
+    how = f"refined class; PointNet's prior class: {n_prior} of {m}" if log.refinement else "GR off: PointNet's class"
+    moves = len(log.moves)
+    return (f"**{n} of {m} objects right** after {moves} move{'s' if moves != 1 else ''} ({how}"
+            + (f"; {clutter} clutter objects, never scored)" if clutter else ")"))
+
+
+def report_markdown(source_name: str, log, summary: dict[str, Any]) -> str:
+    """``report.md`` of an episode: what ran, with a scene the tally (``right_line``) and the per-object table
+    against the truth, then the per-move table."""
+    from jaxcls import report
+    from jaxcls.episode import active
+
+    scored = bool(log.moves) and "scores" in log.moves[-1]
+    lines = [f"# Episode: {source_name}", "",
+             f"policy `{log.policy}`, GR {'on' if log.refinement else 'off'}, start view {log.start}, "
+             f"{len(log.moves)} moves, path {summary['path_length_m']:.2f} m", ""]
+    if scored:
+        lines += ["## Objects after the last move", "", right_line(log), "", report.table(
+            ("object", "class", "role", "prior", "refined", "right", "coverage"), _object_table(log)), ""]
+    lines += ["## Moves", "", report.table(
+        ("move", "view", "next", *(f"{k} ms" for k in active.MODULES),
+         *(("F1 prior", "F1 refined") if scored else ())),
+        [(m["move"], m["view"], m["next_view"], *(f"{m['times_ms'][k]:.1f}" for k in active.MODULES),
+          *((f"{m['scores']['prior']['f1']:.3f}", f"{m['scores']['refined']['f1']:.3f}") if scored else ()))
+         for m in log.moves])]
+    return "\n".join(lines) + "\n"
+
+
 def run_command(config: RunConfig, overwrite: bool = False, echo=print) -> tuple[Path, Any]:
     """Run the episode of ``config``, ``echo`` each move, write the report folder; returns (folder, log).
-    Every input is checked before the first move (source, classifier, start view)."""
+    Every input is checked before the first move (out_dir, source, classifier, start view)."""
     import jax
 
-    from jaxcls import io, report, viz
+    from jaxcls import io, viz
     from jaxcls.commands.show import free_folder
     from jaxcls.config import save_config
     from jaxcls.episode import active, runner, scoring, setup
     from jaxcls.world.objects import object_set_from_config
 
+    # First: an out_dir that is a file or cannot be written is refused before anything is computed.
+    io.check_out_dir(config.out_dir, whole=True)
     object_set = object_set_from_config(config.objects)
     source = open_source(config, object_set)
     classifier = setup.load_classifier(config.classifier, object_set, "key 'classifier'")
@@ -119,24 +166,13 @@ def run_command(config: RunConfig, overwrite: bool = False, echo=print) -> tuple
                                                       for k in active.MODULES} if len(log.moves) > 1 else {}}
     out = free_folder(config.out_dir, overwrite)
     with io.atomic_folder(out) as tmp:
-        save_config(config, tmp / "config.yaml")
+        save_config(dataclasses.replace(config, refine=episode.refine_config), tmp / "config.yaml")  # what ran
         io.write_json(tmp / "episode.json", {**log.to_dict(), "summary": summary})
-        lines = [f"# Episode: {source.name}", "",
-                  f"policy `{log.policy}`, GR {'on' if log.refinement else 'off'}, start view {log.start}, "
-                  f"{len(log.moves)} moves, path {summary['path_length_m']:.2f} m", ""]
+        io.write_text(tmp / "report.md", report_markdown(source.name, log, summary))
         if truth is not None:
-            lines += ["## Objects after the last move", "", report.table(
-                ("object", "class", "role", "prior", "refined", "right", "coverage"), _object_table(log)), ""]
             viz.save(viz.episode_curves({"F1 refined": log.curve("refined"), "F1 prior": log.curve("prior"),
                                          "accuracy refined": log.curve("refined", "accuracy"),
                                          "accuracy prior": log.curve("prior", "accuracy")}), tmp / "curves.png")
-        lines += ["## Moves", "", report.table(
-            ("move", "view", "next", *(f"{k} ms" for k in active.MODULES),
-             *(("F1 prior", "F1 refined") if truth is not None else ())),
-            [(m["move"], m["view"], m["next_view"], *(f"{m['times_ms'][k]:.1f}" for k in active.MODULES),
-              *((f"{m['scores']['prior']['f1']:.3f}", f"{m['scores']['refined']['f1']:.3f}")
-                if truth is not None else ())) for m in log.moves])]
-        io.write_text(tmp / "report.md", "\n".join(lines) + "\n")
         for record, data in figures:
             title = (f"move {record['move']}: view {record['view']} -> next {record['next_view']}"
                      + (f"   F1 refined {record['scores']['refined']['f1']:.2f}" if "scores" in record else ""))
@@ -155,6 +191,9 @@ def _run(config: RunConfig, args: argparse.Namespace) -> str:
     if "scores" in final:
         score = (f"; final F1 {final['scores']['prior']['f1']:.3f} (prior) -> {final['scores']['refined']['f1']:.3f} "
                  "(refined)")
+    if "labels" in final:
+        n, m = right_counts(log)["refined"]
+        score += f"; {n} of {m} objects right"
     print(f"{len(log.moves)} moves{score}", file=sys.stderr)
     return f"wrote {out}"
 

@@ -7,6 +7,7 @@ import dataclasses
 from pathlib import Path
 
 from jaxcls.commands import Argument, Command
+from jaxcls.config import bounded, check_bounds
 from jaxcls.world.dataset import DatasetConfig
 from jaxcls.world.setup import WorldConfig
 
@@ -16,9 +17,12 @@ class ShowConfig(WorldConfig):
     """``jaxcls show``: one scene, a few of its views (through the sensor model), the viewpoint hemisphere."""
 
     out_dir: str = "runs/show"
-    seed: int = 0
+    seed: int = bounded(0, ge=0, lt=2**32)  # the scene drawn and the sensor's noise (a 32-bit unsigned integer)
     scene_file: str = ""  # a scene JSON to show instead of drawing one (seed, scene.*, objects.* then unused)
     views: tuple[int, ...] = (0, 33, 66, 99)
+
+    def __post_init__(self) -> None:
+        check_bounds(self)
 
 
 def _check_scene_file_alone(config: ShowConfig, overrides: list[str]) -> None:
@@ -34,10 +38,11 @@ def _check_scene_file_alone(config: ShowConfig, overrides: list[str]) -> None:
 def free_folder(out_dir: str | Path, overwrite: bool) -> Path:
     """``out_dir`` (created), or with ``overwrite`` off and ``out_dir`` not empty, the first of
     ``out_dir-2``, ``out_dir-3``, ... that can be created empty (a new run never replaces an old one unless
-    asked; a file of that name is skipped; creation is exclusive, so two runs never share one)."""
-    out = Path(out_dir).resolve()
-    if not out.name:
-        raise ValueError(f"show: out_dir must name a folder below the root, got {out_dir!r}")
+    asked; a file of that name is skipped; creation is exclusive, so two runs never share one). An
+    ``out_dir`` that is a file, or that cannot be written, is refused (``io.check_out_dir``)."""
+    from jaxcls import io
+
+    out = io.check_out_dir(out_dir, whole=not overwrite)
     if overwrite or not out.exists() or (out.is_dir() and not any(out.iterdir())):
         out.mkdir(parents=True, exist_ok=True)
         return out
@@ -60,11 +65,12 @@ def show(config: ShowConfig, overwrite: bool = False, overrides: list[str] | tup
     import jax
     import numpy as np
 
-    from jaxcls import viz
+    from jaxcls import io, viz
     from jaxcls.config import save_config
     from jaxcls.world import scenes
     from jaxcls.world.setup import make_world
 
+    io.check_out_dir(config.out_dir)  # before any work: a bad out_dir costs no scene and no render
     scene = None
     if config.scene_file:
         _check_scene_file_alone(config, list(overrides))

@@ -10,8 +10,10 @@ from jaxcls.learn.train import TrainConfig
 
 
 def _run(config: TrainConfig, args: argparse.Namespace) -> str:
+    from jaxcls import io
     from jaxcls.learn.train import train
 
+    io.check_out_dir(config.out_dir)  # before the clouds are made: a file, or a folder that cannot be written
     return f"run in {train(config)}"
 
 

@@ -9,6 +9,11 @@ the frame of any one of them.
   any pose, for views off the fixed set.
 
 Each source knows the camera, the table height and, when it has one, the scene (to score the episode).
+
+Every frame a source gives is z-depth in metres, 0 where there is no return, never NaN or negative
+(docs/ARCHITECTURE.md): a ``Preloaded`` source checks its frames whole when it is made
+(``world.dataset.check_views``: a depth frame per pose, the camera's size, finite depth >= 0, rigid poses)
+and refuses bad ones with a ValueError naming the source (its file or folder) and the view.
 """
 
 from __future__ import annotations
@@ -22,7 +27,7 @@ import numpy as np
 
 from jaxcls.geometry import Intrinsics
 from jaxcls.world import recording as recordings
-from jaxcls.world.dataset import SceneViews
+from jaxcls.world.dataset import SceneViews, check_views
 from jaxcls.world.objects import ObjectSetConfig
 from jaxcls.world.scenes import Scene
 from jaxcls.world.setup import World
@@ -52,7 +57,8 @@ def _check_view(source: ViewSource, view: int) -> int:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Preloaded:
-    """Every viewpoint's frame in memory. depth: [V, H, W] f32 m; T_wc: [V, 4, 4] (also the viewpoints)."""
+    """Every viewpoint's frame in memory. depth: [V, H, W] f32 m; T_wc: [V, 4, 4] (also the viewpoints).
+    Checked when made (``check_views``): ValueError naming ``name`` and the view."""
 
     depth: np.ndarray
     T_wc: np.ndarray
@@ -60,6 +66,9 @@ class Preloaded:
     table_height: float
     scene: Scene | None
     name: str
+
+    def __post_init__(self) -> None:
+        check_views(self.name, self.depth, self.T_wc, self.intrinsics)
 
     @property
     def viewpoints(self) -> np.ndarray:

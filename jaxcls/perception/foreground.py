@@ -4,6 +4,15 @@ remove the table plane, keep the cube of interest).
 Conventions (docs/ARCHITECTURE.md): metres, world z up, table top at ``spec.table_height``; OpenCV camera,
 ``T_wc`` camera-to-world; depth z-depth with 0 = no return. Point sets are padded: ``points [P, 3]`` +
 ``mask [P]``.
+
+Bad depth pixels, the rule: a depth pixel that is NaN, +-inf or negative (or 0) is "no return". Perception
+masks such pixels (``valid_depth``) in every stage that reads the frame (the camera tracking's
+registration, ``foreground_depth``, TSDF integration), so a frame with them gives exactly the observation
+the same frame with those pixels 0 gives, under jit too, and nothing NaN comes out of a move. The sources
+of frames on the host refuse them instead, naming the file and the view (a dataset scene file:
+``world.dataset.check_views``), and a recording stores them as 0 with a warning
+(``world.recording.depth_to_raw``): a NaN in a file is a writer's mistake worth hearing about, a NaN in
+a live sensor's frame is a pixel without a return.
 """
 
 from __future__ import annotations
@@ -29,6 +38,12 @@ def check_depth_shape(spec: Spec, depth: jax.Array, T_wc: jax.Array, where: str)
         raise ValueError(f"{where}: T_wc must be [4, 4], got shape {tuple(np.shape(T_wc))}")
 
 
+def valid_depth(depth: jax.Array) -> jax.Array:
+    """[H, W] bool: the pixels of ``depth: [H, W]`` m that hold a return (finite and > 0); the rest (0, NaN,
+    inf, negative) are "no return" (the module's rule). Pure jnp."""
+    return jnp.isfinite(depth) & (depth > 0)
+
+
 @jax.jit
 def foreground_depth(spec: Spec, depth: jax.Array, T_wc: jax.Array) -> jax.Array:
     """Depth with background and table pixels set to 0 (no return), before fusion.
@@ -40,7 +55,7 @@ def foreground_depth(spec: Spec, depth: jax.Array, T_wc: jax.Array) -> jax.Array
     check_depth_shape(spec, depth, T_wc, "foreground_depth")
     intrinsics = spec.intrinsics
     depth = jnp.asarray(depth, jnp.float32)
-    good = jnp.isfinite(depth) & (depth > 0) & (depth <= spec.config.foreground.max_depth)
+    good = valid_depth(depth) & (depth <= spec.config.foreground.max_depth)
     depth = jnp.where(good, depth, 0.0)
     # World height of each pixel's point (only the third row of the back-projection: 3x less work).
     T_wc = jnp.asarray(T_wc, jnp.float32)

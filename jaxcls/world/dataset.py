@@ -11,13 +11,24 @@ Layout of a dataset folder::
 A run that is interrupted resumes: finished scene files are kept, a half-written one never exists (each is
 written to a temporary name and renamed), and a folder made by a different config is refused rather than
 mixed.
+
+A scene file is checked whole when it is read (``SceneViews.load``, ``check_views``): one depth frame, object
+id map and pose per view, frames of the camera's size, rigid finite poses, depth finite and >= 0 (0 = no
+return), object ids of the scene's objects; a file that breaks a rule is refused with a ValueError naming
+the file and the first view at fault, not met as an IndexError or a NaN moves later.
 """
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
+import ctypes.util
 import dataclasses
 import json
 import multiprocessing
+import os
+import signal
+import sys
 import warnings
 import zipfile
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -43,7 +54,7 @@ class DatasetConfig(WorldConfig):
     name: str = "synthetic"
     out_dir: str = "data/synthetic"
     num_scenes: int = bounded(7, ge=1)
-    seed: int = 0
+    seed: int = bounded(0, ge=0, lt=2**32)  # the scenes drawn and the sensor's noise (a 32-bit unsigned integer)
     batch_size: int = bounded(50, ge=1)  # views rendered together
     # Scenes rendered at once, each in its own process on the CPU (the MuJoCo renderer is single-threaded;
     # the worker processes keep JAX on the CPU). 1 renders in this process.
@@ -89,6 +100,7 @@ class SceneViews:
 
     @classmethod
     def load(cls, path: str | Path) -> SceneViews:
+        """Read a scene file and check it whole (``check_views``); ValueError naming the file (and view)."""
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"{path}: scene views file not found")
@@ -101,17 +113,82 @@ class SceneViews:
         missing = [k for k in keys if k not in arrays]
         if missing:
             raise ValueError(f"{path}: missing arrays {missing}")
+        if arrays["intrinsics"].shape != (6,):
+            raise ValueError(f"{path}: 'intrinsics' must hold 6 numbers (width, height, fx, fy, cx, cy), got shape "
+                             f"{arrays['intrinsics'].shape}")
         w, h, fx, fy, cx, cy = arrays["intrinsics"].tolist()
-        return cls(scene=scenes.Scene.from_dict(json.loads(str(arrays["scene_json"])), source=str(path)),
-                   intrinsics=geometry.Intrinsics(width=int(w), height=int(h), fx=fx, fy=fy, cx=cx, cy=cy),
-                   depth=arrays["depth"], object_id=arrays["object_id"].astype(np.int32),
-                   T_wc=arrays["T_wc"], T_wc_true=arrays["T_wc_true"],
+        try:
+            intrinsics = geometry.Intrinsics(width=int(w), height=int(h), fx=fx, fy=fy, cx=cx, cy=cy)
+        except (ValueError, OverflowError) as e:
+            raise ValueError(f"{path}: 'intrinsics': {e}") from None
+        scene = scenes.Scene.from_dict(json.loads(str(arrays["scene_json"])), source=str(path))
+        check_views(str(path), arrays["depth"], arrays["T_wc"], intrinsics, object_id=arrays["object_id"],
+                    T_wc_true=arrays["T_wc_true"], num_objects=scene.num_objects)
+        return cls(scene=scene, intrinsics=intrinsics, depth=arrays["depth"],
+                   object_id=arrays["object_id"].astype(np.int32), T_wc=arrays["T_wc"], T_wc_true=arrays["T_wc_true"],
                    backend=str(arrays.get("backend", "unknown")))
 
     def to_recording(self) -> recording.Recording:
         """The recorded-sequence form a real sensor would produce (depth rounded to millimetres)."""
         return recording.Recording(depth=self.depth, T_wc=self.T_wc, intrinsics=self.intrinsics,
                                    table_height=self.scene.table_height, scene=self.scene.to_dict())
+
+
+def _views(mask: np.ndarray) -> str:
+    """The views flagged in ``mask: [V]`` bool, for a message: "view 3" or "views 3, 7, 9, ... (12 views)"."""
+    views = np.flatnonzero(mask).tolist()
+    if len(views) == 1:
+        return f"view {views[0]}"
+    listed = ", ".join(map(str, views[:3])) + (", ..." if len(views) > 3 else "")
+    return f"views {listed} ({len(views)} views)"
+
+
+def check_views(where: str, depth: np.ndarray, T_wc: np.ndarray, intrinsics: geometry.Intrinsics, *,
+                object_id: np.ndarray | None = None, T_wc_true: np.ndarray | None = None,
+                num_objects: int | None = None) -> None:
+    """Refuse frames that a run cannot use, with a ValueError naming ``where`` (the file) and the view.
+
+    depth: [V, H, W] z-depth in metres of ``intrinsics``' size, finite and >= 0 (0 = no return; a NaN,
+    inf or negative pixel is refused: a writer that means "no return" writes 0); T_wc: [V, 4, 4] rigid,
+    one pose per depth frame; object_id: [V, H, W] in -1..num_objects-1; T_wc_true: like T_wc.
+    """
+    depth, T_wc = np.asarray(depth), np.asarray(T_wc)
+    if depth.ndim != 3:
+        raise ValueError(f"{where}: 'depth' must be [V, H, W] (a frame per view), got shape {depth.shape}")
+    hw = (intrinsics.height, intrinsics.width)
+    if depth.shape[1:] != hw:
+        raise ValueError(f"{where}: 'depth' frames are {depth.shape[1]}x{depth.shape[2]} (H x W), the camera "
+                         f"('intrinsics') is {hw[0]}x{hw[1]}")
+    if T_wc.ndim != 3 or T_wc.shape[1:] != (4, 4):
+        raise ValueError(f"{where}: 'T_wc' must be [V, 4, 4] (a pose per view), got shape {T_wc.shape}")
+    frames, poses = len(depth), len(T_wc)
+    if frames != poses:
+        lo, hi = min(frames, poses), max(frames, poses)
+        views = f"view {lo} has" if hi - lo == 1 else f"views {lo}..{hi - 1} have"
+        raise ValueError(f"{where}: 'depth' has {frames} frames but 'T_wc' has {poses} poses: {views} no "
+                         f"{'depth frame' if frames < poses else 'pose'}")
+    for name, array, shape in (("object_id", object_id, depth.shape), ("T_wc_true", T_wc_true, T_wc.shape)):
+        if array is not None and np.shape(array) != shape:
+            raise ValueError(f"{where}: '{name}' has shape {np.shape(array)}, expected {shape} like "
+                             f"'{'depth' if name == 'object_id' else 'T_wc'}'")
+    for name, array in (("T_wc", T_wc), ("T_wc_true", T_wc_true)):
+        if array is not None and not (rigid := geometry.is_rigid(array)).all():
+            raise ValueError(f"{where}: {_views(~rigid)}: pose '{name}' is not a rigid transform (finite, rotation "
+                             "with det +1, last row 0 0 0 1)")
+    if not np.issubdtype(depth.dtype, np.floating):
+        raise ValueError(f"{where}: 'depth' must be floating-point metres, got dtype {depth.dtype}")
+    for what, bad in (("NaN or infinite", ~np.isfinite(depth)), ("negative", depth < 0)):
+        per_view = bad.sum(axis=(1, 2))
+        if per_view.any():
+            first = int(np.flatnonzero(per_view)[0])
+            raise ValueError(f"{where}: {_views(per_view > 0)}: 'depth' has {what} pixels ({int(per_view[first])} in "
+                             f"view {first}); depth is z-depth in metres, 0 where there is no return")
+    if object_id is not None and num_objects is not None:
+        ids = np.asarray(object_id)
+        wrong = ((ids < -1) | (ids >= num_objects)).any(axis=(1, 2))
+        if wrong.any():
+            raise ValueError(f"{where}: {_views(wrong)}: 'object_id' holds ids outside -1..{num_objects - 1} "
+                             f"(the scene has {num_objects} objects; -1 = table or nothing)")
 
 
 def scene_seeds(seed: int, count: int) -> list[int]:
@@ -141,6 +218,7 @@ def render_scene_views(config: DatasetConfig, scene: scenes.Scene, key: jax.Arra
 def build_dataset(config: DatasetConfig, overwrite: bool = False, show_progress: bool = True) -> Path:
     """Render ``config.num_scenes`` scenes x all viewpoints into ``config.out_dir``; resumes if interrupted."""
     out = Path(config.out_dir)
+    io.check_out_dir(out)  # before anything is rendered: a file, or a folder that cannot be written
     config_file = out / "config.yaml"
     if config_file.exists() and not overwrite:
         previous = load_config(DatasetConfig, config_file)
@@ -168,18 +246,49 @@ def build_dataset(config: DatasetConfig, overwrite: bool = False, show_progress:
         config = dataclasses.replace(config, backend="mujoco")
         # Spawned, not forked (JAX is threaded); each worker renders and writes whole scenes.
         context = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(min(config.workers, len(todo)), mp_context=context,
-                                 initializer=_cpu_worker) as pool:
-            for done in as_completed([pool.submit(_render_scene, config, i) for i in todo]):
+        pool = ProcessPoolExecutor(min(config.workers, len(todo)), mp_context=context, initializer=_cpu_worker)
+        try:
+            with _sigint_ignored():  # the workers start deaf to Ctrl-C: this process stops them (below)
+                futures = [pool.submit(_render_scene, config, i) for i in todo]
+            for done in as_completed(futures):
                 bar.set_postfix(scene=done.result())
                 bar.update(config.viewpoints.count)
+        except BaseException:  # Ctrl-C or a worker's error: the other workers stop now, not after their scenes
+            for process in list((getattr(pool, "_processes", None) or {}).values()):
+                process.terminate()
+            raise
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
     return out
+
+
+@contextlib.contextmanager
+def _sigint_ignored():
+    """SIGINT ignored while worker processes are started, so that they inherit it ignored (a terminal's
+    Ctrl-C reaches every process of the job, and a worker stopped halfway through its imports prints a
+    traceback); off the main thread, nothing changes."""
+    try:
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:  # not the main thread
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _cpu_worker() -> None:
     """A rendering worker keeps JAX (the sensor model's noise) on the CPU: a GPU host's workers would each
-    claim most of the GPU's memory."""
+    claim most of the GPU's memory. It leaves Ctrl-C to the process that started it and, on Linux, ends
+    with it (a parent that ends at once on Ctrl-C must not leave workers rendering on)."""
     jax.config.update("jax_platforms", "cpu")
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    libc = ctypes.util.find_library("c")
+    if sys.platform.startswith("linux") and libc:
+        ctypes.CDLL(libc).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG: SIGTERM when the parent ends
+        if os.getppid() == 1:  # the parent ended before that took effect
+            os._exit(1)
 
 
 def _render_scene(config: DatasetConfig, index: int, object_set=None, progress: tqdm | None = None) -> int:

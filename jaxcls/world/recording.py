@@ -219,6 +219,9 @@ def write_recording(folder: str | Path, recording: Recording, overwrite: bool = 
     reproduces byte-identical files.
     """
     folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise FileExistsError(f"{folder}: is a file, not a recording folder; choose another folder (overwrite "
+                              "replaces a recording, never a file)")
     if folder.exists() or folder.is_symlink():
         if not overwrite:
             raise FileExistsError(f"{folder}: already exists (pass overwrite=True, or --overwrite to jaxcls "
