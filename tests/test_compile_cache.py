@@ -55,3 +55,38 @@ def test_off_and_unwritable_folders(tmp_path, monkeypatch):
     blocker.write_text("not a folder")
     with pytest.warns(UserWarning, match="compilation cache off"):
         assert compile_cache.enable(blocker / "xla") is None
+
+
+def test_host_work_is_kept_beside_the_programs_and_rebuilt_when_unreadable(tmp_path, monkeypatch):
+    import numpy as np
+
+    from jaxcls.perception import icp
+    from jaxcls.world.objects.builtin import builtin_object_set
+
+    monkeypatch.setattr(compile_cache, "_host", None)
+    model = builtin_object_set().test[0]
+    config = icp.ICPConfig(grid_resolution=16, model_points=256)
+    fresh = icp.model_target(model, config)  # cache not enabled: built, nothing written
+    monkeypatch.setattr(compile_cache, "_host", tmp_path / "host")
+    built = icp.model_target(model, config)
+    (entry,) = (tmp_path / "host" / "icp_targets").iterdir()
+    def no_tree(points):
+        raise AssertionError("built again instead of read back")
+
+    with monkeypatch.context() as m:
+        m.setattr(icp, "cKDTree", no_tree)
+        loaded = icp.model_target(model, config)  # read back, not built: the same lookups
+    for a, b, c in zip((fresh.grid, fresh.neighbours), (built.grid, built.neighbours),
+                       (loaded.grid, loaded.neighbours), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(c))
+    calls = []
+    assert compile_cache.cached_arrays("icp_targets", b"other", lambda: calls.append(1) or {"x": np.ones(2)})
+    assert calls == [1] and len(list((tmp_path / "host" / "icp_targets").iterdir())) == 2  # another key
+    entry.write_bytes(b"not an npz")
+    again = icp.model_target(model, config)
+    np.testing.assert_array_equal(np.asarray(again.grid), np.asarray(fresh.grid))
+    with np.load(entry) as repaired:  # rebuilt and replaced
+        np.testing.assert_array_equal(repaired["index"].reshape(np.asarray(fresh.grid).shape), np.asarray(fresh.grid))
+    monkeypatch.setattr(compile_cache, "_host", None)
+    assert compile_cache.cached_arrays("icp_targets", b"other", lambda: {"x": np.zeros(1)})["x"][0] == 0

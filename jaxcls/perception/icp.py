@@ -39,6 +39,7 @@ import numpy as np
 from flax import struct
 from scipy.spatial import cKDTree
 
+from jaxcls import compile_cache
 from jaxcls.config import bounded, check_bounds
 from jaxcls.geometry import invert_rigid
 from jaxcls.math import safe_div
@@ -170,9 +171,15 @@ def model_target(model: ObjectModel, config: ICPConfig = ICPConfig(), samples: i
     cell = (high - low) / G
     axes = [low[d] + (np.arange(G) + 0.5) * cell[d] for d in range(3)]
     centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    tree = cKDTree(points)
-    _, index = tree.query(centres, k=min(config.candidates, count))
-    _, neighbours = tree.query(points, k=min(config.neighbours + 1, count))
+    def lookups() -> dict[str, np.ndarray]:
+        tree = cKDTree(points)
+        return {"index": tree.query(centres, k=min(config.candidates, count))[1].astype(np.int16),
+                "neighbours": tree.query(points, k=min(config.neighbours + 1, count))[1].astype(np.int16)}
+
+    key = b"".join([points.tobytes(), np.asarray([G, config.candidates, config.neighbours, count]).tobytes(),
+                    low.tobytes(), high.tobytes()])
+    found = compile_cache.cached_arrays("icp_targets", key, lookups)  # the same across runs: kept on disk
+    index, neighbours = found["index"], found["neighbours"]
     return Target(points=jnp.asarray(points[None], jnp.float32), normals=jnp.asarray(normals[None]),
                   mask=jnp.ones((1, count), bool),
                   grid=jnp.asarray(np.asarray(index, np.int16).reshape(1, G**3, -1)),

@@ -40,6 +40,7 @@ from typing import ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from jaxcls import geometry
@@ -335,6 +336,27 @@ def candidates(views: Views, config: NBVConfig) -> tuple[jax.Array, jax.Array]:
     K = min(config.max_candidates, position.shape[0])
     order = jnp.argsort(distance)[:K]
     return order, distance[order] <= config.radius
+
+
+def random_walk(rng: np.random.Generator, T_wc: np.ndarray, length: int, config: NBVConfig = NBVConfig()
+                ) -> list[int]:
+    """``length`` viewpoint indices (at most V) of a host-side random walk over ``T_wc: [V, 4, 4]``: a random
+    start, then each time a random unvisited candidate (``candidates``, within ``config.radius``), or the
+    nearest unvisited viewpoint when none is left: the Random policy's rule, drawn from a NumPy ``rng``
+    (training clouds and experiments walk so)."""
+    T_wc = np.asarray(T_wc, np.float32)
+    V = len(T_wc)
+    every = dataclasses.replace(config, max_candidates=V)
+    views = Views.start(T_wc, int(rng.integers(V)))
+    path = [int(views.current)]
+    while len(path) < min(length, V):
+        index, ok = (np.asarray(a) for a in candidates(views, every))
+        fresh = sorted(int(v) for v in index[ok] if v not in path)
+        if not fresh:
+            fresh = [next(int(v) for v in index if v not in path)]  # index is sorted nearest first
+        path.append(int(rng.choice(fresh)))
+        views = views.move(path[-1])
+    return path
 
 
 def history_weight(views: Views, index: jax.Array, config: NBVConfig) -> jax.Array:
