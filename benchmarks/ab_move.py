@@ -71,7 +71,7 @@ def main(argv: list[str] | None = None) -> None:
 
         # B: this tree: the stages, and the move as its one owner composes it (jitted whole).
         spec = perception.Spec.create(intrinsics=intr, table_height=world.table_height)
-        observe = jax.jit(perception.observe)
+        observe = jax.jit(perception.perceive)
         state = perception.init_state(spec)
         for v in range(len(VIEWS) - 1):
             state = observe(spec, state, depth[v], Ts[v])
@@ -113,7 +113,7 @@ def main(argv: list[str] | None = None) -> None:
             "one move, stage by stage": (old_move, new_stages),
             "one move: A stage by stage, B `perception.observe` from Python (no classifier)": (
                 old_move, lambda: perception.observe(spec, state, d, T).segments),
-            "one move: A stage by stage, B `jax.jit(perception.observe)` (no classifier)": (
+            "one move: A stage by stage, B `jax.jit(perception.perceive)` (no classifier)": (
                 old_move, lambda: observe(spec, state, d, T).segments),
         }
         a, b = jax.block_until_ready(old_move()), jax.block_until_ready(observe(spec, state, d, T).segments)

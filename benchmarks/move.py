@@ -15,18 +15,19 @@ from move to move), each from the same stored state and frame:
 - peer: reconstruction as ours does it, the camera tracked first (``active.timed_step``'s reconstruction
   registers the frame to the fused model before fusing it): the frame registered to the peer's current
   surface (its last ``extract_point_cloud``, table points dropped, with normals) by Open3D's point-to-plane
-  ``registration_icp`` from the reported pose (``benchmarks/tracking.py``'s ``Open3DTracker``: the frame's
-  foreground points at every 2nd pixel, 0.02 m gate, at most 20 iterations; the episode's first frame, with no
-  surface yet, stays at the reported pose), then integrated at the registered pose into Open3D's
-  ``UniformTSDFVolume`` (the episode's 0.6 m / 128^3 cube, 4-voxel truncation; one volume per episode) and
-  ``extract_point_cloud``, table points dropped, padded to the episode's surface size; segmentation with the
-  reference path (``perception.segment.segment``: scikit-learn DBSCAN, the footprint watershed, K-means); classification
-  with the same PointNet (``pointnet.classify``); GR with Open3D's point-to-plane ``registration_icp`` for
-  every (segment, top-3 class, model of the class, yaw) one after another (``benchmarks/refine.py``'s
-  ``_open3d_move``: 30 iterations, rho from KD-trees), on the segments' points strided to the episode's
-  ``icp.points``, as many even yaws as our learned ones; NBV: the NumPy/SciPy count of the paper
-  (``benchmarks/nbv.py``'s ``numpy_paper``) over the move's candidates within the radius, with our state's
-  aligned cuboids, at the planner's 0.25 scale, then Eq. 6-8 in NumPy.
+  ``registration_icp`` from the reported pose (``jaxcls.experiments.peers.Open3DTracker``, as in
+  ``benchmarks/tracking.py``: the frame's foreground points at every 2nd pixel, 0.02 m gate, at most 20
+  iterations; the episode's first frame, with no surface yet, stays at the reported pose), then integrated at
+  the registered pose into Open3D's ``UniformTSDFVolume`` (the episode's 0.6 m / 128^3 cube, 4-voxel
+  truncation; one volume per episode) and ``extract_point_cloud``, table points dropped, padded to the
+  episode's surface size; segmentation with the reference path (``perception.segment.segment``: scikit-learn
+  DBSCAN, the footprint watershed, K-means); classification with the same PointNet (``pointnet.classify``); GR
+  with Open3D's point-to-plane ``registration_icp`` for every (segment, top-3 class, model of the class, yaw)
+  one after another (``peers.open3d_refine``, as in ``benchmarks/refine.py``: 30 iterations, rho from
+  KD-trees), on the segments' points strided to the episode's ``icp.points``, as many even yaws as our learned
+  ones; NBV: the NumPy/SciPy count of the paper (``peers.numpy_paper``, as in ``benchmarks/nbv.py``) over the
+  move's candidates within the radius, with our state's aligned cuboids, at the planner's 0.25 scale, then
+  Eq. 6-8 in NumPy.
 
 The process keeps freed memory for reuse (``jaxcls.allocator.retain_freed_memory``, as ``jaxcls``'s commands
 do) unless ``--allocator default``; the setting is process-wide, so ours and the peer always share it.
@@ -40,71 +41,26 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime
-import importlib.util
 import statistics
 import sys
 import time
-from pathlib import Path
 
 import jax
 import numpy as np
 
 from jaxcls import allocator, report
 from jaxcls.episode import active, setup, sources
+from jaxcls.experiments.peers import HostPose, HostTarget, Open3DTracker, numpy_paper, open3d_refine
 from jaxcls.perception import icp, pointnet, pose, refine, segment
 from jaxcls.planning import nbv, visibility
 from jaxcls.world import WorldConfig, make_world
 from jaxcls.world.objects import ObjectSet
 
-HERE = Path(__file__).resolve().parent
 START = 0  # the episodes' first viewpoint (``jaxcls run``'s default)
 # The paper's averaged processing time between consecutive moves (Sec. 5, an Alienware Aurora desktop, i7), s.
 PAPER = {"reconstruction": 0.12, "segmentation": 0.06, "refinement": 0.88, "planning": 0.19}
 COLUMNS = {"reconstruction": "reconstruction", "segmentation": "segmentation", "classification": "classification",
            "refinement": "GR (Eq. 2-4)", "planning": "NBV (Eq. 5-8)"}
-
-
-def _sibling(name: str):
-    """The benchmark ``benchmarks/<name>.py`` as a module (the folder is not a package)."""
-    spec = importlib.util.spec_from_file_location(f"_benchmark_{name}", HERE / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # before running it: dataclasses look their module up
-    spec.loader.exec_module(module)
-    return module
-
-
-@dataclasses.dataclass(frozen=True)
-class _HostTarget:
-    """A model's samples in NumPy: what ``_open3d_move`` reads of an ``icp.Target`` (``samples()``), without
-    JAX's eager indexing on every call."""
-
-    points: np.ndarray
-    normals: np.ndarray
-    mask: np.ndarray
-
-    def samples(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        return self.points, self.normals, self.mask
-
-
-class _HostPose:
-    """``pose.even_yaws`` and ``pose.initial_poses`` in NumPy (the same formulas) for the peer's copy of
-    ``benchmarks/refine.py``: called eagerly per (segment, model), the JAX ones cost ~0.2 s of dispatch a move."""
-
-    @staticmethod
-    def even_yaws(hypotheses: int) -> np.ndarray:
-        return 2 * np.pi * np.arange(hypotheses) / hypotheses
-
-    @staticmethod
-    def initial_poses(points, mask, centroid, table_height, yaws) -> np.ndarray:
-        w = np.asarray(mask, np.float64)
-        total = w.sum()
-        c = (w[:, None] * points).sum(axis=0) / total if total > 0 else np.zeros(3)
-        cos, sin = np.cos(yaws), np.sin(yaws)
-        T = np.tile(np.eye(4), (len(yaws), 1, 1))
-        T[:, 0, 0], T[:, 0, 1], T[:, 1, 0], T[:, 1, 1] = cos, -sin, sin, cos
-        T[:, :2, 3] = c[:2] - T[:, :2, :2] @ np.asarray(centroid, np.float64)[:2]
-        T[:, 2, 3] = table_height
-        return T
 
 
 @dataclasses.dataclass
@@ -136,25 +92,22 @@ def _scene(seed: int, moves: int, classifier: pointnet.Classifier) -> Scene:
 class Peer:
     """The peer composition of a move (Open3D, scikit-learn, the same PointNet, Open3D ICP, NumPy)."""
 
-    def __init__(self, episode: active.Episode, models, refine_bench, nbv_bench, tracking_bench,
-                 same_models: bool = False):
+    def __init__(self, episode: active.Episode, models, same_models: bool = False):
         import open3d as o3d
 
         self.same_models = same_models
         self.height = np.array([float(np.asarray(m.surface_points)[:, 2].max()) for m in models])
         self.o3d, self.episode, self.spec = o3d, episode, episode.spec
-        self.refine_bench, self.nbv_bench = refine_bench, nbv_bench
         intr = self.spec.intrinsics
         self.K = o3d.camera.PinholeCameraIntrinsic(intr.width, intr.height, intr.fx, intr.fy, intr.cx, intr.cy)
         self.color = o3d.geometry.Image(np.zeros((intr.height, intr.width, 3), np.uint8))
         config = episode.refine_config
-        self.targets = [_HostTarget(*(np.asarray(a) for a in icp.model_target(m, config.icp).samples()))
+        self.targets = [HostTarget(*(np.asarray(a) for a in icp.model_target(m, config.icp).samples()))
                         for m in models]
-        refine_bench.pose = _HostPose  # this process's own copy of the module (``_sibling``)
         x = np.random.default_rng(0).normal(size=(64, 3)).astype(np.float32)
-        np.testing.assert_allclose(_HostPose.initial_poses(x, x[:, 0] > 0, x[0], 0.1, _HostPose.even_yaws(3)),
+        np.testing.assert_allclose(HostPose.initial_poses(x, x[:, 0] > 0, x[0], 0.1, HostPose.even_yaws(3)),
                                    pose.initial_poses(x, x[:, 0] > 0, x[0], 0.1, pose.even_yaws(3)), atol=1e-5)
-        # Every model is a "class" of its own to ``_open3d_move``: each segment's top-k classes' models are the
+        # Every model is a "class" of its own to ``open3d_refine``: each segment's top-k classes' models are the
         # top k x J of the models' scores (each model scored as its class), so it registers all of them.
         classes = episode.spec.classifier.classes
         self.model_class = np.array([classes.index(m.class_name) for m in models])
@@ -165,7 +118,7 @@ class Peer:
         self.small = visibility.scaled(self.spec.intrinsics, episode.nbv_config.visibility.scale)
         self.volume = None
         foreground = self.spec.config.foreground
-        self.tracker = tracking_bench.Open3DTracker(intr, self.spec.floor, foreground.max_depth)
+        self.tracker = Open3DTracker(intr, self.spec.floor, foreground.max_depth)
         self.surface: tuple[np.ndarray, np.ndarray] | None = None  # the last extracted surface: points, normals
         self.tracking_ms: list[float] = []  # the frame-to-model registrations' times (within reconstruction)
 
@@ -234,14 +187,14 @@ class Peer:
                 np.put_along_axis(chosen, best, True, axis=1)
             scores = np.where(chosen, scores, -1.0)
             config = dataclasses.replace(config, top_k=self.episode.refine_config.top_k * keep)
-        model, poses = self.refine_bench._open3d_move(strided_points, strided_mask, scores, None,
-                                                      self.targets, config, self.spec.table_height)
+        model, poses = open3d_refine(strided_points, strided_mask, scores, None, self.targets, config,
+                                     self.spec.table_height, poses=HostPose)
         return self.model_class[model], poses
 
     def plan(self, corners: np.ndarray, poses: np.ndarray, views: np.ndarray, visited: np.ndarray,
              index: np.ndarray) -> int:
         """Eq. 5-8 over the candidate viewpoints ``index``: the paper's count (NumPy), history weight, argmax."""
-        seen = self.nbv_bench.numpy_paper(corners, poses, views[index], self.small).sum(axis=1)  # O_i
+        seen = numpy_paper(corners, poses, views[index], self.small).sum(axis=1)  # O_i
         position = views[:, :3, 3].astype(np.float64)
         d = np.linalg.norm(position[index][:, None] - position[None], axis=-1)
         sigma = self.episode.nbv_config.radius / 2
@@ -292,7 +245,6 @@ def main(argv: list[str] | None = None) -> None:
     import open3d as o3d
 
     retained = args.allocator == "retain" and allocator.retain_freed_memory()
-    refine_bench, nbv_bench, tracking_bench = _sibling("refine"), _sibling("nbv"), _sibling("tracking")
     classifier = pointnet.load_classifier()
     start = time.perf_counter()
     scenes = [_scene(seed, args.moves, classifier) for seed in range(args.scenes)]
@@ -301,8 +253,8 @@ def main(argv: list[str] | None = None) -> None:
     episode = scenes[0].episode
     models = refine.library_models(scenes[0].object_set, episode.refine_config.library)
     assert tuple(m.name for m in models) == episode.library.names, "the peer's models are the episode's library"
-    peer = Peer(episode, models, refine_bench, nbv_bench, tracking_bench)
-    peer_same = Peer(episode, models, refine_bench, nbv_bench, tracking_bench, same_models=True)
+    peer = Peer(episode, models)
+    peer_same = Peer(episode, models, same_models=True)
     start = time.perf_counter()
     jax.block_until_ready(active.step_jit(episode, scenes[0].states[1], *scenes[0].frames[1]))
     compile_fused = time.perf_counter() - start

@@ -20,10 +20,10 @@ import time
 
 import jax
 import numpy as np
-from scipy.spatial import ConvexHull
 from scipy.spatial.transform import Rotation
 
 from jaxcls import report
+from jaxcls.experiments.peers import numpy_paper
 from jaxcls.geometry import Intrinsics, hemisphere_viewpoints
 from jaxcls.planning import visibility as vis
 
@@ -40,26 +40,6 @@ def _scene(rng: np.random.Generator, views: np.ndarray, count: int = 20):
     here = views[rng.integers(len(views)), :3, 3]
     near = np.argsort(np.linalg.norm(views[:, :3, 3] - here, axis=1))[1:count + 1]
     return corners, poses.astype(np.float32), views[near].astype(np.float32)
-
-
-def numpy_paper(corners: np.ndarray, poses: np.ndarray, T_wc: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
-    """[V, N] the paper's count in NumPy/SciPy (every cuboid in front of the camera)."""
-    v, u = np.mgrid[0:intrinsics.height, 0:intrinsics.width]
-    pixels = np.stack([u.ravel(), v.ravel()], -1).astype(np.float64)
-    out = np.zeros((len(T_wc), len(corners)))
-    for i, T in enumerate(np.asarray(T_wc, np.float64)):
-        inv = np.linalg.inv(T)
-        cams = [((inv @ p)[:3, :3] @ c.T + (inv @ p)[:3, 3:4]) for c, p in zip(corners, poses, strict=True)]
-        free = np.ones(len(pixels), bool)
-        for n in sorted(range(len(corners)), key=lambda n: cams[n][2].mean()):
-            c = cams[n]
-            uv = np.stack([intrinsics.fx * c[0] / c[2] + intrinsics.cx,
-                           intrinsics.fy * c[1] / c[2] + intrinsics.cy], -1)
-            eq = ConvexHull(uv).equations
-            inside = free & np.all(pixels @ eq[:, :2].T + eq[:, 2] <= 1e-9, axis=1)
-            out[i, n] = inside.sum()
-            free &= ~inside
-    return out
 
 
 def main(argv: list[str] | None = None) -> None:

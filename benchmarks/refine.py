@@ -12,7 +12,7 @@ Open3D: ``registration_icp`` with ``TransformationEstimationPointToPlane``, the 
 iterations each, one after another, then rho (Eq. 2) per registration from KD-trees, and Eq. 3-4. Each
 round times every contender once, interleaved; the table gives medians and the spread over rounds, and
 the final accuracy of each: the refined class right, the pose within 5 degrees (modulo symmetry) and 5 mm,
-over the scenes' segments.
+over the scenes' segments. The moves are ``jaxcls.experiments.moves``', the peer ``jaxcls.experiments.peers``'.
 """
 
 from __future__ import annotations
@@ -24,67 +24,11 @@ import time
 
 import jax
 import numpy as np
-from scipy.spatial import cKDTree
 
 from jaxcls import metrics, report
-from jaxcls.geometry import CameraConfig
-from jaxcls.perception import Spec, icp, init_state, observe, pointnet, pose, refine
-from jaxcls.perception.settings import PerceptionConfig
-from jaxcls.world import WorldConfig, make_world
-
-
-def _move(seed: int, classifier: pointnet.Classifier):
-    """One move's inputs of scene ``seed``: segments, scores, a library of one model per class, truth."""
-    world = make_world(WorldConfig(camera=CameraConfig.kinect_v1(0.5), backend="mujoco"), seed=seed)
-    spec = Spec.create(PerceptionConfig(), world.intrinsics, world.table_height, classifier)
-    state = init_state(spec)
-    for depth, T in zip(world.render([0, 10, 20]).depth, world.poses([0, 10, 20]), strict=True):
-        state = observe(spec, state, depth, T)
-    own = {m.class_name: m for m in world.models}
-    models = [own.get(c) or next(m for m in world.object_set.test if m.class_name == c) for c in classifier.classes]
-    owners = metrics.PointOwners(world.scene, world.models)
-    points, mask = np.asarray(state.segments.points), np.asarray(state.segments.mask)
-    truth = metrics.segment_truth(owners(points.reshape(-1, 3), mask.reshape(-1)).reshape(mask.shape), mask)
-    return world, state, models, truth
-
-
-def _open3d_move(points, mask, probs, models, targets, config: refine.RefineConfig, table_height: float):
-    """Eq. 2-4 with Open3D's ICP, one registration after another: (refined class [N], pose [N, 4, 4])."""
-    import open3d as o3d
-
-    reg = o3d.pipelines.registration
-    clouds = []
-    for t in targets:
-        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(t.samples()[0], np.float64)))
-        cloud.normals = o3d.utility.Vector3dVector(np.asarray(t.samples()[1], np.float64))
-        clouds.append((cloud, cKDTree(np.asarray(t.samples()[0], np.float64))))
-    criteria = reg.ICPConvergenceCriteria(1e-6, 1e-6, 30)
-    refined, poses = [], []
-    for n in range(len(points)):
-        seen = points[n][mask[n]].astype(np.float64)
-        if len(seen) < 3:
-            refined.append(int(np.argmax(probs[n])))
-            poses.append(np.eye(4))
-            continue
-        source = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(seen))
-        best = (-1.0, 0, np.eye(4))
-        for c in np.argsort(-probs[n])[: config.top_k]:
-            cloud, tree = clouds[c]
-            inits = np.asarray(pose.initial_poses(points[n], mask[n], np.asarray(targets[c].samples()[0]).mean(0),
-                                                  table_height, pose.even_yaws(config.hypotheses)), np.float64)
-            for T0 in inits:
-                result = reg.registration_icp(source, cloud, config.icp.max_correspondence, np.linalg.inv(T0),
-                                              reg.TransformationEstimationPointToPlane(), criteria)
-                T = result.transformation
-                moved = seen @ T[:3, :3].T + T[:3, 3]
-                near = tree.query(moved)[0] <= config.icp.inlier_distance
-                covered = cKDTree(moved).query(np.asarray(cloud.points))[0] <= config.icp.inlier_distance
-                rho = near.mean() * covered.mean()
-                if rho > best[0]:
-                    best = (rho, int(c), np.linalg.inv(T))
-        refined.append(best[1])
-        poses.append(best[2])
-    return np.asarray(refined), np.stack(poses)
+from jaxcls.experiments.moves import observed_move
+from jaxcls.experiments.peers import open3d_refine
+from jaxcls.perception import icp, pointnet, refine
 
 
 def _accuracy(refined, poses, world, truth, classes) -> tuple[int, int, int]:
@@ -108,7 +52,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", help="append the table to this Markdown file")
     args = parser.parse_args(argv)
     classifier = pointnet.load_classifier()
-    moves = [_move(seed, classifier) for seed in range(args.scenes)]
+    moves = [observed_move(seed, classifier) for seed in range(args.scenes)]
     ours = {
         "jaxcls refine (default): yaw (4-DoF), 8 yaws x 3 + best x 9 iterations, 256 points": refine.RefineConfig(),
         "jaxcls refine, 6-DoF, otherwise the default": refine.RefineConfig(icp=icp.ICPConfig(
@@ -132,8 +76,8 @@ def main(argv: list[str] | None = None) -> None:
     o3d_targets = [[icp.model_target(m, o3d_config.icp) for m in models] for _, _, models, _ in moves]
 
     def run_open3d():
-        return [_open3d_move(np.asarray(s.segments.points), np.asarray(s.segments.mask), np.asarray(s.probs),
-                             models, targets, o3d_config, w.table_height)
+        return [open3d_refine(np.asarray(s.segments.points), np.asarray(s.segments.mask), np.asarray(s.probs),
+                              models, targets, o3d_config, w.table_height)
                 for (w, s, models, _), targets in zip(moves, o3d_targets, strict=True)]
 
     contenders["Open3D registration_icp, 120 x 30 iterations, one after another (+ KD-tree rho)"] = (

@@ -4,8 +4,8 @@
     python benchmarks/refine_batched.py --save data/refine_moves.pkl        # once, where MuJoCo renders
     python benchmarks/refine_batched.py --moves data/refine_moves.pkl [--batch 64 256 1024] [--out BENCHMARKS.md]
 
-``--save`` observes 3 views of held-out built-in scenes (``benchmarks/refine.py``'s moves: segments, the
-shipped classifier's scores, one model per class) and pickles the inputs with the model library's arrays,
+``--save`` observes 3 views of held-out built-in scenes (``jaxcls.experiments.moves``, as ``benchmarks/refine.py``:
+segments, the shipped classifier's scores, one model per class) and pickles the inputs with the model library's arrays,
 so that the timing needs neither MuJoCo nor the object set (the GPU machine has neither). The timing tiles
 the moves to B episodes and runs ``jax.jit(jax.vmap(refine.refine))`` over them: one call, all B x 120
 registrations; medians over rounds after one warm-up call.
@@ -17,7 +17,6 @@ import argparse
 import datetime
 import pickle
 import statistics
-import sys
 import time
 from pathlib import Path
 
@@ -31,15 +30,13 @@ from jaxcls.perception import icp, refine
 
 def save(path: Path, scenes: int) -> None:
     """Observe the moves (needs MuJoCo and the object set) and pickle refine's inputs."""
-    sys.path.insert(0, str(Path(__file__).parent))
-    from refine import _move
-
+    from jaxcls.experiments.moves import observed_move
     from jaxcls.perception import pointnet
 
     classifier = pointnet.load_classifier()
     moves = []
     for seed in range(scenes):
-        world, state, models, _ = _move(seed, classifier)
+        world, state, models, _ = observed_move(seed, classifier)
         moves.append({"points": np.asarray(state.segments.points), "mask": np.asarray(state.segments.mask),
                       "probs": np.asarray(state.probs), "table_height": world.table_height})
         if seed == 0:  # the batch shares one library (the first scene's: one model per class)

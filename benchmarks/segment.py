@@ -1,16 +1,15 @@
-"""Segmentation quality and speed: both paths on fused scenes, scored against the posed object surfaces, and
-one move's chain (foreground, integration, extraction, segmentation) timed on the CPU and, batched, on a GPU.
+"""Segmentation speed: one move's chain (foreground, integration, extraction, segmentation), CPU and GPU.
 
-    python benchmarks/segment.py                                  # prints the Markdown sections
-    python benchmarks/segment.py --out-results RESULTS.md --out BENCHMARKS.md
+The CPU times it stage by stage and as ``perception.observe``; a GPU, batched over fused clouds.
 
-Scenes: the builtin set, ``synthetic`` (footprint gaps 3 mm - 3 cm) and ``touching`` (1-5 mm), depth from
-the ``mujoco`` backend at five hemisphere views from low to high elevation, fused into the default 0.6 m /
-128^3 volume. A surface point's ground truth is its nearest posed object surface; points more than 1 cm
-from every object are left out. "agreement" is the adjusted Rand index between the two paths' labels.
-Worlds come from ``make_world``; each frame goes through ``perception.observe`` (jitted: the JAX twin's
-move), whose surface the reference path segments too. The speed rows time the stages ``observe``
-composes one by one, then ``observe`` itself.
+    python benchmarks/segment.py                                  # prints the Markdown section
+    python benchmarks/segment.py --out BENCHMARKS.md
+
+Scenes: the builtin set's (``jaxcls.experiments.segmentation``: ``mujoco`` depth at five hemisphere views from
+low to high elevation, fused into the default 0.6 m / 128^3 volume). The CPU rows time the stages ``observe``
+composes one by one, then ``observe`` itself, on the 5th view of ``synthetic`` scene 0 after four fused; the GPU
+rows batch the 5-view surfaces of ``--seeds`` scenes per kind. The segmentation quality of the same scenes is
+``experiments/segmentation.py``'s (it was this script's ``--out-results`` section).
 """
 
 from __future__ import annotations
@@ -22,77 +21,35 @@ import sys
 import jax
 import jax.numpy as jnp
 import numpy as np
-from sklearn.metrics import adjusted_rand_score
 
-from jaxcls import metrics, perception, report
-from jaxcls.geometry import CameraConfig, Intrinsics
+from jaxcls import perception, report
+from jaxcls.experiments.segmentation import KINDS, VIEWS, fused, render_scene
+from jaxcls.geometry import Intrinsics
 from jaxcls.perception import foreground, segment, tsdf
-from jaxcls.world import WorldConfig, make_world, scenes
-
-VIEWS = (20, 35, 50, 65, 80)
-KINDS = {"synthetic": scenes.SceneConfig(), "touching": scenes.SceneConfig(min_gap=0.001, max_gap=0.005)}
-
-
-def render_scene(kind: str, seed: int, scale: float):
-    """(world, depth [V, H, W], T_wc [V, 4, 4], ground-truth function of points) of one scene at ``VIEWS``."""
-    world = make_world(WorldConfig(scene=KINDS[kind], camera=CameraConfig.kinect_v1(scale), backend="mujoco"), seed)
-    depth = world.render(list(VIEWS)).depth
-    truth = metrics.PointOwners(world.scene, world.models)  # nearest posed object within 1 cm, else -1
-    return world, np.asarray(depth), np.asarray(world.poses(list(VIEWS)), np.float32), truth
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", type=int, default=12, help="scenes per kind (seeds 0..n-1)")
+    parser.add_argument("--seeds", type=int, default=12, help="scenes per kind (seeds 0..n-1) for the GPU batch")
     parser.add_argument("--scale", type=float, default=1.0, help="image scale of the Kinect v1 (1 = 640x480)")
     parser.add_argument("--max-points", type=int, default=16384, help="static size of the extracted surface")
     parser.add_argument("--repeats", type=int, default=10)
     parser.add_argument("--gpu-batch", type=int, nargs="*", default=[64, 256])
     parser.add_argument("--out", help="append the speed section to this Markdown file")
-    parser.add_argument("--out-results", help="append the quality section to this Markdown file")
+    parser.add_argument("--out-results", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.out_results:
+        parser.error("--out-results: the quality table is experiments/segmentation.py's now "
+                     f"(python experiments/segmentation.py --seeds {args.seeds} --out {args.out_results})")
     settings = perception.PerceptionConfig(shapes=perception.ShapeConfig(surface_points=args.max_points))
     intr = Intrinsics.kinect_v1(args.scale)
     res = f"{intr.width}x{intr.height}"
     cpu_device = jax.devices("cpu")[0]
     cpu = report.cpu_name()
-    observe = jax.jit(perception.observe)  # one move: foreground, integration, extraction, `segment_jax`
+    observe = jax.jit(perception.perceive)  # one move: foreground, integration, extraction, `segment_jax`
 
     def spec_of(world) -> perception.Spec:
         return perception.Spec.create(settings, world.intrinsics, world.table_height)
-
-    scores: dict[tuple[str, int, str], list[float]] = {}
-    clouds = []  # fused 5-view surfaces, for the GPU batch
-    with jax.default_device(cpu_device):
-        for kind in KINDS:
-            for seed in range(args.seeds):
-                world, depth, Ts, truth = render_scene(kind, seed, args.scale)
-                spec = spec_of(world)
-                state = perception.init_state(spec)
-                for v in range(len(VIEWS)):
-                    state = observe(spec, state, jnp.asarray(depth[v]), jnp.asarray(Ts[v]))
-                    if v + 1 not in (1, 5):
-                        continue
-                    s = state.surface
-                    p, n, m = np.asarray(s.points), np.asarray(s.normals), np.asarray(s.mask)
-                    gt = truth(p, m)
-                    ref = np.asarray(segment.segment(spec, p, n, m).labels)
-                    twin = np.asarray(state.segments.labels)
-                    sel, either = gt >= 0, (ref >= 0) | (twin >= 0)
-                    scores.setdefault((kind, v + 1, "reference"), []).append(adjusted_rand_score(gt[sel], ref[sel]))
-                    scores.setdefault((kind, v + 1, "jax"), []).append(adjusted_rand_score(gt[sel], twin[sel]))
-                    scores.setdefault((kind, v + 1, "agreement"), []).append(adjusted_rand_score(ref[either],
-                                                                                                 twin[either]))
-                    if v + 1 == 5:
-                        clouds.append((p, n, m))
-                print(kind, seed, {k: round(x[-1], 3) for k, x in scores.items() if k[0] == kind}, file=sys.stderr)
-    quality = [(kind, views, what, f"{np.mean(v):.3f}", f"{np.min(v):.3f}", " ".join(f"{x:.2f}" for x in v))
-               for (kind, views, what), v in sorted(scores.items(), key=lambda kv: (kv[0][0], kv[0][1]))]
-    report.publish(report.section(
-        f"Segmentation quality, {res} depth fused into 128^3, {args.seeds} scenes per kind, "
-        f"{datetime.date.today()}", argv, ("scenes", "views", "path", "mean ARI", "min ARI", "per scene"),
-        quality, intro="ARI against the posed object surfaces; `agreement` is the twin against the reference."),
-        args.out_results)
 
     rows: list[tuple[str, ...]] = []
     with jax.default_device(cpu_device):
@@ -124,9 +81,15 @@ def main(argv: list[str] | None = None) -> None:
 
     notes = []
     if jax.default_backend() == "gpu":
+        clouds = []  # fused 5-view surfaces of every scene, for the GPU batch
+        with jax.default_device(cpu_device):
+            for kind in KINDS:
+                for seed in range(args.seeds):
+                    surface = fused(kind, seed, args.scale, settings, observe)[3][len(VIEWS)].surface
+                    clouds.append(tuple(np.asarray(a) for a in (surface.points, surface.normals, surface.mask)))
         gpu = f"GPU ({jax.devices()[0].device_kind})"
         batched_seg = jax.jit(jax.vmap(segment.segment_jax, in_axes=(None, 0, 0, 0)))
-        batched_move = jax.jit(jax.vmap(perception.observe, in_axes=(None, 0, 0, 0)))
+        batched_move = jax.jit(jax.vmap(perception.perceive, in_axes=(None, 0, 0, 0)))
         for batch in args.gpu_batch:
             pick = [clouds[i % len(clouds)] for i in range(batch)]
             p, n, m = (jnp.asarray(np.stack(a)) for a in zip(*pick, strict=True))

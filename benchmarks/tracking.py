@@ -44,8 +44,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxcls import geometry, report
+from jaxcls import report
 from jaxcls.config import load_config
+from jaxcls.experiments.peers import ITERATIONS, MAX_CORRESPONDENCE, Open3DTracker
 from jaxcls.geometry import Intrinsics
 from jaxcls.perception import observation, tracking, tsdf
 from jaxcls.perception.settings import PerceptionConfig, Spec
@@ -54,9 +55,6 @@ from jaxcls.world.dataset import DatasetConfig
 
 CENTRE_HEIGHT = 0.05  # m above the table: the point whose displacement is the translation error
 SURFACE_POINTS = 16384  # the model's surface samples (``ShapeConfig.surface_points``' default)
-MAX_CORRESPONDENCE = 0.02  # m, Open3D's pair gate (ours: 0.01 at the finest level, x2 per coarser level)
-ITERATIONS = 20  # Open3D's most ICP iterations (ours: 3 levels x 5 Gauss-Newton steps)
-STRIDE = 2  # every n-th pixel of the frame is a source point (ours' finest level)
 
 
 @functools.partial(jax.jit, static_argnames=("intrinsics", "config"))
@@ -66,57 +64,6 @@ def _ours(depth: jax.Array, T_init: jax.Array, points: jax.Array, normals: jax.A
     """One frame registered to the model and checked: (``Fit``, [] bool accepted)."""
     fit = tracking.register(depth, intrinsics, T_init, points, normals, mask, table_height, config)
     return fit, tracking.accept(fit, T_init, config, jnp.zeros((), bool))
-
-
-# --------------------------------------------------------------------------- the peer (also benchmarks/move.py's)
-
-
-class Open3DTracker:
-    """Frame-to-model registration with Open3D: the frame's foreground points (every ``stride``-th pixel, camera
-    frame) onto the model's points with normals, point-to-plane ICP from the initial pose."""
-
-    def __init__(self, intrinsics: Intrinsics, floor: float, max_depth: float, stride: int = STRIDE,
-                 max_correspondence: float = MAX_CORRESPONDENCE, iterations: int = ITERATIONS,
-                 huber: float | None = None):
-        import open3d as o3d
-
-        self.o3d, self.reg = o3d, o3d.pipelines.registration
-        self.rays = np.asarray(geometry.pixel_rays(intrinsics), np.float64)[::stride, ::stride]
-        self.stride, self.floor, self.max_depth = stride, floor, max_depth
-        self.max_correspondence = max_correspondence
-        self.criteria = self.reg.ICPConvergenceCriteria(1e-6, 1e-6, iterations)
-        kernel = () if huber is None else (self.reg.HuberLoss(huber),)
-        self.estimation = self.reg.TransformationEstimationPointToPlane(*kernel)
-
-    def source(self, depth: np.ndarray, T_init: np.ndarray):
-        """The frame's foreground points in the camera frame: depth within range, world z above the floor."""
-        d = np.asarray(depth, np.float64)[::self.stride, ::self.stride]
-        ok = np.isfinite(d) & (d > 0) & (d <= self.max_depth)
-        d = np.where(ok, d, 0.0)
-        points = self.rays * d[..., None]
-        T = np.asarray(T_init, np.float64)
-        ok &= points @ T[2, :3] + T[2, 3] > self.floor
-        return self.o3d.geometry.PointCloud(self.o3d.utility.Vector3dVector(points[ok]))
-
-    def target(self, points: np.ndarray, normals: np.ndarray):
-        """The model as Open3D's point cloud with normals (points, normals: [P, 3], real rows only)."""
-        cloud = self.o3d.geometry.PointCloud(self.o3d.utility.Vector3dVector(np.asarray(points, np.float64)))
-        cloud.normals = self.o3d.utility.Vector3dVector(np.asarray(normals, np.float64))
-        return cloud
-
-    def icp(self, source, target, T_init: np.ndarray):
-        """Open3D's ``RegistrationResult``: ``transformation`` is the registered T_wc."""
-        return self.reg.registration_icp(source, target, self.max_correspondence, np.asarray(T_init, np.float64),
-                                         self.estimation, self.criteria)
-
-    def register(self, depth: np.ndarray, T_init: np.ndarray, points: np.ndarray, normals: np.ndarray
-                 ) -> np.ndarray:
-        """[4, 4] T_wc of the frame registered to the model from ``T_init`` (``T_init`` itself with < 3 model
-        or frame points)."""
-        source = self.source(depth, T_init)
-        if len(points) < 3 or len(source.points) < 3:
-            return np.asarray(T_init, np.float64)
-        return np.asarray(self.icp(source, self.target(points, normals), T_init).transformation)
 
 
 # --------------------------------------------------------------------------- scenes

@@ -23,6 +23,7 @@ from scipy.special import log_softmax
 
 from jaxcls import metrics, report
 from jaxcls.config import load_config
+from jaxcls.experiments.in_scene import InSceneConfig, evaluate
 from jaxcls.perception import pointnet
 
 
@@ -34,8 +35,6 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--write", help="save the calibrated weights here (.msgpack + .json)")
     parser.add_argument("--out", help="append the table to this Markdown file")
     args = parser.parse_args(argv)
-    from classify_in_scene import InSceneConfig, evaluate  # the sibling script
-
     config = load_config(InSceneConfig, "classify_in_scene", [f"scenes={args.scenes}", f"seed={args.seed}"])
     worlds = {name: dataclasses.replace(w, scene=dataclasses.replace(w.scene, split="train"))
               for name, w in config.worlds.items()}

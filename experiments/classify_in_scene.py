@@ -10,7 +10,7 @@ counts each segment is labelled with its majority ground-truth object (``metrics
 nearest posed object surface of its points) and its purity recorded; segments below ``purity`` are
 reported apart, segments of clutter objects are not scored (the paper's protocol). Outputs in
 ``out_dir``: ``results.json`` (every scored segment), ``confusion.png`` and ``reliability.png``; the
-Markdown tables go to stdout and ``--out``.
+Markdown tables go to stdout and ``--out``. The config and the evaluation are ``jaxcls.experiments.in_scene``.
 """
 
 from __future__ import annotations
@@ -21,91 +21,13 @@ import dataclasses
 import json
 from pathlib import Path
 
-import jax
 import numpy as np
-from scipy.special import logsumexp, softmax
-from tqdm.auto import tqdm
+from scipy.special import logsumexp
 
-from jaxcls import geometry, io, metrics, perception, report, viz
-from jaxcls.config import bounded, check_bounds, load_config, save_config
+from jaxcls import io, metrics, report, viz
+from jaxcls.config import load_config, save_config
+from jaxcls.experiments.in_scene import SMALL_SEGMENT, InSceneConfig, confusion, evaluate
 from jaxcls.perception import pointnet
-from jaxcls.perception.settings import PerceptionConfig
-from jaxcls.world import WorldConfig, make_world
-from jaxcls.world.dataset import scene_key, scene_seeds
-from jaxcls.world.objects import object_set_from_config
-
-SMALL_SEGMENT = 256  # points: segments smaller than this are reported apart among the errors
-
-
-@dataclasses.dataclass(frozen=True)
-class InSceneConfig:
-    """``experiments/classify_in_scene.py``: which worlds, how many scenes and paths, which weights."""
-
-    out_dir: str = "runs/classify_in_scene"
-    seed: int = 0
-    scenes: int = bounded(10, ge=1)  # per world
-    paths: int = bounded(2, ge=1)  # random view paths per scene
-    views: tuple[int, ...] = bounded((1, 3, 5, 10), ge=1)  # fused views after which segments are scored
-    purity: float = bounded(0.8, ge=0.0, le=1.0)  # segments below this share of their majority object: apart
-    weights: dict[str, str] = dataclasses.field(default_factory=lambda: {"shipped": ""})  # "" = shipped
-    worlds: dict[str, WorldConfig] = dataclasses.field(default_factory=dict)
-    perception: PerceptionConfig = dataclasses.field(default_factory=PerceptionConfig)
-
-    def __post_init__(self) -> None:
-        check_bounds(self)
-        if not self.worlds:
-            raise ValueError("worlds: name at least one world (see jaxcls/configs/classify_in_scene.yaml)")
-
-
-def evaluate(config: InSceneConfig, classifiers: dict[str, pointnet.Classifier],
-             show_progress: bool = True) -> dict[str, list[dict]]:
-    """Per set of weights, one record per segment that belongs to a target object: world, scene, path,
-    views, true and predicted class, confidence (calibrated, if the weights are), purity, size,
-    uncalibrated logits. Every set of weights classifies the same segments (each scene is observed once)."""
-    records = {name: [] for name in classifiers}
-    for world_name, world_config in config.worlds.items():
-        object_set = object_set_from_config(world_config.objects)
-        for name, classifier in classifiers.items():
-            classifier.check_classes(object_set.classes, f"world {world_name!r} (weights {name!r})")
-        seeds = scene_seeds(config.seed, config.scenes)
-        for s in tqdm(range(config.scenes), desc=world_name, disable=not show_progress):
-            world = make_world(world_config, seeds[s], object_set=object_set)
-            owners = metrics.PointOwners(world.scene, world.models)
-            target = np.array([o.target for o in world.scene.objects])
-            label = np.array([object_set.class_index(o.class_name) for o in world.scene.objects])
-            # No classifier in the spec: the segments are classified once below, logits first.
-            spec = perception.Spec.create(config.perception, world.intrinsics, world.table_height)
-            rng = np.random.default_rng([config.seed, s])
-            for p in range(config.paths):
-                path = geometry.random_view_path(rng, world.viewpoints[:, :3, 3], max(config.views),
-                                   world_config.viewpoints.candidate_radius)
-                depth, T_wc, _, _ = world.measure(jax.random.fold_in(scene_key(config.seed, s), p), path)
-                state = perception.init_state(spec)
-                for k, (d, T) in enumerate(zip(depth, T_wc, strict=True), start=1):
-                    state = perception.observe(spec, state, d, T)
-                    if k not in config.views:
-                        continue
-                    seg = state.segments
-                    pts, mask = np.asarray(seg.points), np.asarray(seg.mask)
-                    truth = metrics.segment_truth(owners(pts.reshape(-1, 3), mask.reshape(-1)).reshape(mask.shape),
-                                                  mask)
-                    scored = [n for n in np.flatnonzero((truth.object >= 0) & (truth.size > 0))
-                              if target[truth.object[n]]]
-                    for name, classifier in classifiers.items():
-                        scores = np.asarray(pointnet.logits(classifier, seg.points, seg.mask))
-                        probs = softmax(scores / classifier.temperature, axis=1)  # what pointnet.classify gives
-                        records[name] += [{
-                            "world": world_name, "scene": s, "path": p, "views": k, "object": int(truth.object[n]),
-                            "true": int(label[truth.object[n]]), "predicted": int(probs[n].argmax()),
-                            "confidence": float(probs[n].max()), "purity": float(truth.purity[n]),
-                            "size": int(truth.size[n]), "logits": scores[n].round(4).tolist()} for n in scored]
-    return records
-
-
-def _confusion(rows: list[dict], classes: tuple[str, ...]) -> np.ndarray:
-    from sklearn.metrics import confusion_matrix
-
-    return confusion_matrix([r["true"] for r in rows], [r["predicted"] for r in rows], labels=np.arange(len(classes)))
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -140,7 +62,7 @@ def main(argv: list[str] | None = None) -> None:
                                 f"{correct.mean():.3f}" if len(pure) else "", len(pure),
                                 f"{cal.ece:.3f}", f"{cal_as_trained.ece:.3f}", wrong_conf, len(impure), impure_acc))
                 if v in (1, max(config.views)):
-                    confusions[f"{name}, {world_name}, {v} views"] = _confusion(pure, classes)
+                    confusions[f"{name}, {world_name}, {v} views"] = confusion(pure, classes)
                     reliabilities[f"{name}, {world_name}, {v} views"] = cal
         for world_name in [*config.worlds, "all"]:
             pure = [r for r in records if (world_name == "all" or r["world"] == world_name)

@@ -25,6 +25,7 @@ from tqdm.auto import tqdm
 
 from jaxcls import geometry, metrics, perception, report
 from jaxcls.config import load_config
+from jaxcls.experiments.in_scene import InSceneConfig
 from jaxcls.perception import pointnet, segment
 from jaxcls.world import make_world
 from jaxcls.world.dataset import scene_key, scene_seeds
@@ -81,8 +82,6 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", help="append the tables to this Markdown file")
     args = parser.parse_args(argv)
-    from classify_in_scene import InSceneConfig  # the sibling script's config schema
-
     world_config = load_config(InSceneConfig, "classify_in_scene").worlds["synthetic"]
     classifier = pointnet.load_classifier()
     rng = np.random.default_rng(args.seed)

@@ -19,20 +19,16 @@ with the truth after moves 1, 3 and T: translation (mm) and rotation (deg), medi
 from __future__ import annotations
 
 import argparse
-import sys
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import jaxlie
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import table1
-
 from jaxcls import io, metrics, report
 from jaxcls.config import load_config
 from jaxcls.episode import protocol
+from jaxcls.experiments.table1.scoring import row_scores
 from jaxcls.perception import tracking
 from jaxcls.world.dataset import DatasetConfig, scene_key
 from jaxcls.world.render.sensor import perturb_poses
@@ -99,8 +95,7 @@ def main(argv: list[str] | None = None) -> None:
             if not keys:
                 continue
             a = [mine[k] for k in keys]
-            end, mid = table1.row_scores(a, args.classes, T, args.resamples), table1.row_scores(a, args.classes, half,
-                                                                                                 args.resamples)
+            end, mid = row_scores(a, args.classes, T, args.resamples), row_scores(a, args.classes, half, args.resamples)
             gain = metrics.paired_difference(protocol.per_scene(a, T), protocol.per_scene(a, half), args.classes,
                                              resamples=args.resamples)
             if name == baseline:

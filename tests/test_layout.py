@@ -1,5 +1,6 @@
-"""The package layout's rules, read from the source: imports run one way (world -> perception -> ... ->
-commands), and the pipeline's wiring and the world set-up each have one owner."""
+"""The package layout's rules, read from the source: imports run one way (world -> perception -> planning ->
+episode -> experiments -> commands), scripts import the package and never each other, and the pipeline's wiring
+and the world set-up each have one owner."""
 
 from __future__ import annotations
 
@@ -15,15 +16,19 @@ PACKAGE = ROOT / "jaxcls"
 # What each layer must never import (prefixes of module names).
 FORBIDDEN = {
     "jaxcls.world": ("jaxcls.perception", "jaxcls.planning", "jaxcls.episode", "jaxcls.active", "jaxcls.learn",
-                     "jaxcls.commands", "jaxcls.cli", "jaxcls.viz", "jaxcls.report"),
+                     "jaxcls.experiments", "jaxcls.commands", "jaxcls.cli", "jaxcls.viz", "jaxcls.report"),
     "jaxcls.perception": ("jaxcls.world", "jaxcls.planning", "jaxcls.episode", "jaxcls.active", "jaxcls.learn",
-                          "jaxcls.commands", "jaxcls.cli", "jaxcls.viz", "jaxcls.report"),
-    "jaxcls.planning": ("jaxcls.world", "jaxcls.episode", "jaxcls.active", "jaxcls.learn", "jaxcls.commands",
-                        "jaxcls.cli", "jaxcls.viz", "jaxcls.report"),
-    "jaxcls.learn": ("jaxcls.commands", "jaxcls.cli", "jaxcls.episode", "jaxcls.active"),
-    "jaxcls.episode": ("jaxcls.commands", "jaxcls.cli", "jaxcls.learn"),
+                          "jaxcls.experiments", "jaxcls.commands", "jaxcls.cli", "jaxcls.viz", "jaxcls.report"),
+    "jaxcls.planning": ("jaxcls.world", "jaxcls.episode", "jaxcls.active", "jaxcls.learn", "jaxcls.experiments",
+                        "jaxcls.commands", "jaxcls.cli", "jaxcls.viz", "jaxcls.report"),
+    "jaxcls.learn": ("jaxcls.commands", "jaxcls.cli", "jaxcls.episode", "jaxcls.active", "jaxcls.experiments"),
+    "jaxcls.episode": ("jaxcls.commands", "jaxcls.cli", "jaxcls.learn", "jaxcls.experiments"),
+    # The experiments' reusable logic (what experiments/ and benchmarks/ import) sits between the episode and
+    # the commands.
+    "jaxcls.experiments": ("jaxcls.commands", "jaxcls.cli"),
     # The shared helpers at the top sit below every layer.
-    **{f"jaxcls.{m}": ("jaxcls.world", "jaxcls.perception", "jaxcls.learn", "jaxcls.commands", "jaxcls.cli")
+    **{f"jaxcls.{m}": ("jaxcls.world", "jaxcls.perception", "jaxcls.learn", "jaxcls.experiments", "jaxcls.commands",
+                       "jaxcls.cli")
        for m in ("allocator", "compile_cache", "geometry", "math", "config", "io", "report", "viz")},
 }
 
@@ -63,6 +68,18 @@ def _violations(rules: dict[str, tuple[str, ...]], root: Path = ROOT) -> list[st
 
 def test_imports_run_one_way():
     assert _violations(FORBIDDEN) == []
+
+
+def test_scripts_import_the_package_not_each_other():
+    """experiments/ and benchmarks/ are command lines over the package (``jaxcls.experiments`` holds what they
+    share): no script imports another, by name or from its file."""
+    scripts = [*(ROOT / "experiments").glob("*.py"), *(ROOT / "benchmarks").glob("*.py")]
+    names = {p.stem for p in scripts}
+    bad = [f"{p.relative_to(ROOT)} imports {m}" for p in scripts for m in sorted(imports_of(p))
+           if m.split(".")[0] in names]
+    bad += [f"{p.relative_to(ROOT)} loads a module from a file" for p in scripts
+            if "spec_from_file_location" in p.read_text()]
+    assert bad == []
 
 
 def test_the_rule_catches_a_backward_import(tmp_path):

@@ -3,6 +3,8 @@ and returns each object's pose; empty segments keep their prior; one compilation
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -86,6 +88,13 @@ def test_refine_compiles_once_per_library_and_config(scene):
         refine.refine_jit(state.segments.points + shift, state.segments.mask, state.probs, library, config,
                           world.table_height + shift)
     assert refine.refine_jit._cache_size() == before + 1
+    # No pruning (every hypothesis registered to the end): the same class as the pruned run's, valid poses.
+    whole = refine.refine_jit(state.segments.points, state.segments.mask, state.probs, library,
+                              dataclasses.replace(config, prune_after=4), world.table_height)
+    pruned = refine.refine_jit(state.segments.points, state.segments.mask, state.probs, library, config,
+                               world.table_height)
+    assert np.all(np.isfinite(np.asarray(whole.pose))) and np.asarray(whole.valid).any()
+    assert np.mean(np.asarray(whole.refined) == np.asarray(pruned.refined)) >= 0.6
 
 
 def test_library_and_config_errors_name_the_problem(scene):

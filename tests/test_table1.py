@@ -1,5 +1,6 @@
-"""experiments/table1.py and episode.protocol: an interrupted experiment resumes without redoing or losing an
-episode; same seed, same numbers; the table and CSV against hand-made episodes; bad inputs refused."""
+"""experiments/table1.py (the command line), jaxcls.experiments.table1 (its logic) and episode.protocol: an
+interrupted experiment resumes without redoing or losing an episode; same seed, same numbers; the table and CSV
+against hand-made episodes; bad inputs refused."""
 
 from __future__ import annotations
 
@@ -17,6 +18,8 @@ import pytest
 from jaxcls import io, metrics
 from jaxcls.config import ConfigError, load_config
 from jaxcls.episode import protocol
+from jaxcls.experiments.table1 import data, runner, tables
+from jaxcls.experiments.table1.config import Table1Config
 from jaxcls.world.objects import ObjectSetConfig, object_set_from_config
 
 ROOT = Path(__file__).parent.parent
@@ -24,6 +27,7 @@ ROOT = Path(__file__).parent.parent
 
 @pytest.fixture(scope="module")
 def table1():
+    """The command line, ``experiments/table1.py``, loaded from its file (the folder is not a package)."""
     spec = importlib.util.spec_from_file_location("table1", ROOT / "experiments" / "table1.py")
     module = importlib.util.module_from_spec(spec)
     sys.modules["table1"] = module
@@ -87,8 +91,8 @@ def test_interrupted_experiment_resumes_and_the_same_seed_gives_the_same_numbers
 
     # The same config from scratch, one compiled program per pass over the scenes (as on a CPU with many
     # rows): the same records, and every program's memory maps freed afterwards (vm.max_map_count).
-    monkeypatch.setattr(table1, "CPU_PROGRAMS_PER_PASS", 1)
-    assert table1.passes([1, 2, 3], "cpu") == [[1], [2], [3]] and table1.passes([1, 2, 3], "gpu") == [[1, 2, 3]]
+    monkeypatch.setattr(runner, "CPU_PROGRAMS_PER_PASS", 1)
+    assert runner.passes([1, 2, 3], "cpu") == [[1], [2], [3]] and runner.passes([1, 2, 3], "gpu") == [[1, 2, 3]]
     jax.clear_caches()  # "b" compiles its programs afresh
     maps_before = _memory_maps()
     table1.main(_small(tmp_path, "b"))
@@ -158,7 +162,7 @@ def _record(row: str, scene: int, run: int, true: list[int], labels: list[list[i
             "true": true, "prior": labels, "refined": labels}
 
 
-def test_table_and_csv_against_hand_made_episodes(table1):
+def test_table_and_csv_against_hand_made_episodes():
     """Two scenes, one run each: VisOcclHistGR gets scene 0 all right after move 2 and one object wrong in
     scene 1; PointNetSingleGR (one move) gets one wrong in each scene. The pooled scores, the per-move CSV
     and the moves-to-correct are checked against classification_scores and hand counts."""
@@ -168,9 +172,9 @@ def test_table_and_csv_against_hand_made_episodes(table1):
         _record("single_gr", 0, 0, [0, 1, 2], [[0, 2, 2]]),
         _record("single_gr", 1, 0, [1, 2, 3], [[1, 2, -1]]),
     ]
-    config = table1.Table1Config(moves=2, runs=1, rows=("single_gr", "vis_occl_hist_gr"), classifiers={"c": ""},
-                                 resamples=100)
-    markdown, rows, curves = table1.tables(config, records, 4, None, ["x"])
+    config = Table1Config(moves=2, runs=1, rows=("single_gr", "vis_occl_hist_gr"), classifiers={"c": ""},
+                          resamples=100)
+    markdown, rows, curves = tables.tables(config, records, 4, None, ["x"])
     policy = metrics.classification_scores(np.array([0, 1, 2, 1, 2, 3]), np.array([0, 1, 2, 1, 2, 0]), 4)
     single = metrics.classification_scores(np.array([0, 1, 2, 1, 2, 3]), np.array([0, 2, 2, 1, 2, -1]), 4)
     line = next(x for x in markdown.splitlines() if x.startswith("| VisOcclHistGR |"))
@@ -206,22 +210,22 @@ def test_protocol_rows_and_starts():
     assert settings.episode.moves == 10 and settings.refine.library == "category"
 
 
-def test_bad_inputs_are_refused_naming_the_key_or_file(table1, tmp_path):
+def test_bad_inputs_are_refused_naming_the_key_or_file(tmp_path):
     with pytest.raises(ConfigError, match="unknown row 'vis_oops'"):
-        load_config(table1.Table1Config, "table1_synthetic", ["rows=[vis_oops]"])
+        load_config(Table1Config, "table1_synthetic", ["rows=[vis_oops]"])
     with pytest.raises(ValueError, match="neither a dataset folder nor a dataset config"):
-        table1.open_dataset(table1.Table1Config(dataset=str(tmp_path / "nothing"), classifiers={"c": ""}))
+        data.open_dataset(Table1Config(dataset=str(tmp_path / "nothing"), classifiers={"c": ""}))
     empty = tmp_path / "empty"
     empty.mkdir()
     with pytest.raises(ValueError, match=r"no config\.yaml"):
-        table1.open_dataset(table1.Table1Config(dataset=str(empty), classifiers={"c": ""}))
+        data.open_dataset(Table1Config(dataset=str(empty), classifiers={"c": ""}))
     # A dataset folder whose scenes were drawn from another object set than its config says.
     from jaxcls.world.dataset import DatasetConfig
 
-    data = tmp_path / "data"
+    folder = tmp_path / "data"
     argv = _small(tmp_path, "c")
-    config = load_config(table1.Table1Config, argv[1], argv[2:])
-    dataset, files = table1.open_dataset(config)
+    config = load_config(Table1Config, argv[1], argv[2:])
+    dataset, files = data.open_dataset(config)
     other = tmp_path / "other"
     other.mkdir()
     (other / "scene_000.npz").write_bytes(files[0].read_bytes())
@@ -231,10 +235,10 @@ def test_bad_inputs_are_refused_naming_the_key_or_file(table1, tmp_path):
                 other / "config.yaml")
     bad = dataclasses.replace(config, dataset=str(other), dataset_overrides=())
     with pytest.raises(ValueError, match=r"scene_000\.npz: the scene was drawn from objects"):
-        table1.run_episodes(bad, [other / "scene_000.npz"], table1.dataset_config(bad), tmp_path / "x.jsonl",
+        runner.run_episodes(bad, [other / "scene_000.npz"], data.dataset_config(bad), tmp_path / "x.jsonl",
                             show_progress=False)
     assert not (tmp_path / "x.jsonl").exists()
-    assert isinstance(dataset, DatasetConfig) and data.is_dir()
+    assert isinstance(dataset, DatasetConfig) and folder.is_dir()
     # A classifier trained on other classes.
     from jaxcls.perception import pointnet
 
@@ -242,6 +246,27 @@ def test_bad_inputs_are_refused_naming_the_key_or_file(table1, tmp_path):
     shipped = pointnet.load_classifier()
     pointnet.save_classifier(weights, dataclasses.replace(shipped, classes=tuple(f"c{i}" for i in shipped.classes)))
     with pytest.raises(ValueError, match=r"w.msgpack \(classifiers.mine\).*trained on classes"):
-        table1.run_episodes(dataclasses.replace(config, classifiers={"mine": str(weights)}), files, dataset,
+        runner.run_episodes(dataclasses.replace(config, classifiers={"mine": str(weights)}), files, dataset,
                             tmp_path / "y.jsonl", show_progress=False)
     assert not (tmp_path / "y.jsonl").exists()
+
+
+def test_fused_views_subsets_and_pose_errors():
+    """jaxcls.experiments.fused_views: seeded distinct view subsets (every view, in order, when k >= V); a
+    frame's pose error as the displacement of the scene's centre, its rotation and the spread about the
+    frames' mean error (a common offset blurs nothing)."""
+    from jaxcls.experiments import fused_views
+
+    chosen = fused_views.subset(0, 3, 4, 1, 12)
+    assert len(set(chosen.tolist())) == 4 and chosen.min() >= 0 and chosen.max() < 12
+    np.testing.assert_array_equal(chosen, fused_views.subset(0, 3, 4, 1, 12))
+    assert not np.array_equal(chosen, fused_views.subset(0, 3, 4, 2, 12))
+    np.testing.assert_array_equal(fused_views.subset(0, 3, 20, 0, 12), np.arange(12))
+    true = np.tile(np.eye(4), (3, 1, 1))
+    true[:, :3, 3] = [[0.5, 0, 1], [0, 0.5, 1], [-0.5, 0, 1]]
+    shifted = true.copy()
+    shifted[:, 0, 3] += 0.002  # every frame 2 mm off along x: the model moves, nothing blurs
+    errors = fused_views.pose_errors(shifted, true, table_height=0.1)
+    np.testing.assert_allclose(errors["translation_mm"], 2.0, atol=1e-6)
+    np.testing.assert_allclose(errors["relative_mm"], 0.0, atol=1e-6)
+    np.testing.assert_allclose(errors["rotation_deg"], 0.0, atol=1e-6)

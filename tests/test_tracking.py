@@ -82,7 +82,7 @@ def _track(config: TrackingConfig, intrinsics, table_height: float, batched: boo
 
 
 # ``observe`` jitted whole (the JAX segmenter traces): from Python its tracking stage runs op by op.
-_observe = jax.jit(perception.observe)
+_observe = jax.jit(perception.perceive)
 
 
 @pytest.fixture(scope="module")

@@ -224,7 +224,8 @@ def refine(points: jax.Array, mask: jax.Array, probs: jax.Array, library: ModelL
         models = jnp.take_along_axis(models, keep, axis=2)
         model_ok = jnp.take_along_axis(model_ok, keep, axis=2)
     first = dataclasses.replace(config.icp, iterations=config.prune_after)
-    remaining = dataclasses.replace(config.icp, iterations=config.icp.iterations - config.prune_after)
+    left = config.icp.iterations - config.prune_after  # 0: no pruning, every hypothesis runs to the end
+    remaining = dataclasses.replace(config.icp, iterations=left) if left else None
     prune_stride = -(-points.shape[1] // config.prune_points) if config.prune_points else 1
 
     def hypotheses(n, c, m):
@@ -245,7 +246,7 @@ def refine(points: jax.Array, mask: jax.Array, probs: jax.Array, library: ModelL
     def finish(n, m, T, ok):
         """The best hypothesis of model ``m`` on segment ``n`` (pose ``T``) registered to the end: (rho, pose)."""
         p, mk, tgt = points[n], mask[n], library.targets.select(m)
-        if remaining.iterations:
+        if remaining is not None:
             done = icp.icp(p, mk, tgt, T, remaining, seen_from)
             return done.rho, done.pose, done.valid & ok
         return icp.registration_ratio(p, mk & ok, tgt, T, config.icp.inlier_distance, seen_from)["rho"], T, ok

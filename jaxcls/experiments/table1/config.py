@@ -1,0 +1,65 @@
+"""Table 1's settings: which scenes, rows, runs and classifiers, and the move's settings."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+from jaxcls.config import bounded, check_bounds, load_config
+from jaxcls.episode import active, protocol, setup
+from jaxcls.perception.refine import RefineConfig
+from jaxcls.perception.settings import PerceptionConfig
+from jaxcls.planning.nbv import NBVConfig
+
+
+@dataclasses.dataclass(frozen=True)
+class Table1Config:
+    """``experiments/table1.py``: which scenes, rows, runs and classifiers; the move's settings."""
+
+    out_dir: str = "runs/table1_synthetic"
+    dataset: str = "synthetic"  # a dataset config (name or path) or a folder written by ``jaxcls dataset``
+    dataset_overrides: tuple[str, ...] = ()  # key=value changes to a dataset config (num_scenes, out_dir, ...)
+    seed: int = 0  # start views and episode keys
+    scenes: int = bounded(0, ge=0)  # the first this many scenes of the dataset; 0 = all
+    runs: int = bounded(10, ge=1)  # episodes per scene and row, from random start views
+    moves: int = bounded(10, ge=1)  # T
+    rows: tuple[str, ...] = protocol.PAPER_ROWS
+    oracle_scenes: int = bounded(7, ge=0)  # the oracle row runs on the first this many scenes
+    # The oracle's runs of a scene tried together (each tries every candidate at every move: runs x
+    # candidates moves in one vmapped call, ~45 MB each at 640x480). 0: all of a scene's runs on an
+    # accelerator (6.8x one at a time on an H100, BENCHMARKS.md), one at a time on the CPU (no faster there).
+    oracle_runs_per_call: int = bounded(0, ge=0)
+    # name: weights (a .msgpack path or a shipped name, "" = the shipped weights); no default, so that a
+    # config's own list is the whole list (OmegaConf merges mappings into the defaults).
+    classifiers: dict[str, str] = dataclasses.field(default_factory=dict)
+    decision: active.Decision = "evidence"  # how a segment's class is decided (``active.EpisodeConfig``)
+    perception: PerceptionConfig = dataclasses.field(default_factory=setup.episode_perception)
+    refine: RefineConfig = dataclasses.field(default_factory=setup.episode_refine)
+    nbv: NBVConfig = dataclasses.field(default_factory=setup.episode_nbv)
+    timing_moves: int = bounded(10, ge=0)  # one VisOcclHistGR episode timed module by module (0 = none)
+    resamples: int = bounded(2000, ge=100)  # bootstrap resamples
+
+    def __post_init__(self) -> None:
+        check_bounds(self)
+        for name in self.rows:
+            protocol.row(name, "rows")
+        if not self.classifiers:
+            raise ValueError("classifiers: name at least one (name: path, \"\" = the shipped weights)")
+
+    def results_defining(self) -> dict[str, Any]:
+        """What the stored episodes depend on (a rerun with another of these must use another out_dir)."""
+        return {k: v for k, v in dataclasses.asdict(self).items()
+                if k not in ("out_dir", "rows", "oracle_scenes", "oracle_runs_per_call", "timing_moves", "resamples",
+                             "scenes")}
+
+
+def check_out_dir(config: Table1Config, out: Path) -> None:
+    """An ``out_dir`` holding episodes of another config is refused (its records would mix)."""
+    previous = out / "config.yaml"
+    if previous.exists() and (out / "episodes.jsonl").exists():
+        old = load_config(Table1Config, previous)
+        if old.results_defining() != config.results_defining():
+            changed = sorted(k for k, v in config.results_defining().items() if old.results_defining().get(k) != v)
+            raise ValueError(f"{previous}: out_dir holds episodes of another config (keys {changed} differ); "
+                             "choose another out_dir")

@@ -1,0 +1,131 @@
+"""Table 1's episodes: every (classifier, row, scene, run) not yet stored, streamed to JSONL as each scene's
+runs of a row finish (an interrupted run resumes without redoing or losing an episode); one episode timed
+module by module."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+from tqdm.auto import tqdm
+
+from jaxcls import io, report
+from jaxcls.episode import active, protocol, runner, scoring, setup, sources
+from jaxcls.experiments.table1.config import Table1Config
+from jaxcls.perception import pointnet
+from jaxcls.world.dataset import DatasetConfig
+from jaxcls.world.objects import object_set_from_config
+
+# Linux caps a process's memory maps (vm.max_map_count, 65530 by default). On XLA's CPU backend each compiled
+# row program holds ~1,600-2,400 of them (its JIT-compiled code), so a process that kept every row's program
+# died with LLVM's "Cannot allocate memory" after ~30. On the CPU the rows run in passes over the scenes of at
+# most this many (classifier, row) programs each, freed after the pass (a scene is read once per pass).
+CPU_PROGRAMS_PER_PASS = 12
+
+
+def record_key(r: dict[str, Any]) -> tuple[str, str, int, int]:
+    """An episode's identity in the store: (classifier, row, scene, run)."""
+    return r["classifier"], r["row"], int(r["scene"]), int(r["run"])
+
+
+def runs_of(row: protocol.Row, runs: int) -> int:
+    """Episodes per scene of ``row``: one for PointNetFull (it has no start view), else ``runs``."""
+    return 1 if row.kind is protocol.Kind.FULL else runs
+
+
+def passes(programs: list, backend: str) -> list[list]:
+    """``programs`` in the groups that run together: all at once off the CPU, ``CPU_PROGRAMS_PER_PASS`` on it."""
+    size = CPU_PROGRAMS_PER_PASS if backend == "cpu" else max(1, len(programs))
+    return [programs[i:i + size] for i in range(0, len(programs), size)]
+
+
+def run_episodes(config: Table1Config, files: list[Path], dataset: DatasetConfig, store: Path,
+                 show_progress: bool = True) -> list[dict[str, Any]]:
+    """Every (classifier, row, scene, run) episode not yet in ``store`` (JSONL), appended as each scene's runs
+    of a row finish; returns all records of this config's rows and scenes."""
+    object_set = object_set_from_config(dataset.objects)
+    classifiers = {name: setup.load_classifier(path, object_set, f"classifiers.{name}")
+                   for name, path in config.classifiers.items()}
+    rows = {name: protocol.row(name) for name in config.rows}
+    done = {record_key(r) for r in io.read_jsonl(store)}
+    wanted = [(c, name, s, run) for s in range(len(files)) for c in classifiers for name, row in rows.items()
+              if row.kind is not protocol.Kind.ORACLE or s < config.oracle_scenes
+              for run in range(runs_of(row, config.runs))]
+    todo = [k for k in wanted if k not in done]
+    programs = [(c, name) for c in classifiers for name in rows if any(k[:2] == (c, name) for k in todo)]
+    with tqdm(total=len(wanted), initial=len(wanted) - len(todo), desc="episodes", unit="episode",
+              disable=not show_progress) as bar:
+        for group in passes(programs, jax.default_backend()):
+            episodes: dict[tuple[str, str], active.Episode] = {}
+            for s, path in enumerate(files):
+                scene_todo = [k for k in todo if k[2] == s and k[:2] in group]
+                if not scene_todo:
+                    continue
+                views = sources.dataset_source(path, dataset.objects)
+                truth = scoring.Truth.from_scene(views.scene, object_set)
+                starts = protocol.start_views(config.seed, s, config.runs, len(views.T_wc))
+                keys = protocol.run_keys(config.seed, s, config.runs)
+                for c, name in group:
+                    missing = sorted(k[3] for k in scene_todo if k[:2] == (c, name))
+                    if not missing:
+                        continue
+                    row = rows[name]
+                    if (c, name) not in episodes:
+                        episodes[c, name] = episode(config, row, classifiers[c], object_set, views,
+                                                    dataset.scene.split)
+                    bar.set_postfix(scene=s, classifier=c, row=name)
+                    records = row_records(config, row, episodes[c, name], views, truth, starts, keys, missing)
+                    io.append_jsonl(store, [{"classifier": c, "row": name, "scene": s, **r} for r in records])
+                    bar.update(len(records))
+            jax.clear_caches()  # the pass's compiled programs (and their memory maps) go
+    keep = set(wanted)
+    return [r for r in io.read_jsonl(store) if record_key(r) in keep]
+
+
+def episode(config: Table1Config, row: protocol.Row, classifier: pointnet.Classifier, object_set,
+            views: sources.Preloaded, scene_split: str) -> active.Episode:
+    """``row``'s episode of this config's move settings (``Row.episode`` owns the wiring)."""
+    base = setup.ActiveConfig(episode=active.EpisodeConfig(decision=config.decision), perception=config.perception,
+                              refine=config.refine, nbv=config.nbv)
+    return row.episode(base, config.moves, classifier, object_set, views.intrinsics, views.table_height, scene_split)
+
+
+def row_records(config: Table1Config, row: protocol.Row, episode: active.Episode, views: sources.Preloaded,
+                truth: scoring.Truth, starts: np.ndarray, keys: jax.Array, runs: list[int]) -> list[dict]:
+    """The records of ``runs`` of one row on one scene."""
+    if row.kind is protocol.Kind.FULL:
+        trace, _ = protocol.all_views(episode, views.depth, views.T_wc, keys[0])
+        return [protocol.episode_record(trace, truth, run=0, start=-1)]
+    if row.kind is protocol.Kind.ORACLE:
+        size = config.oracle_runs_per_call or (1 if jax.default_backend() == "cpu" else len(runs))
+        records = []
+        for chunk in (runs[i:i + size] for i in range(0, len(runs), size)):
+            traces = protocol.oracle_rollouts(episode, views.depth, views.T_wc, starts[chunk], keys[np.asarray(chunk)],
+                                              truth)
+            records += [protocol.episode_record(jax.tree.map(lambda x, i=i: x[i], traces), truth, run=r,
+                                                start=int(starts[r])) for i, r in enumerate(chunk)]
+        return records
+    # All runs (one compiled shape), brought to the host once.
+    traces = jax.device_get(protocol.rollouts(episode, views.depth, views.T_wc, starts, keys))
+    return [protocol.episode_record(jax.tree.map(lambda x, r=r: x[r], traces), truth, run=r,
+                                    start=int(starts[r])) for r in runs]
+
+
+def time_modules(config: Table1Config, files: list[Path], dataset: DatasetConfig) -> dict[str, Any]:
+    """One VisOcclHistGR episode of the first scene, each module timed outside jit (``runner.run``): the
+    median ms per module over its moves after the first, per classifier's weights (the first's)."""
+    object_set = object_set_from_config(dataset.objects)
+    name, path = next(iter(config.classifiers.items()))
+    classifier = setup.load_classifier(path, object_set, f"classifiers.{name}")
+    views = sources.dataset_source(files[0], dataset.objects)
+    row = protocol.ROWS["vis_occl_hist_gr"]
+    timed = episode(dataclasses.replace(config, moves=config.timing_moves), row, classifier, object_set, views,
+                    dataset.scene.split)
+    start = int(protocol.start_views(config.seed, 0, 1, len(views.T_wc))[0])
+    runner.run(timed, views, start, jax.random.PRNGKey(config.seed))  # compiles
+    log = runner.run(timed, views, start, jax.random.PRNGKey(config.seed))
+    times = {m: float(np.median([mv["times_ms"][m] for mv in log.moves[1:] or log.moves])) for m in active.MODULES}
+    return {"device": report.device_name(), "cpu": report.cpu_name(), "moves": len(log.moves), "times_ms": times}
