@@ -4,7 +4,7 @@
 
 For each world of the config (``synthetic``, ``touching`` gaps, ``real_like`` sensor noise with clutter;
 held-out instances only) and each scene seed, the camera walks a random path over the view hemisphere
-(a random start, then a random unvisited candidate within ``viewpoints.candidate_radius`` of the current
+(a random start, then a random unvisited candidate within ``nbv.radius`` of the current
 view, the paper's move), and every frame goes through ``perception.observe``. After the configured view
 counts each segment is labelled with its majority ground-truth object (``metrics.segment_truth``: the
 nearest posed object surface of its points) and its purity recorded; segments below ``purity`` are

@@ -23,10 +23,11 @@ import jax
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaxcls import geometry, metrics, perception, report
+from jaxcls import metrics, perception, report
 from jaxcls.config import load_config
 from jaxcls.experiments.in_scene import InSceneConfig
 from jaxcls.perception import pointnet, segment
+from jaxcls.planning import nbv
 from jaxcls.world import make_world
 from jaxcls.world.dataset import scene_key, scene_seeds
 
@@ -93,8 +94,7 @@ def main(argv: list[str] | None = None) -> None:
         label = np.array([classifier.classes.index(o.class_name) for o in world.scene.objects])
         spec = perception.Spec.create(intrinsics=world.intrinsics, table_height=world.table_height,
                                       classifier=classifier)
-        path = geometry.random_view_path(rng, world.viewpoints[:, :3, 3], max(args.views),
-                                         world_config.viewpoints.candidate_radius)
+        path = nbv.random_walk(rng, world.viewpoints, max(args.views))
         depth, T_wc, _, _ = world.measure(scene_key(args.seed, s), path)
         state = perception.init_state(spec)
         for k, (d, T) in enumerate(zip(depth, T_wc, strict=True), start=1):

@@ -35,10 +35,11 @@ import jax
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaxcls import geometry, io, metrics, perception, report
+from jaxcls import io, metrics, perception, report
 from jaxcls.config import bounded, check_bounds, load_config, save_config
 from jaxcls.perception import pointnet, pose, refine
 from jaxcls.perception.settings import PerceptionConfig
+from jaxcls.planning import nbv
 from jaxcls.world import WorldConfig, make_world
 from jaxcls.world.dataset import scene_key, scene_seeds
 from jaxcls.world.objects import object_set_from_config
@@ -84,8 +85,7 @@ def _walk(world, config: RegistrationConfig, spec, index: int, views: tuple[int,
     """Observe ``max(views)`` views of ``world`` along a random path; yield (views so far, state, seen
     from [max(views), 3] camera positions with NaN rows for views not yet taken)."""
     rng = np.random.default_rng([config.seed, index])
-    path = geometry.random_view_path(rng, world.viewpoints[:, :3, 3], max(views),
-                                     world.config.viewpoints.candidate_radius)
+    path = nbv.random_walk(rng, world.viewpoints, max(views))
     depth, T_wc, _, _ = world.measure(scene_key(config.seed, index), path)
     state = perception.init_state(spec)
     seen = np.full((max(views), 3), np.nan, np.float32)

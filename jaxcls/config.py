@@ -130,6 +130,21 @@ def _check_tree(node: DictConfig, source: str, prefix: str = "") -> None:
             raise ConfigError(f"{source}: key '{prefix}{f.name}' {why}")
 
 
+# Keys of earlier versions that every saved config still holds, and what took their place: dropped from a file
+# (its value is the one the run had: the same default), refused from the command line naming the new key.
+RETIRED = {"viewpoints.candidate_radius": "nbv.radius (the planner owns the candidate radius)"}
+
+
+def _drop_retired(layer: DictConfig, source: str, from_file: bool) -> None:
+    for key, instead in RETIRED.items():
+        parent, _, leaf = key.rpartition(".")
+        node = OmegaConf.select(layer, parent) if parent else layer
+        if isinstance(node, DictConfig) and leaf in node:
+            if not from_file:
+                raise ConfigError(f"{source}: key '{key}' is retired; use {instead}")
+            del node[leaf]
+
+
 def _schema(schema: type[T]) -> DictConfig:
     base = OmegaConf.structured(schema)
     OmegaConf.set_readonly(base, False)
@@ -163,6 +178,7 @@ def load_config(schema: type[T], path: str | Path | None = None, overrides: Sequ
             raise ConfigError(f"{path}: the config file is empty (write at least one key, or leave out --config)")
         if not isinstance(layer, DictConfig):
             raise ConfigError(f"{path}: expected a mapping at the top level")
+        _drop_retired(layer, str(path), from_file=True)
         if keep_only is not None:
             keep = {f.name for f in dataclasses.fields(keep_only)}
             for key in [k for k in layer if k not in keep]:
@@ -173,7 +189,9 @@ def load_config(schema: type[T], path: str | Path | None = None, overrides: Sequ
         bad = [o for o in overrides if "=" not in o]
         if bad:
             raise ConfigError(f"command line: overrides must look like key.sub=value, got {bad}")
-        cfg = _merge(cfg, OmegaConf.from_dotlist(list(overrides)), "command line")
+        layer = OmegaConf.from_dotlist(list(overrides))
+        _drop_retired(layer, "command line", from_file=False)
+        cfg = _merge(cfg, layer, "command line")
         _check_tree(cfg, "command line")
     try:
         return OmegaConf.to_object(cfg)

@@ -132,8 +132,6 @@ class ViewpointConfig:
     count: int = bounded(100, ge=1)
     radius: float = bounded(1.0, gt=0.0)
     min_elevation_deg: float = bounded(0.0, ge=0.0, lt=90.0)
-    # Views within this of the current one are a move's candidates (Sec. 3.3).
-    candidate_radius: float = bounded(0.5, gt=0.0)
 
     def __post_init__(self) -> None:
         check_bounds(self, "viewpoints.")
@@ -261,31 +259,6 @@ def hemisphere_viewpoints(center: np.ndarray, count: int = 100, radius: float = 
     directions = np.stack([ring * np.cos(azimuth), ring * np.sin(azimuth), z], axis=-1)
     center = np.asarray(center, float)
     return look_at(center + radius * directions, center)
-
-
-def candidate_views(view_positions: np.ndarray, current: np.ndarray, radius: float) -> np.ndarray:
-    """[V] bool: views within ``radius`` (Euclidean) of ``current: [3]``, the current position excluded.
-
-    view_positions: [V, 3]. The paper's candidate set of a move (Sec. 3.3, r = 0.5 m).
-    """
-    d = jnp.linalg.norm(jnp.asarray(view_positions) - jnp.asarray(current), axis=-1)
-    return (d <= radius) & (d > 1e-9)
-
-
-def random_view_path(rng: np.random.Generator, positions: np.ndarray, length: int, radius: float) -> list[int]:
-    """``length`` viewpoint indices of a random walk: a random start, then each time a random unvisited view
-    within ``radius`` of the current one (the paper's Random policy over its candidates; the nearest
-    unvisited view when no candidate is left). positions: [V, 3] m. At most V views."""
-    positions = np.asarray(positions, float)
-    path = [int(rng.integers(len(positions)))]
-    while len(path) < min(length, len(positions)):
-        near = np.flatnonzero(np.asarray(candidate_views(positions, positions[path[-1]], radius)))
-        fresh = [int(v) for v in near if v not in path]
-        if not fresh:
-            left = np.array([v for v in range(len(positions)) if v not in path])
-            fresh = [int(left[np.argmin(np.linalg.norm(positions[left] - positions[path[-1]], axis=1))])]
-        path.append(int(rng.choice(fresh)))
-    return path
 
 
 def opencv_to_mujoco_rotation(R_wc: np.ndarray) -> np.ndarray:

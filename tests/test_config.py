@@ -78,3 +78,13 @@ def test_absolute_thresholds_are_checked_against_the_volumes_voxels():
     load_config(RunConfig, None, ["perception.volume.resolution=64", "perception.segmentation.dbscan_eps=0.015"])
     with pytest.raises(ConfigError, match=r"perception\.foreground\.table_eps = 0\.004 m is 0\.85 voxels"):
         load_config(RunConfig, None, ["perception.foreground.table_eps=0.004"])
+
+
+def test_a_retired_key_is_dropped_from_old_files_and_refused_from_the_command_line(tmp_path):
+    from jaxcls.world.dataset import DatasetConfig
+
+    old = tmp_path / "config.yaml"
+    old.write_text("viewpoints:\n  count: 12\n  candidate_radius: 0.5\n")  # as every dataset saved it
+    assert load_config(DatasetConfig, old).viewpoints.count == 12
+    with pytest.raises(ConfigError, match=r"key 'viewpoints\.candidate_radius' is retired; use nbv\.radius"):
+        load_config(DatasetConfig, None, ["viewpoints.candidate_radius=0.4"])

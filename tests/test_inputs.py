@@ -51,7 +51,6 @@ def test_sensor_ranges_from_the_command_line_and_from_python():
     ("viewpoints.count=0", "viewpoints.count"),
     ("viewpoints.radius=0", "viewpoints.radius"),
     ("viewpoints.min_elevation_deg=90", "viewpoints.min_elevation_deg"),
-    ("viewpoints.candidate_radius=-1", "viewpoints.candidate_radius"),
 ])
 def test_world_ranges_name_the_dotted_key(override, key):
     with pytest.raises(ConfigError, match=rf"command line: key '{key}'"):

@@ -80,16 +80,18 @@ def _experiment():
 
 
 def test_random_paths_visit_distinct_views_near_each_other():
-    from jaxcls.geometry import hemisphere_viewpoints, random_view_path
+    from jaxcls.geometry import hemisphere_viewpoints
+    from jaxcls.planning.nbv import NBVConfig, random_walk
 
-    positions = hemisphere_viewpoints(np.zeros(3), 100)[:, :3, 3]
+    T_wc = hemisphere_viewpoints(np.zeros(3), 100)
+    positions = T_wc[:, :3, 3]
     rng = np.random.default_rng(0)
     for _ in range(5):
-        path = random_view_path(rng, positions, 10, 0.5)
+        path = random_walk(rng, T_wc, 10)  # the planner's candidate radius (nbv.radius, 0.5 m)
         assert len(set(path)) == 10
         steps = np.linalg.norm(np.diff(positions[path], axis=0), axis=1)
-        assert np.all(steps <= 0.5 + 1e-9)
-    assert sorted(random_view_path(rng, positions[:3], 10, 0.01)) == [0, 1, 2]  # no neighbours: nearest
+        assert np.all(steps <= NBVConfig().radius + 1e-6)
+    assert sorted(random_walk(rng, T_wc[:3], 10, NBVConfig(radius=0.01))) == [0, 1, 2]  # no neighbours: nearest
 
 
 def test_in_scene_evaluation_records_scored_segments():

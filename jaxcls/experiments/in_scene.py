@@ -3,7 +3,7 @@
 ``experiments/classify_stability.py`` use its config and evaluation).
 
 For each world of the config and each scene seed, the camera walks a random path over the view hemisphere (a
-random start, then a random unvisited candidate within ``viewpoints.candidate_radius`` of the current view, the
+random start, then a random unvisited candidate within ``nbv.radius`` of the current view, the
 paper's move), and every frame goes through ``perception.observe``. After the configured view counts each
 segment is labelled with its majority ground-truth object (``metrics.segment_truth``) and its purity recorded.
 """
@@ -17,10 +17,11 @@ import numpy as np
 from scipy.special import softmax
 from tqdm.auto import tqdm
 
-from jaxcls import geometry, metrics, perception
+from jaxcls import metrics, perception
 from jaxcls.config import bounded, check_bounds
 from jaxcls.perception import pointnet
 from jaxcls.perception.settings import PerceptionConfig
+from jaxcls.planning import nbv
 from jaxcls.world import WorldConfig, make_world
 from jaxcls.world.dataset import scene_key, scene_seeds
 from jaxcls.world.objects import object_set_from_config
@@ -68,8 +69,7 @@ def evaluate(config: InSceneConfig, classifiers: dict[str, pointnet.Classifier],
             spec = perception.Spec.create(config.perception, world.intrinsics, world.table_height)
             rng = np.random.default_rng([config.seed, s])
             for p in range(config.paths):
-                path = geometry.random_view_path(rng, world.viewpoints[:, :3, 3], max(config.views),
-                                                 world_config.viewpoints.candidate_radius)
+                path = nbv.random_walk(rng, world.viewpoints, max(config.views))
                 depth, T_wc, _, _ = world.measure(jax.random.fold_in(scene_key(config.seed, s), p), path)
                 state = perception.init_state(spec)
                 for k, (d, T) in enumerate(zip(depth, T_wc, strict=True), start=1):

@@ -38,6 +38,7 @@ from jaxcls import geometry, io
 from jaxcls.config import bounded, check_bounds
 from jaxcls.perception import foreground, observation, tsdf
 from jaxcls.perception.settings import PerceptionConfig, Spec
+from jaxcls.planning import nbv
 from jaxcls.world.objects import ObjectModel, ObjectSet, ObjectSetConfig
 from jaxcls.world.render.sensor import SensorConfig
 from jaxcls.world.render.types import BackendChoice
@@ -285,8 +286,7 @@ def scene_clouds(object_set: ObjectSet, split: Literal["train", "test"], object_
                                    camera=geometry.CameraConfig.kinect_v1(config.image_scale)),
                        int(rng.integers(2**31)), object_set=object_set)
     spec = Spec.create(perception or PerceptionConfig(), world.intrinsics, world.table_height)
-    path = geometry.random_view_path(rng, world.viewpoints[:, :3, 3], int(rng.integers(1, config.scene_max_views + 1)),
-                                     world.config.viewpoints.candidate_radius)
+    path = nbv.random_walk(rng, world.viewpoints, int(rng.integers(1, config.scene_max_views + 1)))
     depths, poses, _, _ = world.measure(jax.random.key(int(rng.integers(2**31))), path)
     state = init_state(spec)
     for depth, T in zip(depths, poses, strict=True):
