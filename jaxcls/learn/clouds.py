@@ -41,7 +41,7 @@ from jaxcls.perception.settings import PerceptionConfig, Spec
 from jaxcls.planning import nbv
 from jaxcls.world.objects import ObjectModel, ObjectSet, ObjectSetConfig
 from jaxcls.world.render.sensor import SensorConfig
-from jaxcls.world.render.types import BackendChoice
+from jaxcls.world.render.types import Backend
 from jaxcls.world.scenes import SceneConfig
 
 SOURCES = ("full", "view", "occluded", "fused", "scene")
@@ -77,7 +77,7 @@ class CloudConfig:
     # with hand-eye error (its "real_like" world); the rest ideal depth with gaps of 3 mm - 3 cm.
     scene_touching: float = bounded(0.0, ge=0.0, le=1.0)
     scene_noisy: float = bounded(0.0, ge=0.0, le=1.0)
-    backend: BackendChoice = "auto"
+    backend: Backend = Backend.auto
     cache_dir: str = "data/clouds"
 
     def __post_init__(self) -> None:

@@ -42,7 +42,7 @@ from jaxcls import geometry, io
 from jaxcls.config import bounded, check_bounds, load_config, save_config
 from jaxcls.world import recording, scenes
 from jaxcls.world.objects import object_set_from_config
-from jaxcls.world.render import resolve_backend
+from jaxcls.world.render import Backend, resolve_backend
 from jaxcls.world.setup import WorldConfig, make_world
 
 
@@ -239,7 +239,7 @@ def build_dataset(config: DatasetConfig, overwrite: bool = False, show_progress:
                 bar.set_postfix(scene=i)
                 _render_scene(config, i, object_set, bar)
             return out
-        if resolve_backend(config.backend) != "mujoco":
+        if resolve_backend(config.backend) is not Backend.mujoco:
             raise ValueError(f"workers={config.workers}: scenes render in parallel with the CPU renderer only; "
                              f"set backend=mujoco (backend={config.backend!r} resolves to "
                              f"{resolve_backend(config.backend)!r}) or workers=1")

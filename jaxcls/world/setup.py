@@ -25,7 +25,7 @@ from jaxcls import geometry
 from jaxcls.world import scenes
 from jaxcls.world.objects import ObjectModel, ObjectSet, ObjectSetConfig, object_set_from_config
 from jaxcls.world.render.sensor import SensorConfig
-from jaxcls.world.render.types import BackendChoice
+from jaxcls.world.render.types import Backend
 
 if TYPE_CHECKING:
     import mujoco
@@ -42,7 +42,7 @@ class WorldConfig:
     camera: geometry.CameraConfig = dataclasses.field(default_factory=geometry.CameraConfig)
     viewpoints: geometry.ViewpointConfig = dataclasses.field(default_factory=geometry.ViewpointConfig)
     sensor: SensorConfig = dataclasses.field(default_factory=SensorConfig.ideal)
-    backend: BackendChoice = "auto"
+    backend: Backend = Backend.auto
 
     def world_config(self) -> WorldConfig:
         """Just the world part of a command's config (whose schema extends this one)."""

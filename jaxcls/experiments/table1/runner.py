@@ -36,9 +36,9 @@ def runs_of(row: protocol.Row, runs: int) -> int:
     return 1 if row.kind is protocol.Kind.FULL else runs
 
 
-def passes(programs: list, backend: str) -> list[list]:
+def passes(programs: list, platform: str) -> list[list]:
     """``programs`` in the groups that run together: all at once off the CPU, ``CPU_PROGRAMS_PER_PASS`` on it."""
-    size = CPU_PROGRAMS_PER_PASS if backend == "cpu" else max(1, len(programs))
+    size = CPU_PROGRAMS_PER_PASS if platform == "cpu" else max(1, len(programs))
     return [programs[i:i + size] for i in range(0, len(programs), size)]
 
 

@@ -76,7 +76,7 @@ def put_scene(model: mujoco.MjModel) -> tuple[mjx.Model, mjx.Data, jax.Array]:
 class MJXRenderer:
     """``render_depth`` behind the host-side checks of the Renderer protocol."""
 
-    backend: Backend = "mjx"
+    backend: Backend = Backend.mjx
 
     def __init__(self, model: mujoco.MjModel, intrinsics: Intrinsics, chunk: int | None = None):
         if chunk is not None and chunk < 1:

@@ -45,7 +45,7 @@ class NativeRenderer:
     and direction, so the mocap body is never moved.
     """
 
-    backend: Backend = "mujoco"
+    backend: Backend = Backend.mujoco
 
     def __init__(self, model: mujoco.MjModel, intrinsics: Intrinsics, workers: int | None = None,
                  cull: bool = True):

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Literal, Protocol
+import enum
+from typing import Protocol
 
 import jax
 import numpy as np
@@ -10,9 +11,19 @@ from flax import struct
 
 from jaxcls.geometry import Intrinsics
 
-Backend = Literal["mujoco", "mjx", "warp"]
-BACKENDS: tuple[Backend, ...] = ("mujoco", "mjx", "warp")
-BackendChoice = Literal["auto", "mujoco", "mjx", "warp"]  # a config's choice: "auto" picks warp on a GPU
+
+class Backend(enum.StrEnum):
+    """Which renderer draws the depth frames: ``mujoco`` (MuJoCo's C ray casting on CPU threads), ``mjx``
+    (MJX's pure-JAX ray casting), ``warp`` (MJX's batch renderer on a CUDA GPU). A config may say ``auto``:
+    warp where a CUDA GPU and MuJoCo Warp are present, else mujoco (``render.resolve_backend``)."""
+
+    auto = "auto"
+    mujoco = "mujoco"
+    mjx = "mjx"
+    warp = "warp"
+
+
+BACKENDS: tuple[Backend, ...] = (Backend.mujoco, Backend.mjx, Backend.warp)  # the renderers (not ``auto``)
 
 # Sentinels of the return contract (docs/ARCHITECTURE.md): no return has depth 0; the table and misses have id -1.
 NO_DEPTH = 0.0

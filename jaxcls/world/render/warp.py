@@ -160,7 +160,7 @@ def render_buffers(mx: Any, dx: Any, rc: Any) -> tuple[jax.Array, jax.Array]:
 class WarpRenderer:
     """Batched GPU rendering; one render context (and compiled function) per batch size, cached."""
 
-    backend: Backend = "warp"
+    backend: Backend = Backend.warp
 
     def __init__(self, model: mujoco.MjModel, intrinsics: Intrinsics,
                  kinematics: Literal["forward", "static"] = "forward"):
