@@ -139,23 +139,20 @@ class VisNoOccl(_ScoresCandidates):
     """The paper's VisNoOccl: visibility without occlusion (each cuboid counted alone), no history."""
 
     name: ClassVar[PolicyName] = PolicyName.vis_no_occl
+    occlusion: ClassVar[visibility.Mode] = visibility.Mode.no_occlusion
 
     def utilities(self, views: Views, belief: Belief, index: jax.Array, intrinsics: Intrinsics,
                   config: NBVConfig) -> jax.Array:
-        total = jnp.sum(_visible(belief, views, index, intrinsics, config, visibility.Mode.no_occlusion), axis=1)
+        total = jnp.sum(_visible(belief, views, index, intrinsics, config, self.occlusion), axis=1)
         return safe_div(total, jnp.max(total))
 
 
 @dataclasses.dataclass(frozen=True)
-class VisOccl(_ScoresCandidates):
+class VisOccl(VisNoOccl):
     """The paper's VisOccl: visibility through the z-buffer, no history."""
 
     name: ClassVar[PolicyName] = PolicyName.vis_occl
-
-    def utilities(self, views: Views, belief: Belief, index: jax.Array, intrinsics: Intrinsics,
-                  config: NBVConfig) -> jax.Array:
-        total = jnp.sum(_visible(belief, views, index, intrinsics, config, visibility.Mode.paper), axis=1)
-        return safe_div(total, jnp.max(total))
+    occlusion: ClassVar[visibility.Mode] = visibility.Mode.paper
 
 
 @dataclasses.dataclass(frozen=True)
