@@ -14,9 +14,18 @@ The folders follow the pipeline (``docs/ARCHITECTURE.md``):
 
 Imports run one way: world -> perception -> (planning -> episode) -> commands; learning reads the world
 and perception. Subpackages load on first use, so that training a classifier does not need MuJoCo.
+
+Importing ``jaxcls`` sets XLA:CPU flags that give each compiled program fewer memory maps and installs a
+guard that frees compiled programs before the process reaches the kernel's memory-map limit
+(``xla_flags``: a long process, such as the whole test suite or a notebook, otherwise dies in XLA). Import
+it before running anything with JAX; ``JAXCLS_XLA_FLAGS=off`` leaves ``$XLA_FLAGS`` as it is.
 """
 
 import importlib
+
+from jaxcls import xla_flags as _xla_flags
+
+_xla_flags.apply()  # before JAX starts its CPU backend, when XLA reads $XLA_FLAGS (once per process)
 
 __version__ = "0.2.0"
 

@@ -103,7 +103,8 @@ def test_scan_equals_one_by_one_and_vmap_over_volumes():
     for d, T in zip(depths, views, strict=True):
         single = tsdf.integrate(single, jnp.asarray(d), SMALL, jnp.asarray(T, jnp.float32))
     assert np.asarray(single.weight).max() == 3
-    np.testing.assert_allclose(np.asarray(scanned.tsdf), np.asarray(single.tsdf), atol=1e-6, err_msg="tsdf")
+    # 1e-5: XLA may contract the scan body's multiply-adds differently (~1 float32 ulp of z / truncation).
+    np.testing.assert_allclose(np.asarray(scanned.tsdf), np.asarray(single.tsdf), atol=1e-5, err_msg="tsdf")
     np.testing.assert_array_equal(np.asarray(scanned.weight), np.asarray(single.weight), err_msg="weight")
 
     # A batch of episodes: one volume per view, vmapped, equals each integrated alone.
