@@ -119,12 +119,12 @@ class RefineConfig:
         model); ``learned`` without a head is a ValueError naming ``weights`` and what to set."""
         source = self.yaw_source
         if source is YawSource.learned and not yaw_head:
-            raise ValueError(f"refine.yaw_source=learned needs weights with a yaw head; {weights} has none "
+            raise ValueError(f"refine.yaw_source=learned needs weights with a yaw head; {weights}: none "
                              f"(set refine.yaw_source=hypotheses, or auto, and refine.hypotheses, e.g. 8)")
         if source is YawSource.auto:
             source = YawSource.learned if yaw_head else YawSource.hypotheses
             if not yaw_head:
-                warnings.warn(f"refine.yaw_source=auto: {weights} has no yaw head, so GR registers "
+                warnings.warn(f"refine.yaw_source=auto: {weights}: no yaw head, so GR registers "
                               f"{self.hypotheses} evenly spaced yaws per model (refine.hypotheses)", stacklevel=2)
         return dataclasses.replace(self, yaw_source=source)
 
