@@ -94,9 +94,9 @@ def main(argv: list[str] | None = None) -> None:
     for w in when:
         for name in names[1:]:
             d, lo, hi = metrics.paired_difference(per_scene[names[0], w, "refined"], per_scene[name, w, "refined"], M)
-            notes.append(f"Refined F1 {w}, the default minus {name!r}: {d:+.3f} [{lo:+.3f}, {hi:+.3f}].")
+            notes.append(f"Refined F1 {w}, the default minus {name!r}: {metrics.format_difference(d, lo, hi)}.")
         d, lo, hi = metrics.paired_difference(per_scene[names[0], w, "refined"], per_scene[names[0], w, "prior"], M)
-        notes.append(f"Refined minus prior F1 {w}, the default: {d:+.3f} [{lo:+.3f}, {hi:+.3f}].")
+        notes.append(f"Refined minus prior F1 {w}, the default: {metrics.format_difference(d, lo, hi)}.")
     report.publish(report.section(
         "The move's GR settings: F1 of the target objects, prior and refined", argv,
         ("GR setting", *(f"F1 {label} {w}" for w in when for label in ("prior", "refined")),

@@ -103,11 +103,11 @@ def main(argv: list[str] | None = None) -> None:
             else:
                 d = metrics.paired_difference(protocol.per_scene(a, T), protocol.per_scene([base[k] for k in keys], T),
                                               args.classes, resamples=args.resamples)
-                versus = f"{d[0]:+.3f} [{d[1]:+.3f}, {d[2]:+.3f}]"
+                versus = metrics.format_difference(*d)
             refused = np.mean([s == "refused" for r in a for s in r.get("tracking", [])] or [0.0])
             lines.append((row, name, f"{mid['f1']:.3f} [{mid['f1_low']:.3f}, {mid['f1_high']:.3f}]",
                           f"{end['f1']:.3f} [{end['f1_low']:.3f}, {end['f1_high']:.3f}]",
-                          f"{gain[0]:+.3f} [{gain[1]:+.3f}, {gain[2]:+.3f}]", versus, f"{refused:.3f}", len(a)))
+                          metrics.format_difference(*gain), versus, f"{refused:.3f}", len(a)))
     markdown = (f"`{report.command_line(argv)}`\n\n"
                 + report.table(("row", "setting", f"F1 after {half}", f"F1 after {T}", f"F1@{T} - F1@{half} (paired)",
                                 f"F1@{T} - {baseline} (paired)", "frames refused", "episodes"), lines) + "\n")

@@ -265,6 +265,16 @@ def paired_difference(per_scene_a: Sequence[tuple[np.ndarray, np.ndarray]],
                      len(a), confidence, resamples, seed)
 
 
+def format_difference(estimate: float, low: float, high: float) -> str:
+    """``"+0.012 [-0.004, +0.031]"``: a paired difference and its interval at three decimals; a bound that is
+    not 0 but rounds to it gets two significant digits (``+2.1e-04``), so that a reader can check on which
+    side of 0 the interval lies."""
+    def signed(x: float) -> str:
+        return f"{x:+.1e}" if x != 0 and round(x, 3) == 0 else f"{x:+.3f}"
+
+    return f"{estimate:+.3f} [{signed(low)}, {signed(high)}]"
+
+
 def surface_coverage(model_points: np.ndarray, fused_points: np.ndarray, radius: float = 0.005) -> float:
     """The share of an object's posed surface samples (``model_points: [S, 3]`` world, m) within ``radius``
     of the fused surface (``fused_points: [P, 3]``): how much of it the reconstruction has seen."""

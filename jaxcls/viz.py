@@ -90,9 +90,16 @@ def training_curve(history: list[dict]) -> Figure:
     figure = Figure(figsize=(10, 4))
     epochs = [h["epoch"] for h in history]
     ax = figure.add_subplot(1, 2, 1)
-    ax.plot(epochs, [h["loss"] for h in history])
-    ax.set(xlabel="epoch", ylabel="training loss", yscale="log")
+    ax.plot(epochs, [h["loss"] for h in history], color="k", lw=1, label="training loss")
+    for source in (history[0].get("test_loss", {}) if history else {}):  # runs before 2026-11-25 have none
+        ax.plot(epochs, [h["test_loss"][source] for h in history], lw=1, label=f"held-out NLL, {source}")
+    ax.set(xlabel="epoch", ylabel="loss (nats)", yscale="log")
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.legend(fontsize=7, loc="lower left")
+    if history and "learning_rate" in history[0]:
+        rate = ax.twinx()
+        rate.plot(epochs, [h["learning_rate"] for h in history], color="0.6", ls="--", lw=1)
+        rate.set(ylabel="learning rate (dashed)", yscale="log")
     ax = figure.add_subplot(1, 2, 2)
     ax.plot(epochs, [h["train_accuracy"] for h in history], label="train", color="k", lw=1)
     for source in (history[0]["test_accuracy"] if history else {}):

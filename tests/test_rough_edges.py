@@ -487,3 +487,27 @@ def test_report_says_how_many_objects_are_right():
 def test_a_virtual_environment_is_ignored():
     lines = (REPO / ".gitignore").read_text().splitlines()
     assert ".venv/" in lines or "/.venv/" in lines
+
+
+def test_importing_the_mjx_renderers_prints_nothing_where_warp_is_missing():
+    """MJX prints "Failed to import warp" on import without warp-lang; the renderers import it quietly (and
+    say why warp cannot run only where it is asked for)."""
+    code = ("import jaxcls.world.render.mjx_ray, jaxcls.world.render.warp as w\n"
+            "print('reason:', w.warp_unavailable_reason())")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         env={**os.environ, "JAX_PLATFORMS": "cpu"})
+    assert "Failed to import" not in out.stdout + out.stderr
+    reason = out.stdout.strip().splitlines()[-1]
+    assert reason.startswith("reason: ")
+
+
+@pytest.mark.parametrize("low, high, text", [
+    (0.0002, 0.071, "+0.012 [+2.0e-04, +0.071]"),     # was "[+0.000, +0.071] (excludes 0)": uncheckable
+    (-0.0004, 0.031, "+0.012 [-4.0e-04, +0.031]"),
+    (0.0, 0.031, "+0.012 [+0.000, +0.031]"),           # an exact 0 stays 0
+    (0.004, 0.031, "+0.012 [+0.004, +0.031]"),
+])
+def test_a_paired_interval_near_zero_shows_on_which_side_of_zero_it_lies(low, high, text):
+    from jaxcls import metrics
+
+    assert metrics.format_difference(0.012, low, high) == text

@@ -206,9 +206,9 @@ def test_training_on_a_model_folder(tmp_path):
         train(load_config(TrainConfig, "configs/pointnet_folder.yaml",
                           [f"objects.source={tmp_path / 'models'}", *small, "learning_rate=0.01"]), show_progress=False)
     (tmp_path / "models" / "tube").rename(tmp_path / "models" / "pipe")
-    with pytest.raises(ValueError, match="holds a run on classes"):
+    with pytest.raises(ValueError, match="holds a run on classes"):  # same settings (a cosine run's epochs too)
         train(load_config(TrainConfig, "configs/pointnet_folder.yaml",
-                          [f"objects.source={tmp_path / 'models'}", *small, "epochs=2"]), show_progress=False)
+                          [f"objects.source={tmp_path / 'models'}", *small]), show_progress=False)
 
 
 def test_training_does_not_need_mujoco():
@@ -271,3 +271,50 @@ def test_a_yaw_head_trains_and_feeds_refinement(workspace):
         refine.refine_jit(points, mask, probs, library, rc, 0.0)
     with pytest.raises(ValueError, match="no yaw head"):
         pointnet.estimate_yaw(pointnet.load_classifier("builtin_paper"), points, mask)
+
+
+def test_the_learning_rate_schedules():
+    """halving: the paper's staircase; cosine: from the rate down a half cosine to final_lr of it, never lower."""
+    from jaxcls.learn.train import Schedule, learning_rate
+
+    steps = 7
+    halving = learning_rate(TrainConfig(epochs=100, lr_halving_epochs=20, learning_rate=1e-3), steps)
+    for epoch in (0, 19, 20, 45, 99):
+        assert float(halving(epoch * steps)) == pytest.approx(1e-3 * 0.5 ** (epoch // 20), rel=1e-6)
+    cosine = learning_rate(TrainConfig(epochs=40, schedule=Schedule.cosine, final_lr=0.01, learning_rate=1e-3),
+                           steps)
+    rates = np.array([float(cosine(s)) for s in range(40 * steps + 1)])
+    assert rates[0] == pytest.approx(1e-3) and rates[-1] == pytest.approx(1e-5, rel=1e-4)
+    assert rates[20 * steps] == pytest.approx(1e-5 + (1e-3 - 1e-5) / 2, rel=1e-4)  # half way: the mean
+    assert np.all(np.diff(rates) <= 0) and rates.min() >= 1e-5 * (1 - 1e-5)
+    assert load_config(TrainConfig, "pointnet_folder").schedule is Schedule.cosine
+    with pytest.raises(Exception, match="schedule"):
+        load_config(TrainConfig, None, ["schedule=linear"])
+
+
+def test_a_cosine_run_logs_its_rate_and_held_out_loss_and_refuses_a_longer_resume(workspace, straight_run):
+    from sklearn.metrics import log_loss
+
+    from jaxcls.learn.train import Schedule, evaluation_sets, held_out, learning_rate, predict_all
+    from jaxcls.perception import pointnet
+
+    config = _tiny_config(workspace, out_dir=str(workspace / "cosine"), epochs=2, schedule=Schedule.cosine,
+                          final_lr=0.1)
+    run = train(config, show_progress=False)
+    history = _history(run)
+    rate = learning_rate(config, config.steps_per_epoch)  # the rate of each epoch's last step is logged
+    assert [h["learning_rate"] for h in history] == pytest.approx([float(rate(5 * e - 1)) for e in (1, 2)], rel=1e-6)
+    assert 3e-4 > history[0]["learning_rate"] > history[1]["learning_rate"] > 3e-4 * 0.1
+    # The held-out NLL is scikit-learn's log loss of the same probabilities.
+    classifier = pointnet.load_classifier(run / "pointnet.msgpack")
+    object_set = builtin_object_set(train_per_class=1, test_per_class=1, surface_samples=2500)
+    test = clouds.load_clouds(object_set, "test", config.data, config.objects, config.seed, False, config.perception)
+    evals = evaluation_sets(test, config)
+    accuracy, nll = held_out(classifier, evals, config.eval_batch)
+    points, mask, label, _ = evals["view"]
+    probs = predict_all(classifier, points, mask, config.eval_batch, pointnet.classify)
+    assert nll["view"] == pytest.approx(log_loss(label, probs, labels=np.arange(probs.shape[1])), rel=1e-4)
+    assert accuracy["view"] == pytest.approx(np.mean(probs.argmax(-1) == label))
+    assert history[-1]["test_accuracy"]["view"] == pytest.approx(accuracy["view"], abs=0.15)  # float16 export
+    with pytest.raises(ValueError, match="epochs"):
+        train(dataclasses.replace(config, epochs=3), show_progress=False)

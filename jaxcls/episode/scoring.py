@@ -18,8 +18,8 @@ from jaxcls.world.scenes import Scene, scene_models
 @dataclasses.dataclass(frozen=True, eq=False)
 class Truth:
     """What the scene holds, K objects: centroid [K, 3] m (of the posed surface samples); label [K] class
-    index; target [K] bool (False: clutter, never scored); surface: K arrays [S_k, 3] posed surface samples
-    (world, m); names: the instances."""
+    index (-1: a clutter instance of another set); target [K] bool (False: clutter, never scored); surface:
+    K arrays [S_k, 3] posed surface samples (world, m); names: the instances."""
 
     centroid: np.ndarray
     label: np.ndarray
@@ -31,7 +31,7 @@ class Truth:
     def from_scene(cls, scene: Scene, object_set: ObjectSet) -> Truth:
         surface = scene.posed_surfaces(scene_models(scene, object_set))
         return cls(centroid=np.stack([s.mean(axis=0) for s in surface]),
-                   label=np.array([object_set.class_index(o.class_name) for o in scene.objects]),
+                   label=np.array([object_set.label(o.class_name) for o in scene.objects]),
                    target=np.array([o.target for o in scene.objects], bool), surface=surface,
                    names=tuple(o.name for o in scene.objects))
 

@@ -64,7 +64,7 @@ def evaluate(config: InSceneConfig, classifiers: dict[str, pointnet.Classifier],
             world = make_world(world_config, seeds[s], object_set=object_set)
             owners = metrics.PointOwners(world.scene, world.models)
             target = np.array([o.target for o in world.scene.objects])
-            label = np.array([object_set.class_index(o.class_name) for o in world.scene.objects])
+            label = np.array([object_set.label(o.class_name) for o in world.scene.objects])
             # No classifier in the spec: the segments are classified once below, logits first.
             spec = perception.Spec.create(config.perception, world.intrinsics, world.table_height)
             rng = np.random.default_rng([config.seed, s])

@@ -280,7 +280,9 @@ def scene_clouds(object_set: ObjectSet, split: Literal["train", "test"], object_
     kind = rng.random()  # touching, noisy or plain (see CloudConfig.scene_touching / scene_noisy)
     touching = kind < config.scene_touching
     noisy = not touching and kind < config.scene_touching + config.scene_noisy
-    scene = dataclasses.replace(_SCENE, split=split, **(_TOUCHING_GAPS if touching else {}))
+    # As many objects as the scenes of the loop, or every instance of a small split (one model per class).
+    scene = dataclasses.replace(_SCENE, split=split, num_objects=min(_SCENE.num_objects, len(object_set.split(split))),
+                                **(_TOUCHING_GAPS if touching else {}))
     sensor = SensorConfig(pose_noise=True, pose_noise_shared=True) if noisy else SensorConfig.ideal()
     world = make_world(WorldConfig(objects=object_set_config, scene=scene, sensor=sensor, backend=config.backend,
                                    camera=geometry.CameraConfig.kinect_v1(config.image_scale)),
@@ -299,7 +301,7 @@ def scene_clouds(object_set: ObjectSet, split: Literal["train", "test"], object_
     members = object_set.split(split)
     clouds = [_subset(points[n][mask[n]], config.max_points, rng) for n in keep]
     clouds = [c - c.mean(axis=0) for c in clouds]
-    label = [object_set.class_index(world.scene.objects[truth.object[n]].class_name) for n in keep]
+    label = [object_set.class_index(world.scene.objects[truth.object[n]].class_name) for n in keep]  # no clutter
     instance = [members.index(world.models[truth.object[n]]) for n in keep]
     yaw = [world.scene.objects[truth.object[n]].yaw for n in keep]
     padded, padded_mask = _pad(clouds, max(config.max_points, config.full_points))
@@ -327,8 +329,9 @@ def _cache_key(object_set: ObjectSet, split: str, config: CloudConfig, object_se
                seed: int, perception: PerceptionConfig) -> str:
     """The per-instance clouds' key (the scene source's settings are not in it: it has its own folder)."""
     defining = {**{k: v for k, v in dataclasses.asdict(config).items() if k not in _SCENE_FIELDS},
-                "backend": None, "cache_dir": None, "objects": dataclasses.asdict(
-        object_set_config), "object_set": object_set.name, "classes": object_set.classes, "split": split,
+                "backend": None, "cache_dir": None, "objects": {  # clutter never stands in the clouds' scenes
+                    k: v for k, v in dataclasses.asdict(object_set_config).items() if k != "clutter_source"},
+                "object_set": object_set.name, "classes": object_set.classes, "split": split,
         "seed": seed, "foreground": dataclasses.asdict(perception.foreground),
         "volume": dataclasses.asdict(perception.volume), "table_height": _SCENE.table_height,
         "version": _CACHE_VERSION}

@@ -212,7 +212,16 @@ def sample_scene(object_set: ObjectSet, config: SceneConfig, seed: int,
         raise ValueError(f"scene.num_objects = {config.num_objects}, but object set '{object_set.name}' has "
                          f"{len(pool)} instances in split '{config.split}' and scene.distinct_classes=true never "
                          f"draws an instance twice: {', '.join(fixes)}")
-    models = _draw_instances(rng, pool, config.num_objects, config.distinct_classes)
+    if object_set.clutter and config.num_clutter:  # clutter from its own set (ObjectSetConfig.clutter_source)
+        targets = config.num_objects - config.num_clutter
+        if config.distinct_classes and config.num_clutter > len(object_set.clutter):
+            raise ValueError(f"scene.num_clutter = {config.num_clutter}, but the clutter set has "
+                             f"{len(object_set.clutter)} instances; lower scene.num_clutter or set "
+                             "scene.distinct_classes=false")
+        models = (_draw_instances(rng, pool, targets, config.distinct_classes)
+                  + _draw_instances(rng, object_set.clutter, config.num_clutter, config.distinct_classes))
+    else:
+        models = _draw_instances(rng, pool, config.num_objects, config.distinct_classes)
     return _arrange(models, config, rng, object_set_config, seed)
 
 
@@ -293,7 +302,7 @@ def _slide_in(hull: np.ndarray, yaw: float, placed: list[np.ndarray], anchor: np
 def scene_models(scene: Scene, object_set: ObjectSet | None = None) -> tuple[ObjectModel, ...]:
     """The object models of ``scene`` in scene order, from ``object_set`` or the one its JSON names."""
     object_set = object_set or object_set_from_config(scene.object_set)
-    by_name = {m.name: m for m in object_set.split("all")}
+    by_name = {m.name: m for m in object_set.split("all") + object_set.clutter}
     missing = [o.name for o in scene.objects if o.name not in by_name]
     if missing:
         raise ValueError(f"scene: instances {missing} are not in object set '{object_set.name}'")

@@ -39,7 +39,7 @@ def differences(config: Table1Config, by: dict, c: str, classes: int) -> list[st
         d, lo, hi = metrics.paired_difference(scenes_of(a, move_a, shared), scenes_of(b, move_b, shared), classes,
                                               resamples=config.resamples)
         sig = "" if lo <= 0 <= hi else " (the interval excludes 0)"
-        return f"{protocol.ROWS[a].label} - {protocol.ROWS[b].label}: {d:+.3f} [{lo:+.3f}, {hi:+.3f}]{sig}"
+        return f"{protocol.ROWS[a].label} - {protocol.ROWS[b].label}: {metrics.format_difference(d, lo, hi)}{sig}"
 
     present = [n for n in config.rows if (c, n) in by]
     policies = [n for n in present if protocol.ROWS[n].kind is protocol.Kind.POLICY]

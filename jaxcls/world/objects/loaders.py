@@ -308,6 +308,12 @@ class ObjectSetConfig:
     source: ``"builtin"``, a BOP folder or a class-folder layout (``load_object_set``). Fields that the
     chosen source does not use must keep their defaults, so that a setting is never silently ignored.
     Out-of-range values are a ValueError naming the key (``objects.<field>``) when the config is built.
+
+    clutter_source: where a scene's clutter objects (``scene.num_clutter``, never scored) come from. ``""``
+    (the default): other instances of the scene's split of this set, as the paper's real scenes did with
+    their own objects; else another object set (``"builtin"``, a BOP folder or class folders, metres, z up,
+    its default settings and ``surface_samples``), every instance of which may stand on the table as
+    clutter: generic shapes that the classifier never learnt (``ObjectSet.clutter``).
     """
 
     source: str = "builtin"
@@ -318,6 +324,7 @@ class ObjectSetConfig:
     test_fraction: float = 0.0
     scale: float = 1.0
     up_axis: str = "z"
+    clutter_source: str = ""
 
     def __post_init__(self) -> None:
         def check(ok: bool, field: str, rule: str) -> None:
@@ -341,12 +348,24 @@ class ObjectSetConfig:
             used = ("test_fraction", "surface_samples", "scale", "up_axis")
         default = ObjectSetConfig()
         unused = [f.name for f in dataclasses.fields(self)
-                  if f.name not in (*used, "source") and getattr(self, f.name) != getattr(default, f.name)]
+                  if f.name not in (*used, "source", "clutter_source")
+                  and getattr(self, f.name) != getattr(default, f.name)]
         if unused:
             raise ValueError(f"objects: {unused} do not apply to source {self.source!r}")
         return {name: getattr(self, name) for name in used}
 
 
 def object_set_from_config(config: ObjectSetConfig) -> ObjectSet:
-    """The object set a config names (the builtin one comes from the cache)."""
-    return load_object_set(config.source, **config.loader_kwargs())
+    """The object set a config names (the builtin one comes from the cache), with the clutter instances of
+    ``clutter_source`` where one is given (named ``clutter:<instance>``, of class ``clutter:<class>``: a
+    clutter box is never the user's class "box")."""
+    object_set = load_object_set(config.source, **config.loader_kwargs())
+    if not config.clutter_source:
+        return object_set
+    other = ObjectSetConfig(source=config.clutter_source, surface_samples=config.surface_samples)
+    try:
+        clutter = load_object_set(other.source, **other.loader_kwargs()).split("all")
+    except (OSError, ValueError) as e:
+        raise ValueError(f"objects.clutter_source = {config.clutter_source!r}: {e}") from None
+    return dataclasses.replace(object_set, clutter=tuple(
+        dataclasses.replace(m, name=f"clutter:{m.name}", class_name=f"clutter:{m.class_name}") for m in clutter))

@@ -88,20 +88,23 @@ class ObjectSet:
     """Models grouped into classes and a train/test split of instances.
 
     classes: sorted class names; a class's index everywhere (labels, logits) is its position here.
+    clutter: instances of another set that scenes may place as clutter (``ObjectSetConfig.clutter_source``):
+    their classes are not among ``classes`` (``label`` gives them -1) and no split holds them.
     """
 
     name: str
     classes: tuple[str, ...]
     train: tuple[ObjectModel, ...]
     test: tuple[ObjectModel, ...]
+    clutter: tuple[ObjectModel, ...] = ()
 
     def __post_init__(self) -> None:
         if list(self.classes) != sorted(set(self.classes)):
             raise ValueError(f"{self.name}: classes must be sorted and unique, got {self.classes}")
         known = set(self.classes)
         names: set[str] = set()
-        for model in self.train + self.test:
-            if model.class_name not in known:
+        for model in self.train + self.test + self.clutter:
+            if model.class_name not in known and model not in self.clutter:
                 raise ValueError(f"{self.name}: model {model.name} has unknown class {model.class_name!r}")
             if model.name in names:
                 raise ValueError(f"{self.name}: duplicate model name {model.name!r}")
@@ -113,6 +116,10 @@ class ObjectSet:
             return self.classes.index(class_name)
         except ValueError:
             raise KeyError(f"{self.name}: unknown class {class_name!r}; classes are {self.classes}") from None
+
+    def label(self, class_name: str) -> int:
+        """``class_index``, or -1 for a class outside the set (a clutter instance of another set)."""
+        return self.classes.index(class_name) if class_name in self.classes else -1
 
     def split(self, split: Literal["train", "test", "all"]) -> tuple[ObjectModel, ...]:
         """The models of one split; ``"all"`` is train followed by test."""

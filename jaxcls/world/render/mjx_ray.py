@@ -14,10 +14,10 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
 
 from jaxcls.geometry import Intrinsics, pixel_rays
 from jaxcls.world.render import contract
+from jaxcls.world.render.mjx_quiet import mjx
 from jaxcls.world.render.types import NO_DEPTH, NO_OBJECT, Backend, DepthFrames
 
 # Intermediate floats of one chunk stay near this budget: about 32 floats per (ray, triangle) pair.

@@ -28,14 +28,13 @@ import jax
 import jax.numpy as jnp
 import jaxlie
 import mujoco
-import mujoco.mjx.warp as mjxw  # imports warp-lang when installed (and prints when not)
 import numpy as np
 from flax import struct
-from mujoco import mjx
 
 from jaxcls.geometry import CV_TO_MJ, Intrinsics
 from jaxcls.math import normalize
 from jaxcls.world.render import contract
+from jaxcls.world.render.mjx_quiet import mjx, mjxw
 from jaxcls.world.render.types import NO_DEPTH, NO_OBJECT, Backend, DepthFrames
 
 INSTALL_HINT = ("The warp backend needs a CUDA GPU visible to JAX (jax[cuda]) and warp-lang at the "
