@@ -120,3 +120,19 @@ def test_the_yaw_source_is_resolved_for_the_weights_and_says_so():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert RefineConfig(yaw_source="hypotheses").resolve(yaw_head=False).yaw_source is YawSource.hypotheses
+
+
+def test_weights_without_a_yaw_head_make_an_episode_that_says_which_yaws_ran():
+    """The episode keeps the resolved yaw source (what ``jaxcls run`` saves in its config.yaml): weights
+    without a yaw head run, and say, evenly spaced hypotheses."""
+    from jaxcls.episode import setup
+    from jaxcls.geometry import Intrinsics
+    from jaxcls.perception import pointnet
+    from jaxcls.world.objects import builtin_object_set
+
+    paper = pointnet.load_classifier("builtin_paper")
+    assert not paper.config.yaw_head
+    settings = setup.ActiveConfig(refine=dataclasses.replace(setup.episode_refine(), yaw_source="auto"))
+    with pytest.warns(UserWarning, match="no yaw head"):
+        episode = setup.make_episode(settings, builtin_object_set(), Intrinsics.kinect_v1(), 0.0, paper)
+    assert episode.refine_config.yaw_source is YawSource.hypotheses

@@ -511,3 +511,19 @@ def test_a_paired_interval_near_zero_shows_on_which_side_of_zero_it_lies(low, hi
     from jaxcls import metrics
 
     assert metrics.format_difference(0.012, low, high) == text
+
+
+def test_the_readme_names_both_weight_files_and_a_missing_json_is_named(tmp_path):
+    """Trained weights come as a .msgpack and a .json: the README says so, and loading without the .json
+    names it."""
+    import shutil
+
+    from jaxcls.perception import pointnet
+
+    readme = (REPO / "README.md").read_text()
+    assert "`pointnet.msgpack` with `pointnet.json` beside it" in readme
+    assert "The run writes `pointnet.msgpack` and `pointnet.json`: keep them together." in readme
+    shipped = Path(pointnet.__file__).parent / "weights" / "pointnet_builtin.msgpack"
+    shutil.copy(shipped, tmp_path / "mine.msgpack")
+    with pytest.raises(FileNotFoundError, match=r"mine\.json not found \(weights come as a \.msgpack and a \.json"):
+        pointnet.load_classifier(tmp_path / "mine.msgpack")
