@@ -37,10 +37,10 @@ def table1():
 
 def _small(tmp: Path, out: str, *extra: str, classifiers: str = "{shipped: ''}") -> list[str]:
     """A 2-scene, 12-view synthetic set at half the Kinect's resolution; 2 runs of 2 moves of a policy row and
-    the all-views row; the shipped weights only (``table1_synthetic`` adds the paper's: overrides merge into a
-    mapping)."""
+    the all-views row, the batched rows a scene at a time; the shipped weights only (``table1_synthetic`` adds
+    the paper's: overrides merge into a mapping)."""
     config = tmp / "table1.yaml"
-    config.write_text(f"out_dir: {tmp / out}\ndataset: synthetic\nruns: 2\nmoves: 2\ntiming_moves: 0\n"
+    config.write_text(f"out_dir: {tmp / out}\ndataset: synthetic\nruns: 2\nmoves: 2\ntiming_moves: 0\nscene_chunk: 1\n"
                       f"resamples: 100\nrows: [vis_occl_hist_gr, full_gr]\nclassifiers: {classifiers}\n"
                       "dataset_overrides: [num_scenes=2, viewpoints.count=12, backend=mujoco, camera.width=320, "
                       "camera.height=240, camera.fx=262.5, camera.fy=262.5, camera.cx=159.5, camera.cy=119.5, "

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
 import time
 
 import jax
@@ -101,6 +102,9 @@ class Episode:
     config: EpisodeConfig = struct.field(pytree_node=False, default=EpisodeConfig())
     refine_config: RefineConfig = struct.field(pytree_node=False, default=RefineConfig())
     nbv_config: nbv.NBVConfig = struct.field(pytree_node=False, default=nbv.NBVConfig())
+    # A switched episode (``switched``): the policy and GR are traced values, one program for every row.
+    choice: Choice | None = None
+    policies: tuple[nbv.PolicyName, ...] = struct.field(pytree_node=False, default=())
 
     @classmethod
     def create(cls, spec: Spec, library: ModelLibrary, config: EpisodeConfig | None = None,
@@ -125,6 +129,48 @@ class Episode:
     def policy(self) -> nbv.Policy:
         """The episode's policy with its parameters (``episode.policy``, the ``nbv:`` block)."""
         return self.nbv_config.policy(self.config.policy)
+
+    def switched(self, policies: tuple[nbv.PolicyName | str, ...] = tuple(nbv.PolicyName)) -> Episode:
+        """This episode with its policy and GR as traced values (``Choice``): one compiled program runs any
+        of ``policies`` with GR on or off, picked by ``choose`` without compiling again (Table 1's rows). The
+        static ``config`` keeps every other setting; its policy and GR are set by ``choose``. Not with
+        ``off_grid``. Under ``vmap`` over episodes of one choice (the episode unbatched) only the chosen
+        policy's kernel and GR or its absence run (``lax.switch``, ``lax.cond``)."""
+        policies = tuple(nbv.PolicyName(p) for p in policies)
+        if self.config.off_grid:
+            raise ValueError("episode: off_grid views are rendered on demand; a switched episode indexes frames")
+        if not policies or len(set(policies)) != len(policies):
+            raise ValueError(f"episode: switched needs distinct policies, got {policies}")
+        config = dataclasses.replace(self.config, policy=policies[0], refinement=True)
+        chosen = self.config.policy if self.config.policy in policies else policies[0]
+        return self.replace(config=config, policies=policies,
+                            choice=Choice.create(policies.index(chosen), self.config.refinement))
+
+    def choose(self, policy: nbv.PolicyName | str, refinement: bool) -> Episode:
+        """A switched episode (``switched``) set to ``policy`` with GR on or off: same program, other row."""
+        if self.choice is None:
+            raise ValueError("episode: choose needs a switched episode (Episode.switched)")
+        policy = nbv.PolicyName(policy)
+        if policy not in self.policies:
+            raise ValueError(f"episode: policy {policy} is not among this program's {[str(p) for p in self.policies]}")
+        return self.replace(choice=Choice.create(self.policies.index(policy), refinement))
+
+    def refinement_on(self) -> bool | jax.Array:
+        """GR on: the static setting, or the traced choice of a switched episode ([] bool)."""
+        return self.config.refinement if self.choice is None else self.choice.refinement
+
+
+@struct.dataclass
+class Choice:
+    """A switched episode's row as traced values: policy [] i32 (index into ``Episode.policies``), refinement
+    [] bool (GR on)."""
+
+    policy: jax.Array
+    refinement: jax.Array
+
+    @classmethod
+    def create(cls, policy: int, refinement: bool) -> Choice:
+        return cls(policy=jnp.asarray(policy, jnp.int32), refinement=jnp.asarray(refinement, bool))
 
 
 @struct.dataclass
@@ -280,13 +326,18 @@ def refinement(episode: Episode, state: EpisodeState, depth: jax.Array | None = 
     stays PointNet's (the prior, as the paper's rows without GR). The pose and model stay this move's best
     registration."""
     obs = state.observation
-    if episode.config.refinement:
+    gr = episode.refinement_on()
+
+    def registered() -> Refinement:
         learned = episode.refine_config.yaw_source is YawSource.learned
-        new = refine(obs.segments.points, obs.segments.mask, obs.probs, episode.library, episode.refine_config,
-                     episode.spec.table_height, seen_from(state), yaw=obs.yaw if learned else None,
-                     yaw_orders=episode.yaw_orders if learned else None)
-    else:
-        new = prior_only(episode, obs)
+        return refine(obs.segments.points, obs.segments.mask, obs.probs, episode.library, episode.refine_config,
+                      episode.spec.table_height, seen_from(state), yaw=obs.yaw if learned else None,
+                      yaw_orders=episode.yaw_orders if learned else None)
+
+    if isinstance(gr, bool):  # the static setting: one branch compiled
+        new = registered() if gr else prior_only(episode, obs)
+    else:  # a switched episode's traced choice: both compiled, the chosen one runs
+        new = jax.lax.cond(gr, registered, lambda: prior_only(episode, obs))
     old = state.refinement
     # The same object as last move's segment whose aligned model stands nearest (xy of the base centres).
     d = jnp.linalg.norm(new.pose[:, None, :2, 3] - old.pose[None, :, :2, 3], axis=-1)
@@ -294,17 +345,17 @@ def refinement(episode: Episode, state: EpisodeState, depth: jax.Array | None = 
     match = jnp.argmin(d, axis=1)
     tracked = jnp.min(d, axis=1) <= STABLE_DISTANCE
     N, M = state.evidence.shape
-    if episode.config.refinement:  # the move's own class scores (refine.decision: rho, or probability x rho)
-        score = episode.refine_config.decision.scores(
-            new.rho, jnp.take_along_axis(state.observation.probs, new.candidates, axis=1))
-        move = jnp.zeros((N, M), jnp.float32).at[jnp.arange(N)[:, None], new.candidates].max(score)
-    else:
-        move = state.observation.probs
+    # The move's own class scores: with GR, refine.decision's (rho, or probability x rho); without, PointNet's.
+    score = episode.refine_config.decision.scores(
+        new.rho, jnp.take_along_axis(state.observation.probs, new.candidates, axis=1))
+    registered_scores = jnp.zeros((N, M), jnp.float32).at[jnp.arange(N)[:, None], new.candidates].max(score)
+    move = jnp.where(gr, registered_scores, state.observation.probs)
     carried = jnp.where(tracked[:, None], state.evidence[match], 0.0)
     evidence = jnp.where(new.valid[:, None], gather_evidence(episode.config, carried, move), 0.0)
-    if episode.config.refinement and episode.config.decision is not Decision.last:
+    if episode.config.decision is not Decision.last:  # GR on: the evidence decides; off: PointNet's class
         decided = jnp.argmax(evidence, axis=1).astype(new.refined.dtype)
-        new = new.replace(refined=jnp.where(new.valid & (jnp.max(evidence, axis=1) > 0), decided, new.refined))
+        by_evidence = gr & new.valid & (jnp.max(evidence, axis=1) > 0)
+        new = new.replace(refined=jnp.where(by_evidence, decided, new.refined))
     same = tracked & (old.refined[match] == new.refined)
     stable = jnp.where(new.valid, jnp.where(same, state.stable[match] + 1, 1), 0)
     return state.replace(refinement=new, stable=stable, evidence=evidence)
@@ -333,9 +384,14 @@ def planning(episode: Episode, state: EpisodeState, depth: jax.Array | None = No
         next_pose = hand_eye.unpredict(model_pose)
         position = state.views.T_wc[:, :3, 3]
         next_view = jnp.argmin(jnp.linalg.norm(position - next_pose[:3, 3], axis=-1)).astype(jnp.int32)
-    else:
+    elif episode.choice is None:
         next_view = nbv.choose(episode.policy, views, belief(episode, state), sub, episode.spec.intrinsics,
                                episode.nbv_config)
+        next_pose = state.views.T_wc[next_view]
+    else:  # a switched episode: the chosen policy's kernel (the index is the same for a vmapped batch)
+        kernels = [functools.partial(nbv.choose, episode.nbv_config.policy(p), intrinsics=episode.spec.intrinsics,
+                                     config=episode.nbv_config) for p in episode.policies]
+        next_view = jax.lax.switch(episode.choice.policy, kernels, views, belief(episode, state), sub)
         next_pose = state.views.T_wc[next_view]
     stop = episode.config.stop
     r = state.refinement
@@ -399,21 +455,28 @@ def trace(state: EpisodeState, view: jax.Array, skipped: jax.Array | bool = Fals
                  done=jnp.asarray(skipped, bool))
 
 
-def rollout(episode: Episode, state: EpisodeState, depth: jax.Array, T_wc: jax.Array
-            ) -> tuple[EpisodeState, Trace]:
+def rollout(episode: Episode, state: EpisodeState, depth: jax.Array, T_wc: jax.Array,
+            scene: jax.Array | None = None) -> tuple[EpisodeState, Trace]:
     """A whole episode on frames in memory: depth [V, H, W] and T_wc [V, 4, 4] of every viewpoint (a
     dataset scene), ``episode.config.moves`` moves under one ``lax.scan``. Returns the final state and the
     per-move ``Trace``. ``rollout_jit`` is its jit; vmap it over episodes with ``in_axes=(None, 0, None,
-    None)`` (one scene, many starts) or ``(None, 0, 0, 0)``. Not with ``off_grid`` (frames off the fixed
-    viewpoints must be rendered)."""
+    None)`` (one scene, many starts) or ``(None, 0, 0, 0)``. With ``scene`` ([] i32), depth [S, V, H, W] and
+    T_wc [S, V, 4, 4] hold S scenes and the episode reads scene ``scene``'s frames: vmapped over episodes
+    of several scenes (``in_axes=(None, 0, None, None, 0)``), each move gathers only its own frame. Not with
+    ``off_grid`` (frames off the fixed viewpoints must be rendered)."""
     if episode.config.off_grid:
         raise ValueError("episode: off_grid views are rendered on demand; rollout indexes frames in memory "
                          "(use runner.run with a sources.Rendered source)")
 
+    def frame(view: jax.Array) -> tuple[jax.Array, jax.Array]:
+        if scene is None:
+            return depth[view], T_wc[view]
+        return depth[scene, view], T_wc[scene, view]
+
     def body(state, _):
         skipped = state.done
         view = state.next_view
-        state = step(episode, state, depth[view], T_wc[view])
+        state = step(episode, state, *frame(view))
         return state, trace(state, view, skipped)
 
     return jax.lax.scan(body, state, None, length=episode.config.moves)
@@ -447,6 +510,7 @@ def timed_step(episode: Episode, state: EpisodeState, depth: jax.Array, T_wc: ja
 __all__ = [
     "MODULES",
     "STAGES",
+    "Choice",
     "Decision",
     "Episode",
     "EpisodeConfig",

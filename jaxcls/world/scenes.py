@@ -325,9 +325,19 @@ def viewpoints(scene: Scene, models: tuple[ObjectModel, ...], config: geometry.V
 def build_model(scene: Scene, models: tuple[ObjectModel, ...] | None = None,
                 intrinsics: geometry.Intrinsics | None = None) -> mujoco.MjModel:
     """The MuJoCo model of ``scene`` with the depth camera on a mocap body (see the module docstring)."""
+    models = models if models is not None else scene_models(scene)
+    bodies = [(model, f"mesh_{i}", _pose(obj.position, obj.yaw, scene.table_height))
+              for i, (obj, model) in enumerate(zip(scene.objects, models, strict=True))]
+    return compile_model(bodies, scene.table_height, scene.table_half_size, intrinsics)
+
+
+def compile_model(bodies: Sequence[tuple[ObjectModel, str, np.ndarray]], table_height: float, table_half_size: float,
+                  intrinsics: geometry.Intrinsics | None = None, mocap: bool = False) -> mujoco.MjModel:
+    """A MuJoCo model under the render contract: the table, the depth camera on its mocap body, and body
+    ``object_<i>`` for each (model, mesh name, pose [4, 4]) of ``bodies`` (bodies naming the same mesh share
+    it); ``mocap``: the object bodies are mocap bodies, their poses the rest poses given here (the scene bank's)."""
     import mujoco  # here: scene descriptions and configs load without MuJoCo
 
-    models = models if models is not None else scene_models(scene)
     intrinsics = intrinsics or geometry.Intrinsics.kinect_v1()
     intrinsics.validate_mujoco()
     spec = mujoco.MjSpec()
@@ -335,17 +345,18 @@ def build_model(scene: Scene, models: tuple[ObjectModel, ...] | None = None,
     spec.add_material(name="table", rgba=[0.55, 0.45, 0.35, 1])
     spec.add_material(name="object", rgba=[0.8, 0.8, 0.8, 1])
     world = spec.worldbody
-    h, half = scene.table_height, scene.table_half_size
+    h, half = table_height, table_half_size
     world.add_geom(name="table", type=mujoco.mjtGeom.mjGEOM_BOX, size=[half, half, 0.01],
                    pos=[0, 0, h - 0.01], material="table")
     world.add_light(name="top", pos=[0, 0, h + 3], dir=[0, 0, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
-    for i, (obj, model) in enumerate(zip(scene.objects, models, strict=True)):
-        mesh_name = f"mesh_{i}"
-        spec.add_mesh(name=mesh_name, uservert=model.mesh.vertices.astype(np.float32).ravel().tolist(),
-                      userface=model.mesh.faces.astype(np.int32).ravel().tolist())
-        T = _pose(obj.position, obj.yaw, h)
-        body = world.add_body(name=f"object_{i}", pos=T[:3, 3].tolist(),
-                              quat=geometry.rotation_to_quat(T[:3, :3]).tolist())
+    meshes: set[str] = set()
+    for i, (model, mesh_name, T) in enumerate(bodies):
+        if mesh_name not in meshes:
+            meshes.add(mesh_name)
+            spec.add_mesh(name=mesh_name, uservert=model.mesh.vertices.astype(np.float32).ravel().tolist(),
+                          userface=model.mesh.faces.astype(np.int32).ravel().tolist())
+        body = world.add_body(name=f"object_{i}", pos=np.asarray(T)[:3, 3].tolist(), mocap=mocap,
+                              quat=geometry.rotation_to_quat(np.asarray(T)[:3, :3]).tolist())
         body.add_geom(name=f"object_{i}", type=mujoco.mjtGeom.mjGEOM_MESH, meshname=mesh_name,
                       material="object")
     camera = world.add_body(name="camera", mocap=True, pos=[0, 0, h + 1])

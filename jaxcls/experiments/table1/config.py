@@ -30,6 +30,11 @@ class Table1Config:
     # candidates moves in one vmapped call, ~45 MB each at 640x480). 0: all of a scene's runs on an
     # accelerator (6.8x one at a time on an H100, BENCHMARKS.md), one at a time on the CPU (no faster there).
     oracle_runs_per_call: int = bounded(0, ge=0)
+    # The single-view and policy rows run batched over scenes and runs (``episode.batched``): the frames of
+    # this many scenes sit in device memory at once (100 views at 640x480: 123 MB a scene), and at most
+    # ``batch_episodes`` episodes run in one call (0: all of a row's episodes of those scenes).
+    scene_chunk: int = bounded(8, ge=1)
+    batch_episodes: int = bounded(0, ge=0)
     # name: weights (a .msgpack path or a shipped name, "" = the shipped weights); no default, so that a
     # config's own list is the whole list (OmegaConf merges mappings into the defaults).
     classifiers: dict[str, str] = dataclasses.field(default_factory=dict)
@@ -51,7 +56,7 @@ class Table1Config:
         """What the stored episodes depend on (a rerun with another of these must use another out_dir)."""
         return {k: v for k, v in dataclasses.asdict(self).items()
                 if k not in ("out_dir", "rows", "oracle_scenes", "oracle_runs_per_call", "timing_moves", "resamples",
-                             "scenes")}
+                             "scenes", "scene_chunk", "batch_episodes")}
 
 
 def check_out_dir(config: Table1Config, out: Path) -> None:

@@ -1,6 +1,7 @@
-"""Table 1's episodes: every (classifier, row, scene, run) not yet stored, streamed to JSONL as each scene's
-runs of a row finish (an interrupted run resumes without redoing or losing an episode); one episode timed
-module by module."""
+"""Table 1's episodes: every (classifier, row, scene, run) not yet stored, streamed to JSONL as each batch of
+a row finishes (an interrupted run resumes without redoing or losing an episode); one episode timed module by
+module. The single-view and policy rows run batched over scenes and runs in one switched program per
+classifier (``episode.batched``); PointNetFull and the oracle run scene by scene."""
 
 from __future__ import annotations
 
@@ -13,9 +14,10 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from jaxcls import io, report
-from jaxcls.episode import active, protocol, runner, scoring, setup, sources
+from jaxcls.episode import active, batched, protocol, runner, scoring, setup, sources
 from jaxcls.experiments.table1.config import Table1Config
 from jaxcls.perception import pointnet
+from jaxcls.planning import nbv
 from jaxcls.world.dataset import DatasetConfig
 from jaxcls.world.objects import object_set_from_config
 
@@ -42,10 +44,14 @@ def passes(programs: list, platform: str) -> list[list]:
     return [programs[i:i + size] for i in range(0, len(programs), size)]
 
 
+BATCHED = (protocol.Kind.SINGLE, protocol.Kind.POLICY)  # rows run by the batched, switched program
+
+
 def run_episodes(config: Table1Config, files: list[Path], dataset: DatasetConfig, store: Path,
                  show_progress: bool = True) -> list[dict[str, Any]]:
-    """Every (classifier, row, scene, run) episode not yet in ``store`` (JSONL), appended as each scene's runs
-    of a row finish; returns all records of this config's rows and scenes."""
+    """Every (classifier, row, scene, run) episode not yet in ``store`` (JSONL), appended as each batch of a
+    row finishes; returns all records of this config's rows and scenes. The single-view and policy rows run
+    batched over scenes and runs (``run_batched``); PointNetFull and the oracle scene by scene."""
     object_set = object_set_from_config(dataset.objects)
     classifiers = {name: setup.load_classifier(path, object_set, f"classifiers.{name}")
                    for name, path in config.classifiers.items()}
@@ -55,9 +61,13 @@ def run_episodes(config: Table1Config, files: list[Path], dataset: DatasetConfig
               if row.kind is not protocol.Kind.ORACLE or s < config.oracle_scenes
               for run in range(runs_of(row, config.runs))]
     todo = [k for k in wanted if k not in done]
-    programs = [(c, name) for c in classifiers for name in rows if any(k[:2] == (c, name) for k in todo)]
     with tqdm(total=len(wanted), initial=len(wanted) - len(todo), desc="episodes", unit="episode",
               disable=not show_progress) as bar:
+        batched_todo = [k for k in todo if rows[k[1]].kind in BATCHED]
+        if batched_todo:
+            run_batched(config, files, dataset, classifiers, object_set, batched_todo, store, bar)
+        todo = [k for k in todo if rows[k[1]].kind not in BATCHED]
+        programs = [(c, name) for c in classifiers for name in rows if any(k[:2] == (c, name) for k in todo)]
         for group in passes(programs, jax.default_backend()):
             episodes: dict[tuple[str, str], active.Episode] = {}
             for s, path in enumerate(files):
@@ -83,6 +93,61 @@ def run_episodes(config: Table1Config, files: list[Path], dataset: DatasetConfig
             jax.clear_caches()  # the pass's compiled programs (and their memory maps) go
     keep = set(wanted)
     return [r for r in io.read_jsonl(store) if record_key(r) in keep]
+
+
+def program_row(row: protocol.Row) -> protocol.Row:
+    """The policy row whose episodes give ``row``'s: itself, or for PointNetSingle (GR on or off) the paper's
+    VisOcclHist with the same GR, whose first move is PointNetSingle's move (the policy only picks the next
+    view)."""
+    if row.kind is protocol.Kind.SINGLE:
+        return dataclasses.replace(row, kind=protocol.Kind.POLICY, policy=nbv.PolicyName.vis_occl_hist)
+    return row
+
+
+def run_batched(config: Table1Config, files: list[Path], dataset: DatasetConfig,
+                classifiers: dict[str, pointnet.Classifier], object_set, todo: list[tuple[str, str, int, int]],
+                store: Path, bar: tqdm) -> None:
+    """The single-view and policy rows' episodes ``todo`` batched over scenes and runs and sharded over the
+    local devices (``episode.batched``): ``scene_chunk`` scenes' frames at a time, one switched program per
+    classifier and model library running every row (``Episode.switched``), at most ``batch_episodes`` episodes a
+    call. Records are appended as each call finishes."""
+    device_mesh = batched.mesh()
+    policies = tuple(dict.fromkeys(program_row(protocol.ROWS[k[1]]).policy for k in todo))
+    switched: dict[tuple[str, str], active.Episode] = {}
+    for first in range(0, len(files), config.scene_chunk):
+        chunk = range(first, min(first + config.scene_chunk, len(files)))
+        chunk_todo = [k for k in todo if k[2] in chunk]
+        if not chunk_todo:
+            continue
+        views = [sources.dataset_source(files[s], dataset.objects) for s in chunk]
+        truths = [scoring.Truth.from_scene(v.scene, object_set) for v in views]
+        depth = np.stack([v.depth for v in views])
+        T_wc = np.stack([v.T_wc for v in views]).astype(np.float32)
+        V = T_wc.shape[1]
+        starts = {s: protocol.start_views(config.seed, s, config.runs, V) for s in chunk}
+        keys = {s: np.asarray(protocol.run_keys(config.seed, s, config.runs)) for s in chunk}
+        for c in classifiers:
+            names = list(dict.fromkeys(k[1] for k in chunk_todo if k[0] == c))
+            for name in names:
+                row = program_row(protocol.ROWS[name])
+                if (c, row.library) not in switched:
+                    switched[c, row.library] = episode(config, row, classifiers[c], object_set, views[0],
+                                                       dataset.scene.split).switched(policies)
+                chosen = switched[c, row.library].choose(row.policy, row.refinement)
+                wanted = [k for k in chunk_todo if k[:2] == (c, name)]
+                for part in range(0, len(wanted), config.batch_episodes or len(wanted)):
+                    calls = wanted[part:part + (config.batch_episodes or len(wanted))]
+                    scene = np.array([k[2] - first for k in calls], np.int32)
+                    start = np.array([starts[k[2]][k[3]] for k in calls], np.int32)
+                    key = np.stack([keys[k[2]][k[3]] for k in calls])
+                    bar.set_postfix(scenes=f"{chunk.start}-{chunk.stop - 1}", classifier=c, row=name)
+                    traces = batched.rollouts(chosen, depth, T_wc, scene, start, key, device_mesh)
+                    moves = 1 if protocol.ROWS[name].kind is protocol.Kind.SINGLE else config.moves
+                    records = [{"classifier": c, "row": name, "scene": k[2], **protocol.episode_record(
+                        jax.tree.map(lambda x, e=e, m=moves: x[e, :m], traces), truths[k[2] - first], run=k[3],
+                        start=int(start[e]))} for e, k in enumerate(calls)]
+                    io.append_jsonl(store, records)
+                    bar.update(len(records))
 
 
 def episode(config: Table1Config, row: protocol.Row, classifier: pointnet.Classifier, object_set,

@@ -121,16 +121,23 @@ def quat_from_matrix(R: jax.Array) -> jax.Array:
 
 # ---------------------------------------------------------------- GPU parts
 
-def posed_data_forward(mx: Any, dx0: Any, T_wc: jax.Array, T_body_cam: np.ndarray, mocap_id: int) -> Any:
-    """[B]-batched data with the camera's mocap body at ``T_wc: [B, 4, 4]``, moved by ``mjx.forward``."""
+def posed_data_forward(mx: Any, dx0: Any, T_wc: jax.Array, T_body_cam: np.ndarray, mocap_id: int,
+                       mocap_pos: jax.Array | None = None, mocap_quat: jax.Array | None = None) -> Any:
+    """[B]-batched data with the camera's mocap body at ``T_wc: [B, 4, 4]``, moved by ``mjx.forward``. With
+    ``mocap_pos: [B, nmocap, 3]`` and ``mocap_quat: [B, nmocap, 4]`` every other mocap body of each world is
+    posed too (a scene bank's objects, ``world.bank``)."""
     pos, quat = mocap_poses(T_wc, T_body_cam)
+    B = T_wc.shape[0]
+    if mocap_pos is None:
+        mocap_pos = jnp.broadcast_to(dx0.mocap_pos, (B, *dx0.mocap_pos.shape))
+        mocap_quat = jnp.broadcast_to(dx0.mocap_quat, (B, *dx0.mocap_quat.shape))
 
-    def pose_world(p: jax.Array, q: jax.Array) -> Any:
-        d = dx0.replace(mocap_pos=dx0.mocap_pos.at[mocap_id].set(p),
-                        mocap_quat=dx0.mocap_quat.at[mocap_id].set(q))
-        return mjx.forward(mx, d)  # kinematics + camlight: moves cam_xpos / cam_xmat
+    def pose_world(p: jax.Array, q: jax.Array, all_p: jax.Array, all_q: jax.Array) -> Any:
+        d = dx0.replace(mocap_pos=all_p.at[mocap_id].set(p), mocap_quat=all_q.at[mocap_id].set(q))
+        return mjx.forward(mx, d)  # kinematics + camlight: moves cam_xpos / cam_xmat (and the mocap geoms)
 
-    return jax.vmap(pose_world)(pos.astype(jnp.float32), quat.astype(jnp.float32))
+    return jax.vmap(pose_world)(pos.astype(jnp.float32), quat.astype(jnp.float32),
+                                jnp.asarray(mocap_pos, jnp.float32), jnp.asarray(mocap_quat, jnp.float32))
 
 
 def posed_data_static(dx0: Any, T_wc: jax.Array, geom_xpos: jax.Array, geom_xmat: jax.Array, cam_id: int) -> Any:
@@ -201,9 +208,10 @@ class WarpRenderer:
                                   width=intr.width, height=intr.height)
             pytree = rc.pytree()
 
-            def render(mx: Any, dx0: Any, geom_object: jax.Array, T_wc: jax.Array) -> DepthFrames:
-                if self.kinematics == "forward":
-                    dx = posed_data_forward(mx, dx0, T_wc, self._T_body_cam, self._mocap)
+            def render(mx: Any, dx0: Any, geom_object: jax.Array, T_wc: jax.Array, mocap_pos: jax.Array | None,
+                       mocap_quat: jax.Array | None) -> DepthFrames:
+                if self.kinematics == "forward" or mocap_pos is not None:
+                    dx = posed_data_forward(mx, dx0, T_wc, self._T_body_cam, self._mocap, mocap_pos, mocap_quat)
                 else:
                     dx = posed_data_static(dx0, T_wc, self._geom_xpos, self._geom_xmat, self._cam)
                 depth, seg = render_buffers(mx, dx, pytree)
@@ -212,8 +220,19 @@ class WarpRenderer:
             self._contexts[batch] = (rc, jax.jit(render))
         return self._contexts[batch]
 
-    def render(self, T_wc: np.ndarray) -> DepthFrames:
-        """T_wc: [B, 4, 4] | [4, 4]. Returns JAX [B, H, W] f32 depth and i32 object ids."""
+    def render(self, T_wc: np.ndarray, mocap_pos: jax.Array | None = None,
+               mocap_quat: jax.Array | None = None) -> DepthFrames:
+        """T_wc: [B, 4, 4] | [4, 4]. Returns JAX [B, H, W] f32 depth and i32 object ids. With ``mocap_pos``
+        [B, nmocap, 3] and ``mocap_quat`` [B, nmocap, 4], world b's mocap bodies stand there (a scene bank's
+        scenes, ``world.bank``; the camera's own mocap is set from ``T_wc``)."""
         T = jnp.asarray(contract.check_poses(T_wc), jnp.float32)
+        if (mocap_pos is None) != (mocap_quat is None):
+            raise ValueError("warp: give mocap_pos and mocap_quat together")
+        if mocap_pos is not None and self.kinematics == "static":
+            raise ValueError("warp: posed mocap bodies need kinematics='forward' (mjx.forward moves them)")
+        if mocap_pos is not None and (mocap_pos.shape != (T.shape[0], self._mjm.nmocap, 3)
+                                      or mocap_quat.shape != (T.shape[0], self._mjm.nmocap, 4)):
+            raise ValueError(f"warp: mocap_pos/quat must be [{T.shape[0]}, {self._mjm.nmocap}, 3/4], got "
+                             f"{mocap_pos.shape} and {mocap_quat.shape}")
         _, render = self._context(T.shape[0])
-        return render(self._mx, self._dx0, self._geom_object, T)
+        return render(self._mx, self._dx0, self._geom_object, T, mocap_pos, mocap_quat)

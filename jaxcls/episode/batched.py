@@ -1,0 +1,91 @@
+"""Episodes batched over scenes and runs, sharded over every local device: the scale path of Table 1.
+
+A batch is E episodes, each (scene, start view, key) over the frames of S scenes held on the devices
+(depth [S, V, H, W], T_wc [S, V, 4, 4]); every episode reads only its own frames (``active.rollout`` with
+``scene``). The batch is split over a 1-D ``jax.sharding.Mesh`` of the local devices along its episode axis
+(``mesh``; any device count, one included): each device runs its share of episodes on a replicated copy of
+the frames and the episode's settings, with no communication. E is padded to a multiple of the device count
+with copies of the first episode, dropped from the result.
+
+With a switched episode (``active.Episode.switched``) the same compiled program runs every policy row with
+GR on or off (``Episode.choose``): a batch holds one row, the choice is not batched, so only its kernel runs.
+
+    mesh = batched.mesh()                                  # all local devices
+    episode = make_episode(...).switched(policies)         # one program for every row
+    traces = batched.rollouts(episode.choose("random", False), depth, T_wc, scene, start, keys, mesh)
+
+Multi-host: after ``jax.distributed.initialize()`` each process runs its own share of the scenes on its local
+devices with ``mesh(jax.local_devices())`` (the episodes of a scene never span processes), and the records
+each writes are merged by their keys (classifier, row, scene, run).
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from jaxcls.episode import active
+
+AXIS = "episodes"
+
+
+def mesh(devices: Sequence[jax.Device] | None = None) -> Mesh:
+    """A 1-D mesh over ``devices`` (default: every local device) named ``AXIS``."""
+    devices = list(devices if devices is not None else jax.local_devices())
+    return Mesh(np.asarray(devices), (AXIS,))
+
+
+def _one(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, scene: jax.Array, start: jax.Array,
+         key: jax.Array) -> active.Trace:
+    state = active.reset(episode, T_wc[scene], start, key)
+    return active.rollout(episode, state, depth, T_wc, scene)[1]
+
+
+@functools.lru_cache(maxsize=8)
+def _program(device_mesh: Mesh):
+    """The jitted, sharded batch for one mesh: compiled once per episode settings and shapes."""
+    replicated, split = PartitionSpec(), PartitionSpec(AXIS)
+    local = jax.vmap(_one, in_axes=(None, None, None, 0, 0, 0))
+    sharded = jax.shard_map(local, mesh=device_mesh, in_specs=(replicated, replicated, replicated, split, split, split),
+                            out_specs=split, check_vma=False)
+    return jax.jit(sharded)
+
+
+def rollouts(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, scene: np.ndarray, start: np.ndarray,
+             keys: jax.Array, device_mesh: Mesh | None = None) -> active.Trace:
+    """E episodes over the frames of S scenes: depth [S, V, H, W] m (0 = no return), T_wc [S, V, 4, 4]
+    every viewpoint's frame; scene [E] i32 each episode's scene, start [E] i32 its start view, keys [E] its
+    key. A ``Trace`` with [E, T, ...] leaves (on the host: NumPy). Sharded over ``device_mesh`` (default: all
+    local devices)."""
+    device_mesh = device_mesh or mesh()
+    scene, start = np.asarray(scene, np.int32), np.asarray(start, np.int32)
+    E, S, V = len(scene), depth.shape[0], depth.shape[1]
+    if depth.ndim != 4 or T_wc.shape != (S, V, 4, 4):
+        raise ValueError(f"batched: depth must be [S, V, H, W] and T_wc [S, V, 4, 4], got {depth.shape} and "
+                         f"{T_wc.shape}")
+    if not (start.shape == (E,) and keys.shape[0] == E):
+        raise ValueError(f"batched: scene, start and keys need one entry per episode, got {scene.shape}, "
+                         f"{start.shape} and {keys.shape}")
+    if E and (scene.min() < 0 or scene.max() >= S or start.min() < 0 or start.max() >= V):
+        raise ValueError(f"batched: scenes must lie in 0..{S - 1} and start views in 0..{V - 1}")
+    n = device_mesh.devices.size
+    pad = -E % n
+    if pad:  # copies of the first episode, dropped below
+        scene = np.concatenate([scene, np.repeat(scene[:1], pad)])
+        start = np.concatenate([start, np.repeat(start[:1], pad)])
+        keys = jnp.concatenate([keys, jnp.repeat(keys[:1], pad, axis=0)])
+    split = NamedSharding(device_mesh, PartitionSpec(AXIS))
+    replicated = NamedSharding(device_mesh, PartitionSpec())
+    traces = _program(device_mesh)(
+        jax.device_put(episode, replicated), jax.device_put(jnp.asarray(depth, jnp.float32), replicated),
+        jax.device_put(jnp.asarray(T_wc, jnp.float32), replicated), jax.device_put(scene, split),
+        jax.device_put(start, split), jax.device_put(keys, split))
+    return jax.tree.map(lambda x: np.asarray(x)[:E], jax.device_get(traces))
+
+
+__all__ = ["AXIS", "mesh", "rollouts"]

@@ -1,0 +1,65 @@
+"""The scene bank (``world.bank``): every instance in one MuJoCo model, a scene as its bodies' poses, renders
+what the scene's own model renders (MuJoCo's C caster on both), with object ids mapped back from slots."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from jaxcls.geometry import CameraConfig, ViewpointConfig
+from jaxcls.world.bank import PARK, SceneBank
+from jaxcls.world.render import make_renderer
+from jaxcls.world.render.types import NO_OBJECT
+from jaxcls.world.scenes import SceneConfig
+from jaxcls.world.setup import WorldConfig, make_world
+
+WORLD = WorldConfig(camera=CameraConfig.kinect_v1(0.25), scene=SceneConfig(num_objects=4), backend="mujoco",
+                    viewpoints=ViewpointConfig(count=12))
+
+
+@pytest.mark.parametrize("distinct", [True, False])
+def test_the_bank_posed_in_a_scene_renders_the_scene(distinct):
+    config = dataclasses.replace(WORLD, scene=dataclasses.replace(WORLD.scene, distinct_classes=distinct))
+    worlds = [make_world(config, seed=s) for s in (2, 5)]
+    bank = SceneBank.build(worlds[0].object_set, config.scene, worlds[0].intrinsics)
+    pool = worlds[0].object_set.split("test")
+    assert len(bank.names) == len(pool) * (1 if distinct else 4)
+    pos, quat = bank.mocap([w.scene for w in worlds])
+    assert pos.shape == (2, len(bank.names) + 1, 3) and quat.shape == (2, len(bank.names) + 1, 4)
+    for world, p in zip(worlds, pos, strict=True):
+        slots = bank.slots(world.scene)
+        assert len(set(slots.tolist())) == len(world.scene.objects)  # a repeated instance takes another slot
+        parked = np.ones(len(p), bool)
+        parked[bank.model.body_mocapid[[bank.model.body(f"object_{j}").id for j in slots]]] = False
+        parked[bank.model.body_mocapid[bank.model.body("camera").id]] = False
+        assert np.allclose(p[parked, 2], world.table_height - PARK)
+        views = np.arange(len(world.viewpoints))
+        own = world.render(views)
+        drawn = make_renderer(bank.posed(world.scene), world.intrinsics, "mujoco").render(world.poses(views))
+        np.testing.assert_allclose(drawn.depth, own.depth, atol=1e-5)
+        objects = bank.objects(world.scene)
+        ids = np.where(drawn.object_id >= 0, objects[np.maximum(drawn.object_id, 0)], NO_OBJECT)
+        np.testing.assert_array_equal(ids, own.object_id)
+        assert set(np.unique(own.object_id)) >= set(range(len(world.scene.objects)))
+    # Both scenes at once, object ids mapped back to each scene's objects (the CPU path of bank.render).
+    T_wc = np.stack([w.viewpoints[:5] for w in worlds])
+    frames = bank.render([w.scene for w in worlds], T_wc, "mujoco")
+    for s, world in enumerate(worlds):
+        own = world.render(np.arange(5))
+        np.testing.assert_allclose(frames.depth[s], own.depth, atol=1e-5)
+        np.testing.assert_array_equal(frames.object_id[s], own.object_id)
+    with pytest.raises(ValueError, match=r"\[S, V, 4, 4\] with S = 2"):
+        bank.render([w.scene for w in worlds], T_wc[:1], "mujoco")
+
+
+def test_a_scene_that_does_not_fit_the_bank_is_refused():
+    world = make_world(WORLD, seed=1)
+    bank = SceneBank.build(world.object_set, WORLD.scene, world.intrinsics)
+    other = make_world(dataclasses.replace(WORLD, scene=dataclasses.replace(WORLD.scene, table_height=0.1)), seed=1)
+    with pytest.raises(ValueError, match="table"):
+        bank.slots(other.scene)
+    twice = dataclasses.replace(world.scene, objects=(world.scene.objects[0],) * 2)
+    with pytest.raises(ValueError, match="more often than the bank has slots"):
+        bank.slots(twice)

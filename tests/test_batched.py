@@ -1,0 +1,144 @@
+"""Episodes batched over scenes and runs (``episode.batched``): one switched program runs every policy row with
+GR on or off and gives the records of each row's own program; switching rows compiles nothing; the batch
+sharded over 4 (CPU-simulated) devices gives the records of one device."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+from jaxcls.episode import active, batched, protocol, scoring, setup
+from jaxcls.experiments.table1 import runner
+from jaxcls.geometry import CameraConfig
+from jaxcls.perception.settings import PerceptionConfig, ShapeConfig
+from jaxcls.perception.tracking import TrackingConfig
+from jaxcls.world.scenes import SceneConfig
+from jaxcls.world.setup import WorldConfig, make_world
+
+ROOT = Path(__file__).resolve().parents[1]
+WORLD = WorldConfig(camera=CameraConfig.kinect_v1(0.25), scene=SceneConfig(num_objects=3), backend="mujoco",
+                    viewpoints=dataclasses.replace(WorldConfig().viewpoints, count=30))
+MOVES = 3
+RUNS = 2
+# Frames fused at the poses given: a tracked pose differs between two compiled programs in its last float32
+# digits, which moves the fused surface chaotically downstream (test_episode.py says the same of vmap).
+SETTINGS = setup.ActiveConfig(
+    episode=active.EpisodeConfig(moves=MOVES),
+    perception=PerceptionConfig(shapes=ShapeConfig(surface_points=4096, points_per_segment=128),
+                                tracking=TrackingConfig(mode="reported")))
+ROWS = ("random", "vis_occl_hist_gr", "info_gain_gr", "single_gr")
+
+
+def scenes(count: int = 2):
+    """``count`` scenes' frames from every viewpoint: depth [S, V, H, W], T_wc [S, V, 4, 4], and the worlds."""
+    worlds = [make_world(WORLD, seed=s) for s in range(1, count + 1)]
+    measured = [w.measure(jax.random.PRNGKey(s), np.arange(len(w.viewpoints))) for s, w in enumerate(worlds)]
+    return (np.stack([m[0] for m in measured]), np.stack([m[1] for m in measured]).astype(np.float32), worlds)
+
+
+def records(traces, truths, scene, start, moves=MOVES):
+    """Each episode's path and target labels (prior and refined after each of its first ``moves`` moves)."""
+    out = []
+    for e in range(len(scene)):
+        r = protocol.episode_record(jax.tree.map(lambda x, e=e: x[e, :moves], traces), truths[scene[e]],
+                                    start=int(start[e]))
+        out.append({k: r[k] for k in ("path", "prior", "refined")})
+    return out
+
+
+@pytest.fixture(scope="module")
+def data():
+    return scenes()
+
+
+def test_one_program_runs_every_row_as_its_own_program_does(data):
+    depth, T_wc, worlds = data
+    world = worlds[0]
+    truths = [scoring.Truth.from_scene(w.scene, w.object_set) for w in worlds]
+    base = setup.make_episode(SETTINGS, world.object_set, world.intrinsics, world.table_height)
+    policies = tuple(dict.fromkeys(runner.program_row(protocol.ROWS[r]).policy for r in ROWS))
+    switched = base.switched(policies)
+    scene = np.repeat(np.arange(len(worlds)), RUNS)
+    start = np.concatenate([protocol.start_views(0, s, RUNS, T_wc.shape[1]) for s in range(len(worlds))])
+    keys = np.concatenate([np.asarray(protocol.run_keys(0, s, RUNS)) for s in range(len(worlds))])
+    program = batched._program(batched.mesh())
+    compiled = []
+    for name in ROWS:
+        row = protocol.ROWS[name]
+        # PointNetSingle: the first move of the program's VisOcclHist with the same GR (Table 1's runner).
+        program_row = runner.program_row(row)
+        moves = 1 if row.kind is protocol.Kind.SINGLE else MOVES
+        chosen = switched.choose(program_row.policy, program_row.refinement)
+        together = records(batched.rollouts(chosen, depth, T_wc, scene, start, keys), truths, scene, start, moves)
+        compiled.append(program._cache_size())
+        own = row.episode(SETTINGS, MOVES, base.spec.classifier, world.object_set, world.intrinsics,
+                          world.table_height)
+        alone = []
+        for s in range(len(worlds)):
+            mine = scene == s
+            traces = jax.device_get(protocol.rollouts(own, depth[s], T_wc[s], start[mine], keys[mine]))
+            alone += records(traces, truths, scene[mine], start[mine], moves)
+        assert together == alone, name
+        assert all(len(set(r["path"])) == moves for r in together)
+    assert compiled == [1] * len(ROWS), "switching the row compiled the batch again"
+    # A policy outside the program, or choosing on an unswitched episode, is refused by name.
+    with pytest.raises(ValueError, match="continuous"):
+        switched.choose("continuous", True)
+    with pytest.raises(ValueError, match="switched"):
+        base.choose("random", True)
+
+
+_SHARDED = """
+import json, sys
+import jax, numpy as np
+sys.path.insert(0, {tests!r})
+import test_batched as t
+from jaxcls.episode import batched, protocol, scoring, setup
+depth, T_wc, worlds = t.scenes()
+world = worlds[0]
+truths = [scoring.Truth.from_scene(w.scene, w.object_set) for w in worlds]
+episode = setup.make_episode(t.SETTINGS, world.object_set, world.intrinsics, world.table_height)
+episode = episode.switched(("vis_occl_hist", "random")).choose("vis_occl_hist", True)
+scene = np.array([0, 1, 1, 0, 1, 0], np.int32)   # 6 episodes: padded to 8 on 4 devices
+start = np.array([3, 9, 17, 25, 2, 11], np.int32)
+keys = np.asarray(jax.vmap(jax.random.PRNGKey)(np.arange(6)))
+out = {{}}
+for n in (4, 1):
+    mesh = batched.mesh(jax.devices()[:n])
+    out[n] = t.records(batched.rollouts(episode, depth, T_wc, scene, start, keys, mesh), truths, scene, start)
+print(json.dumps({{"devices": len(jax.devices()), "four": out[4], "one": out[1]}}))
+"""
+
+
+def test_sharded_over_four_devices_gives_the_records_of_one():
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=4", "JAX_PLATFORMS": "cpu",
+           "JAXCLS_CACHE_DIR": "off"}
+    code = _SHARDED.format(tests=str(ROOT / "tests"))
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT)
+    assert done.returncode == 0, done.stderr[-3000:]
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    assert result["devices"] == 4
+    assert result["four"] == result["one"]
+    assert len(result["four"]) == 6 and all(len(r["path"]) == MOVES for r in result["four"])
+
+
+def test_bad_batches_are_refused():
+    episode = None  # the checks come before anything is traced
+    depth, T_wc = np.zeros((2, 5, 4, 4), np.float32), np.tile(np.eye(4, dtype=np.float32), (2, 5, 1, 1))
+    keys = np.zeros((2, 2), np.uint32)
+    with pytest.raises(ValueError, match=r"scenes must lie in 0\.\.1"):
+        batched.rollouts(episode, depth, T_wc, np.array([0, 2]), np.array([0, 1]), keys)
+    with pytest.raises(ValueError, match="start views"):
+        batched.rollouts(episode, depth, T_wc, np.array([0, 1]), np.array([0, 5]), keys)
+    with pytest.raises(ValueError, match=r"T_wc \[S, V, 4, 4\]"):
+        batched.rollouts(episode, depth, T_wc[:1], np.array([0, 1]), np.array([0, 1]), keys)
+    with pytest.raises(ValueError, match="one entry per episode"):
+        batched.rollouts(episode, depth, T_wc, np.array([0, 1]), np.array([0]), keys)
