@@ -5,7 +5,9 @@
 
 The scenes are a ``jaxcls dataset`` (``dataset``: a shipped dataset config name, a config path, or a folder
 written by ``jaxcls dataset``; a config's folder is rendered first if it is missing or incomplete, and
-``dataset_overrides`` change it, e.g. ``[num_scenes=30,out_dir=data/synthetic_30]``). The rows are
+``dataset_overrides`` change it, e.g. ``[num_scenes=30,out_dir=data/synthetic_30]``); with
+``scene_source=device`` the config's scenes are drawn with its seeds and rendered chunk by chunk where the
+episodes run (the scene bank on a GPU, MuJoCo's C caster on a CPU), nothing written. The rows are
 ``protocol.ROWS`` names (``rows``); each runs ``runs`` episodes per scene from seeded random start views
 (the same starts and keys for every row: rows are paired), ``moves`` moves each, with every classifier of
 ``classifiers`` (name: a ``.msgpack`` path or a shipped name, "" = the shipped weights). The oracle row
@@ -59,11 +61,11 @@ def main(argv: list[str] | None = None) -> None:
         dataset = data.dataset_config(config)
         records = data.stored_records(config, out / "episodes.jsonl")
     else:
-        dataset, files = data.open_dataset(config)
+        dataset, scene_set = data.open_scenes(config)
         save_config(config, out / "config.yaml")
-        records = runner.run_episodes(config, files, dataset, out / "episodes.jsonl")
+        records = runner.run_episodes(config, scene_set, dataset, out / "episodes.jsonl")
     if timing is None and config.timing_moves and not args.tables_only:
-        timing = runner.time_modules(config, files, dataset)
+        timing = runner.time_modules(config, scene_set, dataset)
         io.write_json(timing_file, timing)
     classes = len(object_set_from_config(dataset.objects).classes)
     markdown, csv_rows, curves = tables.tables(config, records, classes, timing, argv)

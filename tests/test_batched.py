@@ -34,7 +34,7 @@ SETTINGS = setup.ActiveConfig(
     episode=active.EpisodeConfig(moves=MOVES),
     perception=PerceptionConfig(shapes=ShapeConfig(surface_points=4096, points_per_segment=128),
                                 tracking=TrackingConfig(mode="reported")))
-ROWS = ("random", "vis_occl_hist_gr", "info_gain_gr", "single_gr")
+ROWS = ("random", "vis_occl_hist_gr", "single_gr")
 
 
 def scenes(count: int = 2):

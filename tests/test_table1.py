@@ -103,6 +103,11 @@ def test_interrupted_experiment_resumes_and_the_same_seed_gives_the_same_numbers
     again = io.read_jsonl(tmp_path / "b" / "episodes.jsonl")
     order = sorted(range(len(records)), key=lambda i: keys[i])
     assert [records[i] for i in order] == sorted(again, key=lambda r: (r["classifier"], r["row"], r["scene"], r["run"]))
+    # The same scenes drawn from the dataset config and rendered where the episodes run (the scene bank; MuJoCo's
+    # C caster on a CPU), none read from the files: the same records.
+    table1.main(_small(tmp_path, "d", "scene_source=device"))
+    rendered = io.read_jsonl(tmp_path / "d" / "episodes.jsonl")
+    assert sorted(rendered, key=lambda r: (r["row"], r["scene"], r["run"])) == [records[i] for i in order]
     for r in records:
         assert len(r["refined"]) == (2 if r["row"] == "vis_occl_hist_gr" else 1)
         assert len(r["true"]) == 5 and all(len(labels) == 5 for labels in r["refined"])
@@ -235,8 +240,8 @@ def test_bad_inputs_are_refused_naming_the_key_or_file(tmp_path):
                 other / "config.yaml")
     bad = dataclasses.replace(config, dataset=str(other), dataset_overrides=())
     with pytest.raises(ValueError, match=r"scene_000\.npz: the scene was drawn from objects"):
-        runner.run_episodes(bad, [other / "scene_000.npz"], data.dataset_config(bad), tmp_path / "x.jsonl",
-                            show_progress=False)
+        runner.run_episodes(bad, data.Scenes.from_files(data.dataset_config(bad), [other / "scene_000.npz"]),
+                            data.dataset_config(bad), tmp_path / "x.jsonl", show_progress=False)
     assert not (tmp_path / "x.jsonl").exists()
     assert isinstance(dataset, DatasetConfig) and folder.is_dir()
     # A classifier trained on other classes.
@@ -246,8 +251,8 @@ def test_bad_inputs_are_refused_naming_the_key_or_file(tmp_path):
     shipped = pointnet.load_classifier()
     pointnet.save_classifier(weights, dataclasses.replace(shipped, classes=tuple(f"c{i}" for i in shipped.classes)))
     with pytest.raises(ValueError, match=r"w.msgpack \(classifiers.mine\).*trained on classes"):
-        runner.run_episodes(dataclasses.replace(config, classifiers={"mine": str(weights)}), files, dataset,
-                            tmp_path / "y.jsonl", show_progress=False)
+        runner.run_episodes(dataclasses.replace(config, classifiers={"mine": str(weights)}),
+                            data.Scenes.from_files(dataset, files), dataset, tmp_path / "y.jsonl", show_progress=False)
     assert not (tmp_path / "y.jsonl").exists()
 
 

@@ -106,7 +106,7 @@ class World:
         """What the sensor delivers at ``views``: (depth [K, H, W] f32 m after the sensor model, T_wc
         [K, 4, 4] the poses the pipeline is told (hand-eye noise, if on), object_id [K, H, W] (ideal),
         T_wc_true [K, 4, 4] the poses rendered from). Rendered ``batch_size`` views at a time."""
-        from jaxcls.world.render.sensor import apply_sensor, perturb_poses
+        from jaxcls.world.render.sensor import measure
 
         T_true = self.poses(views)
         depth, object_id = [], []
@@ -116,12 +116,8 @@ class World:
             object_id.append(np.asarray(frames.object_id))
             if progress is not None:
                 progress.update(len(frames.depth))
-        key_depth, key_pose = jax.random.split(key)
-        depth = np.asarray(apply_sensor(key_depth, np.concatenate(depth), self.intrinsics, self.config.sensor))
-        T_believed = T_true  # float64: a pass through jax would round exact poses to float32
-        if self.config.sensor.pose_noise:
-            T_believed = np.asarray(perturb_poses(key_pose, T_true, self.config.sensor), dtype=np.float64)
-        return depth, T_believed, np.concatenate(object_id), T_true
+        depth, T_believed = measure(key, np.concatenate(depth), T_true, self.intrinsics, self.config.sensor)
+        return np.asarray(depth), T_believed, np.concatenate(object_id), T_true
 
 
 def make_world(config: WorldConfig | None = None, seed: int = 0, scene: scenes.Scene | None = None,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import enum
 from pathlib import Path
 from typing import Any
 
@@ -13,6 +14,15 @@ from jaxcls.perception.settings import PerceptionConfig
 from jaxcls.planning.nbv import NBVConfig
 
 
+class SceneSource(enum.StrEnum):
+    """Where Table 1's frames come from: ``dataset``, the files ``jaxcls dataset`` wrote (rendered first where
+    missing; the reference); ``device``, the dataset config's scenes drawn with its seeds and rendered chunk by
+    chunk where the episodes run (the scene bank on the GPU; MuJoCo's C caster on a CPU), never written."""
+
+    dataset = "dataset"
+    device = "device"
+
+
 @dataclasses.dataclass(frozen=True)
 class Table1Config:
     """``experiments/table1.py``: which scenes, rows, runs and classifiers; the move's settings."""
@@ -20,6 +30,7 @@ class Table1Config:
     out_dir: str = "runs/table1_synthetic"
     dataset: str = "synthetic"  # a dataset config (name or path) or a folder written by ``jaxcls dataset``
     dataset_overrides: tuple[str, ...] = ()  # key=value changes to a dataset config (num_scenes, out_dir, ...)
+    scene_source: SceneSource = SceneSource.dataset  # the dataset's files, or its scenes rendered on the device
     seed: int = 0  # start views and episode keys
     scenes: int = bounded(0, ge=0)  # the first this many scenes of the dataset; 0 = all
     runs: int = bounded(10, ge=1)  # episodes per scene and row, from random start views

@@ -1,16 +1,21 @@
-"""Table 1's scenes (a ``jaxcls dataset`` folder or config, rendered first where missing) and its stored
-episodes."""
+"""Table 1's scenes (a ``jaxcls dataset`` folder or config, rendered first where missing; or drawn from the
+dataset config and rendered where the episodes run, ``SceneSource.device``) and its stored episodes."""
 
 from __future__ import annotations
 
 import dataclasses
+import functools
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from jaxcls import io
 from jaxcls.config import ConfigError, load_config, resolve_config
-from jaxcls.experiments.table1.config import Table1Config
-from jaxcls.world.dataset import DatasetConfig, build_dataset, scene_file
+from jaxcls.episode import sources
+from jaxcls.experiments.table1.config import SceneSource, Table1Config
+from jaxcls.world.dataset import DatasetConfig, build_dataset, scene_file, scene_key, scene_seeds
 
 
 def dataset_config(config: Table1Config) -> DatasetConfig:
@@ -54,3 +59,72 @@ def open_dataset(config: Table1Config) -> tuple[DatasetConfig, list[Path]]:
     if config.scenes > len(files):
         raise ValueError(f"scenes: {config.scenes} scenes asked, {folder} has {len(files)}")
     return dataset, files[:config.scenes or len(files)]
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Scenes:
+    """Table 1's ``count`` scenes by index: read from a dataset's ``files``, or (``files`` empty) drawn from
+    the dataset config with its seeds and rendered on demand from one ``SceneBank`` by ``backend`` (``warp`` on
+    a GPU, MuJoCo's C caster on a CPU), through the config's sensor with each scene's key: the frames
+    ``jaxcls dataset`` writes, within the renderers' agreement."""
+
+    dataset: DatasetConfig
+    count: int
+    files: tuple[Path, ...] = ()
+    backend: str = "mujoco"
+
+    @classmethod
+    def from_files(cls, dataset: DatasetConfig, files: Sequence[Path]) -> Scenes:
+        return cls(dataset=dataset, count=len(files), files=tuple(files))
+
+    def load(self, indices: Sequence[int]) -> list[sources.Preloaded]:
+        """The frames of scenes ``indices`` (every viewpoint), one ``Preloaded`` each."""
+        if self.files:
+            return [sources.dataset_source(self.files[i], self.dataset.objects) for i in indices]
+        return _render(self.dataset, tuple(indices), self.backend)
+
+
+def _render(dataset: DatasetConfig, indices: tuple[int, ...], backend: str) -> list[sources.Preloaded]:
+    from jaxcls.world import scenes
+    from jaxcls.world.render.sensor import measure
+    from jaxcls.world.setup import make_world
+
+    object_set, bank = _bank(dataset.objects, dataset.scene, dataset.camera)
+    seeds = scene_seeds(dataset.seed, dataset.num_scenes)
+    drawn = [scenes.sample_scene(object_set, dataset.scene, seeds[i], dataset.objects) for i in indices]
+    T_true = np.stack([make_world(dataset.world_config(), scene=s, object_set=object_set).viewpoints for s in drawn])
+    frames = bank.render(drawn, T_true, backend, batch=1024)
+    out = []
+    for n, (i, scene) in enumerate(zip(indices, drawn, strict=True)):
+        depth, T_wc = measure(scene_key(dataset.seed, i), frames.depth[n], T_true[n], bank.intrinsics, dataset.sensor)
+        out.append(sources.Preloaded(depth=np.asarray(depth), T_wc=T_wc, intrinsics=bank.intrinsics,
+                                     table_height=scene.table_height, scene=scene, name=f"scene {i} (rendered)"))
+    return out
+
+
+@functools.lru_cache(maxsize=4)
+def _bank(objects, scene, camera):
+    """(object set, scene bank) of a dataset's objects, scene and camera blocks, built once in a process."""
+    from jaxcls.world.bank import SceneBank
+    from jaxcls.world.objects import object_set_from_config
+
+    object_set = object_set_from_config(objects)
+    return object_set, SceneBank.build(object_set, scene, camera.intrinsics())
+
+
+def open_scenes(config: Table1Config) -> tuple[DatasetConfig, Scenes]:
+    """Table 1's scenes by ``config.scene_source``: a dataset's files (``open_dataset``), or its config's
+    scenes rendered where the episodes run (warp where a CUDA GPU and MuJoCo Warp are present, else MuJoCo's
+    C caster), none written to disk."""
+    if config.scene_source is SceneSource.dataset:
+        dataset, files = open_dataset(config)
+        return dataset, Scenes.from_files(dataset, files)
+    from jaxcls.world.render import resolve_backend
+
+    dataset = dataset_config(config)
+    if config.scenes > dataset.num_scenes:
+        raise ValueError(f"scenes: {config.scenes} scenes asked, the dataset config has {dataset.num_scenes} "
+                         f"(dataset_overrides=[num_scenes={config.scenes}])")
+    backend = resolve_backend(dataset.backend)
+    return dataset, Scenes(dataset=dataset, count=config.scenes or dataset.num_scenes,
+                           backend="warp" if backend == "warp" else "mujoco")

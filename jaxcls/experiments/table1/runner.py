@@ -5,7 +5,11 @@ classifier (``episode.batched``); PointNetFull and the oracle run scene by scene
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import json
+import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +20,7 @@ from tqdm.auto import tqdm
 from jaxcls import io, report
 from jaxcls.episode import active, batched, protocol, runner, scoring, setup, sources
 from jaxcls.experiments.table1.config import Table1Config
+from jaxcls.experiments.table1.data import Scenes
 from jaxcls.perception import pointnet
 from jaxcls.planning import nbv
 from jaxcls.world.dataset import DatasetConfig
@@ -26,6 +31,31 @@ from jaxcls.world.objects import object_set_from_config
 # died with LLVM's "Cannot allocate memory" after ~30. On the CPU the rows run in passes over the scenes of at
 # most this many (classifier, row) programs each, freed after the pass (a scene is read once per pass).
 CPU_PROGRAMS_PER_PASS = 12
+
+
+class Phases:
+    """Wall seconds spent in each phase of a run (``clock(name)``: a context that adds to ``seconds[name]``)."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+
+    @contextlib.contextmanager
+    def __call__(self, name: str):
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - t0
+
+
+def write_run_times(path: Path, clock: Phases, total: float, episodes: int) -> None:
+    """Append this run's phases (wall s) to ``path`` (a JSON list, one entry a run) and print them."""
+    runs = json.loads(path.read_text()) if path.exists() else []
+    entry = {"device": report.device_name(), "devices": len(jax.local_devices()), "episodes": episodes,
+             "total_s": round(total, 1), "phases_s": {k: round(v, 1) for k, v in clock.seconds.items()}}
+    io.write_json(path, [*runs, entry])
+    print(f"run times ({entry['device']}, {episodes} episodes): {entry['total_s']} s; "
+          + ", ".join(f"{k} {v} s" for k, v in entry["phases_s"].items()), file=sys.stderr)
 
 
 def record_key(r: dict[str, Any]) -> tuple[str, str, int, int]:
@@ -47,7 +77,7 @@ def passes(programs: list, platform: str) -> list[list]:
 BATCHED = (protocol.Kind.SINGLE, protocol.Kind.POLICY)  # rows run by the batched, switched program
 
 
-def run_episodes(config: Table1Config, files: list[Path], dataset: DatasetConfig, store: Path,
+def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig, store: Path,
                  show_progress: bool = True) -> list[dict[str, Any]]:
     """Every (classifier, row, scene, run) episode not yet in ``store`` (JSONL), appended as each batch of a
     row finishes; returns all records of this config's rows and scenes. The single-view and policy rows run
@@ -57,24 +87,26 @@ def run_episodes(config: Table1Config, files: list[Path], dataset: DatasetConfig
                    for name, path in config.classifiers.items()}
     rows = {name: protocol.row(name) for name in config.rows}
     done = {record_key(r) for r in io.read_jsonl(store)}
-    wanted = [(c, name, s, run) for s in range(len(files)) for c in classifiers for name, row in rows.items()
+    wanted = [(c, name, s, run) for s in range(scene_set.count) for c in classifiers for name, row in rows.items()
               if row.kind is not protocol.Kind.ORACLE or s < config.oracle_scenes
               for run in range(runs_of(row, config.runs))]
     todo = [k for k in wanted if k not in done]
+    clock, began = Phases(), time.perf_counter()
     with tqdm(total=len(wanted), initial=len(wanted) - len(todo), desc="episodes", unit="episode",
               disable=not show_progress) as bar:
         batched_todo = [k for k in todo if rows[k[1]].kind in BATCHED]
         if batched_todo:
-            run_batched(config, files, dataset, classifiers, object_set, batched_todo, store, bar)
+            run_batched(config, scene_set, dataset, classifiers, object_set, batched_todo, store, bar, clock)
         todo = [k for k in todo if rows[k[1]].kind not in BATCHED]
         programs = [(c, name) for c in classifiers for name in rows if any(k[:2] == (c, name) for k in todo)]
         for group in passes(programs, jax.default_backend()):
             episodes: dict[tuple[str, str], active.Episode] = {}
-            for s, path in enumerate(files):
+            for s in range(scene_set.count):
                 scene_todo = [k for k in todo if k[2] == s and k[:2] in group]
                 if not scene_todo:
                     continue
-                views = sources.dataset_source(path, dataset.objects)
+                with clock("frames (rendered or read)"):
+                    views = scene_set.load([s])[0]
                 truth = scoring.Truth.from_scene(views.scene, object_set)
                 starts = protocol.start_views(config.seed, s, config.runs, len(views.T_wc))
                 keys = protocol.run_keys(config.seed, s, config.runs)
@@ -87,10 +119,14 @@ def run_episodes(config: Table1Config, files: list[Path], dataset: DatasetConfig
                         episodes[c, name] = episode(config, row, classifiers[c], object_set, views,
                                                     dataset.scene.split)
                     bar.set_postfix(scene=s, classifier=c, row=name)
-                    records = row_records(config, row, episodes[c, name], views, truth, starts, keys, missing)
+                    with clock("scene by scene (PointNetFull, the oracle)"):
+                        records = row_records(config, row, episodes[c, name], views, truth, starts, keys, missing)
                     io.append_jsonl(store, [{"classifier": c, "row": name, "scene": s, **r} for r in records])
                     bar.update(len(records))
             jax.clear_caches()  # the pass's compiled programs (and their memory maps) go
+    if todo or batched_todo:
+        write_run_times(store.parent / "run_times.json", clock, time.perf_counter() - began,
+                        len(batched_todo) + len(todo))
     keep = set(wanted)
     return [r for r in io.read_jsonl(store) if record_key(r) in keep]
 
@@ -104,22 +140,25 @@ def program_row(row: protocol.Row) -> protocol.Row:
     return row
 
 
-def run_batched(config: Table1Config, files: list[Path], dataset: DatasetConfig,
+def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                 classifiers: dict[str, pointnet.Classifier], object_set, todo: list[tuple[str, str, int, int]],
-                store: Path, bar: tqdm) -> None:
+                store: Path, bar: tqdm, clock: Phases | None = None) -> None:
     """The single-view and policy rows' episodes ``todo`` batched over scenes and runs and sharded over the
     local devices (``episode.batched``): ``scene_chunk`` scenes' frames at a time, one switched program per
     classifier and model library running every row (``Episode.switched``), at most ``batch_episodes`` episodes a
     call. Records are appended as each call finishes."""
+    clock = clock or Phases()
+    compiled = False
     device_mesh = batched.mesh()
     policies = tuple(dict.fromkeys(program_row(protocol.ROWS[k[1]]).policy for k in todo))
     switched: dict[tuple[str, str], active.Episode] = {}
-    for first in range(0, len(files), config.scene_chunk):
-        chunk = range(first, min(first + config.scene_chunk, len(files)))
+    for first in range(0, scene_set.count, config.scene_chunk):
+        chunk = range(first, min(first + config.scene_chunk, scene_set.count))
         chunk_todo = [k for k in todo if k[2] in chunk]
         if not chunk_todo:
             continue
-        views = [sources.dataset_source(files[s], dataset.objects) for s in chunk]
+        with clock("frames (rendered or read)"):
+            views = scene_set.load(chunk)
         truths = [scoring.Truth.from_scene(v.scene, object_set) for v in views]
         depth = np.stack([v.depth for v in views])
         T_wc = np.stack([v.T_wc for v in views]).astype(np.float32)
@@ -141,11 +180,14 @@ def run_batched(config: Table1Config, files: list[Path], dataset: DatasetConfig,
                     start = np.array([starts[k[2]][k[3]] for k in calls], np.int32)
                     key = np.stack([keys[k[2]][k[3]] for k in calls])
                     bar.set_postfix(scenes=f"{chunk.start}-{chunk.stop - 1}", classifier=c, row=name)
-                    traces = batched.rollouts(chosen, depth, T_wc, scene, start, key, device_mesh)
+                    with clock("batched episodes" if compiled else "batched episodes, first call (compiles)"):
+                        traces = batched.rollouts(chosen, depth, T_wc, scene, start, key, device_mesh)
+                    compiled = True
                     moves = 1 if protocol.ROWS[name].kind is protocol.Kind.SINGLE else config.moves
-                    records = [{"classifier": c, "row": name, "scene": k[2], **protocol.episode_record(
-                        jax.tree.map(lambda x, e=e, m=moves: x[e, :m], traces), truths[k[2] - first], run=k[3],
-                        start=int(start[e]))} for e, k in enumerate(calls)]
+                    with clock("records (labels matched to the objects)"):
+                        records = [{"classifier": c, "row": name, "scene": k[2], **protocol.episode_record(
+                            jax.tree.map(lambda x, e=e, m=moves: x[e, :m], traces), truths[k[2] - first],
+                            run=k[3], start=int(start[e]))} for e, k in enumerate(calls)]
                     io.append_jsonl(store, records)
                     bar.update(len(records))
 
@@ -179,13 +221,13 @@ def row_records(config: Table1Config, row: protocol.Row, episode: active.Episode
                                     start=int(starts[r])) for r in runs]
 
 
-def time_modules(config: Table1Config, files: list[Path], dataset: DatasetConfig) -> dict[str, Any]:
+def time_modules(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig) -> dict[str, Any]:
     """One VisOcclHistGR episode of the first scene, each module timed outside jit (``runner.run``): the
     median ms per module over its moves after the first, per classifier's weights (the first's)."""
     object_set = object_set_from_config(dataset.objects)
     name, path = next(iter(config.classifiers.items()))
     classifier = setup.load_classifier(path, object_set, f"classifiers.{name}")
-    views = sources.dataset_source(files[0], dataset.objects)
+    views = scene_set.load([0])[0]
     row = protocol.ROWS["vis_occl_hist_gr"]
     timed = episode(dataclasses.replace(config, moves=config.timing_moves), row, classifier, object_set, views,
                     dataset.scene.split)

@@ -21,6 +21,7 @@ import math
 import jax
 import jax.numpy as jnp
 import jaxlie
+import numpy as np
 from flax import struct
 
 from jaxcls.config import Bounds, check_bounds
@@ -220,3 +221,18 @@ def _cos_incidence(depth: jax.Array, intrinsics: Intrinsics) -> jax.Array:
     n_norm = safe_norm(normal)
     cos = safe_div(jnp.abs(jnp.sum(normal * rays, axis=-1)), n_norm * safe_norm(rays))
     return jnp.where((n_norm > _TINY) & (depth > 0), jnp.clip(cos, 0.0, 1.0), 1.0)
+
+
+def measure(key: jax.Array, depth: jax.Array, T_true: np.ndarray, intrinsics: Intrinsics, config: SensorConfig
+            ) -> tuple[jax.Array, np.ndarray]:
+    """What a sensor delivers for rendered frames: (depth [K, H, W] f32 m through ``apply_sensor``, T_wc [K, 4,
+    4] the poses the pipeline is told: ``T_true`` (float64, exact) or, with ``pose_noise``, perturbed). One key
+    for the frames of a scene, split into the depth's and the poses' (``World.measure``, ``SceneBank`` scenes:
+    the same frames from the same key)."""
+    key_depth, key_pose = jax.random.split(key)
+    measured = apply_sensor(key_depth, depth, intrinsics, config)
+    T_believed = np.asarray(T_true, np.float64)  # a pass through jax would round exact poses to float32
+    if config.pose_noise:
+        T_believed = np.asarray(perturb_poses(key_pose, T_true, config), dtype=np.float64)
+    return measured, T_believed
+
