@@ -179,17 +179,27 @@ sys.exit(cli.main())
 
 def test_ctrl_c_while_native_code_holds_the_main_thread_ends_the_command(tmp_path):
     """Python runs a signal handler only when the main thread comes back to the interpreter; the watcher
-    thread ends the process within CtrlC.GRACE_S even when it does not."""
-    process, out, err = _start(["-c", HOLD], tmp_path, module=False)
-    try:
-        _wait_for(lambda: "holding" in out.read_text(), process)
-        code, text, seconds = _interrupt(process, err)
-    finally:
-        process.kill()
-        process.wait()
-    _assert_interrupted(code, text, seconds, "jaxcls hold: interrupted: run the same command again to resume")
-    assert cli.CtrlC.GRACE_S - 0.5 < seconds < cli.CtrlC.GRACE_S + 10
-    assert "done" not in out.read_text()
+    thread ends the process within CtrlC.GRACE_S even when it does not. An interrupt that the process handled at
+    once (it ended within milliseconds: the main thread was still in the interpreter, a race of this test seen
+    once in a loaded CI run) says nothing about the native hold: up to three tries, and one must show it."""
+    held = []
+    for attempt in range(3):
+        folder = tmp_path / str(attempt)
+        folder.mkdir()
+        process, out, err = _start(["-c", HOLD], folder, module=False)
+        try:
+            _wait_for(lambda out=out: "holding" in out.read_text(), process)
+            time.sleep(0.2)  # into the native call
+            code, text, seconds = _interrupt(process, err)
+        finally:
+            process.kill()
+            process.wait()
+        _assert_interrupted(code, text, seconds, "jaxcls hold: interrupted: run the same command again to resume")
+        assert "done" not in out.read_text()
+        held.append(seconds)
+        if seconds > cli.CtrlC.GRACE_S - 0.5:
+            break
+    assert cli.CtrlC.GRACE_S - 0.5 < held[-1] < cli.CtrlC.GRACE_S + 10, held
 
 
 def test_every_entry_knows_whether_its_command_resumes():

@@ -56,12 +56,19 @@ def _program(device_mesh: Mesh):
     return jax.jit(sharded)
 
 
-def rollouts(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, scene: np.ndarray, start: np.ndarray,
+def replicate(x: np.ndarray | jax.Array, device_mesh: Mesh | None = None) -> jax.Array:
+    """``x`` as float32 on every device of ``device_mesh`` (frames shared by the calls of a chunk: copied once)."""
+    device_mesh = device_mesh or mesh()
+    return jax.device_put(jnp.asarray(x, jnp.float32), NamedSharding(device_mesh, PartitionSpec()))
+
+
+def dispatch(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, scene: np.ndarray, start: np.ndarray,
              keys: jax.Array, device_mesh: Mesh | None = None) -> active.Trace:
-    """E episodes over the frames of S scenes: depth [S, V, H, W] m (0 = no return), T_wc [S, V, 4, 4]
-    every viewpoint's frame; scene [E] i32 each episode's scene, start [E] i32 its start view, keys [E] its
-    key. A ``Trace`` with [E, T, ...] leaves (on the host: NumPy). Sharded over ``device_mesh`` (default: all
-    local devices)."""
+    """E episodes over the frames of S scenes, started on the devices and returned at once (JAX dispatches
+    asynchronously; ``fetch`` waits for them): depth [S, V, H, W] m (0 = no return), T_wc [S, V, 4, 4] every
+    viewpoint's frame; scene [E] i32 each episode's scene, start [E] i32 its start view, keys [E] its key. A
+    ``Trace`` with [E', T, ...] device leaves, E' = E padded to a multiple of the devices. Sharded over
+    ``device_mesh`` (default: all local devices). Frames already on the device stay there."""
     device_mesh = device_mesh or mesh()
     scene, start = np.asarray(scene, np.int32), np.asarray(start, np.int32)
     E, S, V = len(scene), depth.shape[0], depth.shape[1]
@@ -75,17 +82,27 @@ def rollouts(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, scene: 
         raise ValueError(f"batched: scenes must lie in 0..{S - 1} and start views in 0..{V - 1}")
     n = device_mesh.devices.size
     pad = -E % n
-    if pad:  # copies of the first episode, dropped below
+    if pad:  # copies of the first episode, dropped by fetch
         scene = np.concatenate([scene, np.repeat(scene[:1], pad)])
         start = np.concatenate([start, np.repeat(start[:1], pad)])
         keys = jnp.concatenate([keys, jnp.repeat(keys[:1], pad, axis=0)])
     split = NamedSharding(device_mesh, PartitionSpec(AXIS))
     replicated = NamedSharding(device_mesh, PartitionSpec())
-    traces = _program(device_mesh)(
+    return _program(device_mesh)(
         jax.device_put(episode, replicated), jax.device_put(jnp.asarray(depth, jnp.float32), replicated),
         jax.device_put(jnp.asarray(T_wc, jnp.float32), replicated), jax.device_put(scene, split),
         jax.device_put(start, split), jax.device_put(keys, split))
-    return jax.tree.map(lambda x: np.asarray(x)[:E], jax.device_get(traces))
 
 
-__all__ = ["AXIS", "mesh", "rollouts"]
+def fetch(traces: active.Trace, episodes: int) -> active.Trace:
+    """The first ``episodes`` episodes of ``dispatch``'s traces on the host (NumPy), once they are done."""
+    return jax.tree.map(lambda x: np.asarray(x)[:episodes], jax.device_get(traces))
+
+
+def rollouts(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, scene: np.ndarray, start: np.ndarray,
+             keys: jax.Array, device_mesh: Mesh | None = None) -> active.Trace:
+    """``dispatch`` then ``fetch``: a ``Trace`` with [E, T, ...] NumPy leaves."""
+    return fetch(dispatch(episode, depth, T_wc, scene, start, keys, device_mesh), len(scene))
+
+
+__all__ = ["AXIS", "dispatch", "fetch", "mesh", "replicate", "rollouts"]

@@ -74,7 +74,8 @@ def run(config: Table1Config, dataset: DatasetConfig, files: list[Path], views_f
             episode_key = protocol.run_keys(config.seed, s, 1)[0]
             for c, classifier in classifiers.items():
                 if c not in episodes:
-                    episodes[c] = runner.episode(config, row, classifier, object_set, views, dataset.scene.split)
+                    episodes[c] = runner.episode(config, row, classifier, object_set, views.intrinsics,
+                                                 views.table_height, dataset.scene.split)
                 for k in views_fused:
                     for i in range(1 if k >= V else subsets):
                         chosen = subset(config.seed, s, k, i, V)

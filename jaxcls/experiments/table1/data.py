@@ -16,6 +16,7 @@ from jaxcls.config import ConfigError, load_config, resolve_config
 from jaxcls.episode import sources
 from jaxcls.experiments.table1.config import SceneSource, Table1Config
 from jaxcls.world.dataset import DatasetConfig, build_dataset, scene_file, scene_key, scene_seeds
+from jaxcls.world.render.types import Backend
 
 
 def dataset_config(config: Table1Config) -> DatasetConfig:
@@ -71,20 +72,46 @@ class Scenes:
     dataset: DatasetConfig
     count: int
     files: tuple[Path, ...] = ()
-    backend: str = "mujoco"
+    backend: Backend = Backend.mujoco
 
     @classmethod
     def from_files(cls, dataset: DatasetConfig, files: Sequence[Path]) -> Scenes:
         return cls(dataset=dataset, count=len(files), files=tuple(files))
 
     def load(self, indices: Sequence[int]) -> list[sources.Preloaded]:
-        """The frames of scenes ``indices`` (every viewpoint), one ``Preloaded`` each."""
+        """The frames of scenes ``indices`` (every viewpoint) on the host, one ``Preloaded`` each (checked)."""
         if self.files:
             return [sources.dataset_source(self.files[i], self.dataset.objects) for i in indices]
+        chunk = self.chunk(indices)
+        return [sources.Preloaded(depth=np.asarray(chunk.depth[n]), T_wc=chunk.T_wc[n], intrinsics=chunk.intrinsics,
+                                  table_height=scene.table_height, scene=scene, name=f"scene {i} (rendered)")
+                for n, (i, scene) in enumerate(zip(indices, chunk.scenes, strict=True))]
+
+    def chunk(self, indices: Sequence[int]) -> Chunk:
+        """The frames of scenes ``indices`` stacked for a batched call, on the device when rendered there."""
+        if self.files:
+            views = self.load(indices)
+            return Chunk(scenes=[v.scene for v in views], depth=np.stack([v.depth for v in views]),
+                         T_wc=np.stack([v.T_wc for v in views]), intrinsics=views[0].intrinsics)
         return _render(self.dataset, tuple(indices), self.backend)
 
 
-def _render(dataset: DatasetConfig, indices: tuple[int, ...], backend: str) -> list[sources.Preloaded]:
+@dataclasses.dataclass(frozen=True, eq=False)
+class Chunk:
+    """S scenes' frames from every viewpoint: depth [S, V, H, W] m (NumPy, or a JAX array where they were
+    rendered), T_wc [S, V, 4, 4] f64 the poses the pipeline is told; the scenes; the camera."""
+
+    scenes: list
+    depth: Any
+    T_wc: np.ndarray
+    intrinsics: Any
+
+
+def _render(dataset: DatasetConfig, indices: tuple[int, ...], backend: Backend) -> Chunk:
+    """Scenes ``indices`` of ``dataset`` drawn with its seeds, rendered from the bank, through its sensor with
+    each scene's key (``jaxcls dataset``'s draw); the frames stay where they were rendered."""
+    import jax.numpy as jnp
+
     from jaxcls.world import scenes
     from jaxcls.world.render.sensor import measure
     from jaxcls.world.setup import make_world
@@ -94,12 +121,10 @@ def _render(dataset: DatasetConfig, indices: tuple[int, ...], backend: str) -> l
     drawn = [scenes.sample_scene(object_set, dataset.scene, seeds[i], dataset.objects) for i in indices]
     T_true = np.stack([make_world(dataset.world_config(), scene=s, object_set=object_set).viewpoints for s in drawn])
     frames = bank.render(drawn, T_true, backend, batch=1024)
-    out = []
-    for n, (i, scene) in enumerate(zip(indices, drawn, strict=True)):
-        depth, T_wc = measure(scene_key(dataset.seed, i), frames.depth[n], T_true[n], bank.intrinsics, dataset.sensor)
-        out.append(sources.Preloaded(depth=np.asarray(depth), T_wc=T_wc, intrinsics=bank.intrinsics,
-                                     table_height=scene.table_height, scene=scene, name=f"scene {i} (rendered)"))
-    return out
+    measured = [measure(scene_key(dataset.seed, i), frames.depth[n], T_true[n], bank.intrinsics, dataset.sensor)
+                for n, i in enumerate(indices)]
+    return Chunk(scenes=drawn, depth=jnp.stack([d for d, _ in measured]), T_wc=np.stack([T for _, T in measured]),
+                 intrinsics=bank.intrinsics)
 
 
 @functools.lru_cache(maxsize=4)
@@ -125,6 +150,6 @@ def open_scenes(config: Table1Config) -> tuple[DatasetConfig, Scenes]:
     if config.scenes > dataset.num_scenes:
         raise ValueError(f"scenes: {config.scenes} scenes asked, the dataset config has {dataset.num_scenes} "
                          f"(dataset_overrides=[num_scenes={config.scenes}])")
-    backend = resolve_backend(dataset.backend)
-    return dataset, Scenes(dataset=dataset, count=config.scenes or dataset.num_scenes,
-                           backend="warp" if backend == "warp" else "mujoco")
+    # The bank renders with warp on a GPU, else with MuJoCo's C caster (for ``mjx`` too).
+    backend = Backend.warp if resolve_backend(dataset.backend) is Backend.warp else Backend.mujoco
+    return dataset, Scenes(dataset=dataset, count=config.scenes or dataset.num_scenes, backend=backend)

@@ -21,6 +21,7 @@ from jaxcls import io, report
 from jaxcls.episode import active, batched, protocol, runner, scoring, setup, sources
 from jaxcls.experiments.table1.config import Table1Config
 from jaxcls.experiments.table1.data import Scenes
+from jaxcls.geometry import Intrinsics
 from jaxcls.perception import pointnet
 from jaxcls.planning import nbv
 from jaxcls.world.dataset import DatasetConfig
@@ -116,8 +117,8 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
                         continue
                     row = rows[name]
                     if (c, name) not in episodes:
-                        episodes[c, name] = episode(config, row, classifiers[c], object_set, views,
-                                                    dataset.scene.split)
+                        episodes[c, name] = episode(config, row, classifiers[c], object_set, views.intrinsics,
+                                                    views.table_height, dataset.scene.split)
                     bar.set_postfix(scene=s, classifier=c, row=name)
                     with clock("scene by scene (PointNetFull, the oracle)"):
                         records = row_records(config, row, episodes[c, name], views, truth, starts, keys, missing)
@@ -146,58 +147,77 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     """The single-view and policy rows' episodes ``todo`` batched over scenes and runs and sharded over the
     local devices (``episode.batched``): ``scene_chunk`` scenes' frames at a time, one switched program per
     classifier and model library running every row (``Episode.switched``), at most ``batch_episodes`` episodes a
-    call. Records are appended as each call finishes."""
+    call. Rows that share a program row (PointNetSingle and VisOcclHist with the same GR) share its episodes. A
+    call's records are built and appended while the next call runs on the devices."""
     clock = clock or Phases()
-    compiled = False
     device_mesh = batched.mesh()
     policies = tuple(dict.fromkeys(program_row(protocol.ROWS[k[1]]).policy for k in todo))
     switched: dict[tuple[str, str], active.Episode] = {}
+    pending: list = []  # the call in flight: (its episodes' keys by row, traces, truths, starts, first scene)
+
+    def finish() -> None:
+        calls, traces, truths, start, first = pending.pop()
+        first_call = "batched episodes, first call (compiles)"
+        with clock("batched episodes" if first_call in clock.seconds else first_call):
+            traces = batched.fetch(traces, len(start))
+        with clock("records (labels matched to the objects)"):
+            for (c, name), keys in calls.items():
+                moves = 1 if protocol.ROWS[name].kind is protocol.Kind.SINGLE else config.moves
+                records = [{"classifier": c, "row": name, "scene": k[2], **protocol.episode_record(
+                    jax.tree.map(lambda x, e=e, m=moves: x[e, :m], traces), truths[k[2] - first], run=k[3],
+                    start=int(start[e]))} for e, k in keys]
+                io.append_jsonl(store, records)
+                bar.update(len(records))
+
     for first in range(0, scene_set.count, config.scene_chunk):
-        chunk = range(first, min(first + config.scene_chunk, scene_set.count))
-        chunk_todo = [k for k in todo if k[2] in chunk]
+        chunk_range = range(first, min(first + config.scene_chunk, scene_set.count))
+        chunk_todo = [k for k in todo if k[2] in chunk_range]
         if not chunk_todo:
             continue
         with clock("frames (rendered or read)"):
-            views = scene_set.load(chunk)
-        truths = [scoring.Truth.from_scene(v.scene, object_set) for v in views]
-        depth = np.stack([v.depth for v in views])
-        T_wc = np.stack([v.T_wc for v in views]).astype(np.float32)
-        V = T_wc.shape[1]
-        starts = {s: protocol.start_views(config.seed, s, config.runs, V) for s in chunk}
-        keys = {s: np.asarray(protocol.run_keys(config.seed, s, config.runs)) for s in chunk}
+            chunk = scene_set.chunk(chunk_range)
+            depth, T_wc = batched.replicate(chunk.depth, device_mesh), batched.replicate(chunk.T_wc, device_mesh)
+        truths = [scoring.Truth.from_scene(scene, object_set) for scene in chunk.scenes]
+        V = chunk.T_wc.shape[1]
+        starts = {s: protocol.start_views(config.seed, s, config.runs, V) for s in chunk_range}
+        keys = {s: np.asarray(protocol.run_keys(config.seed, s, config.runs)) for s in chunk_range}
         for c in classifiers:
-            names = list(dict.fromkeys(k[1] for k in chunk_todo if k[0] == c))
-            for name in names:
+            programs: dict[tuple, tuple[protocol.Row, list[str]]] = {}  # (policy, GR, library) -> the rows it gives
+            for name in dict.fromkeys(k[1] for k in chunk_todo if k[0] == c):
                 row = program_row(protocol.ROWS[name])
+                programs.setdefault((row.policy, row.refinement, row.library), (row, []))[1].append(name)
+            for row, names in programs.values():
                 if (c, row.library) not in switched:
-                    switched[c, row.library] = episode(config, row, classifiers[c], object_set, views[0],
-                                                       dataset.scene.split).switched(policies)
+                    switched[c, row.library] = episode(config, row, classifiers[c], object_set, chunk.intrinsics,
+                                                       chunk.scenes[0].table_height, dataset.scene.split)
+                    switched[c, row.library] = switched[c, row.library].switched(policies)
                 chosen = switched[c, row.library].choose(row.policy, row.refinement)
-                wanted = [k for k in chunk_todo if k[:2] == (c, name)]
-                for part in range(0, len(wanted), config.batch_episodes or len(wanted)):
-                    calls = wanted[part:part + (config.batch_episodes or len(wanted))]
-                    scene = np.array([k[2] - first for k in calls], np.int32)
-                    start = np.array([starts[k[2]][k[3]] for k in calls], np.int32)
-                    key = np.stack([keys[k[2]][k[3]] for k in calls])
-                    bar.set_postfix(scenes=f"{chunk.start}-{chunk.stop - 1}", classifier=c, row=name)
-                    with clock("batched episodes" if compiled else "batched episodes, first call (compiles)"):
-                        traces = batched.rollouts(chosen, depth, T_wc, scene, start, key, device_mesh)
-                    compiled = True
-                    moves = 1 if protocol.ROWS[name].kind is protocol.Kind.SINGLE else config.moves
-                    with clock("records (labels matched to the objects)"):
-                        records = [{"classifier": c, "row": name, "scene": k[2], **protocol.episode_record(
-                            jax.tree.map(lambda x, e=e, m=moves: x[e, :m], traces), truths[k[2] - first],
-                            run=k[3], start=int(start[e]))} for e, k in enumerate(calls)]
-                    io.append_jsonl(store, records)
-                    bar.update(len(records))
+                runs = sorted({k[2:] for k in chunk_todo if k[0] == c and k[1] in names})  # (scene, run)
+                size = config.batch_episodes or len(runs)
+                for part in range(0, len(runs), size):
+                    call = runs[part:part + size]
+                    index = {sr: e for e, sr in enumerate(call)}
+                    scene = np.array([s - first for s, _ in call], np.int32)
+                    start = np.array([starts[s][r] for s, r in call], np.int32)
+                    key = np.stack([keys[s][r] for s, r in call])
+                    bar.set_postfix(scenes=f"{chunk_range.start}-{chunk_range.stop - 1}", classifier=c,
+                                    rows="+".join(names))
+                    traces = batched.dispatch(chosen, depth, T_wc, scene, start, key, device_mesh)
+                    if pending:
+                        finish()  # the last call's records, while this one runs
+                    calls = {(c, name): [(index[k[2:]], k) for k in chunk_todo
+                                         if k[:2] == (c, name) and k[2:] in index] for name in names}
+                    pending.append((calls, traces, truths, start, first))
+    if pending:
+        finish()
 
 
 def episode(config: Table1Config, row: protocol.Row, classifier: pointnet.Classifier, object_set,
-            views: sources.Preloaded, scene_split: str) -> active.Episode:
+            intrinsics: Intrinsics, table_height: float, scene_split: str) -> active.Episode:
     """``row``'s episode of this config's move settings (``Row.episode`` owns the wiring)."""
     base = setup.ActiveConfig(episode=active.EpisodeConfig(decision=config.decision), perception=config.perception,
                               refine=config.refine, nbv=config.nbv)
-    return row.episode(base, config.moves, classifier, object_set, views.intrinsics, views.table_height, scene_split)
+    return row.episode(base, config.moves, classifier, object_set, intrinsics, table_height, scene_split)
 
 
 def row_records(config: Table1Config, row: protocol.Row, episode: active.Episode, views: sources.Preloaded,
@@ -229,8 +249,8 @@ def time_modules(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
     classifier = setup.load_classifier(path, object_set, f"classifiers.{name}")
     views = scene_set.load([0])[0]
     row = protocol.ROWS["vis_occl_hist_gr"]
-    timed = episode(dataclasses.replace(config, moves=config.timing_moves), row, classifier, object_set, views,
-                    dataset.scene.split)
+    timed = episode(dataclasses.replace(config, moves=config.timing_moves), row, classifier, object_set,
+                    views.intrinsics, views.table_height, dataset.scene.split)
     start = int(protocol.start_views(config.seed, 0, 1, len(views.T_wc))[0])
     runner.run(timed, views, start, jax.random.PRNGKey(config.seed))  # compiles
     log = runner.run(timed, views, start, jax.random.PRNGKey(config.seed))
