@@ -193,7 +193,8 @@ def test_training_on_a_model_folder(tmp_path):
     small = [f"out_dir={tmp_path / 'run'}", f"data.cache_dir={tmp_path / 'cache'}", "epochs=1", "steps_per_epoch=2",
              "batch_size=8", "model.num_points=64", "eval_batch=16", "eval_rotations=2", "objects.surface_samples=600",
              "data.full_points=600", "data.views_per_instance=1", "data.occluded_per_instance=0",
-             "data.fused_per_instance=0", "data.image_scale=0.25", "mix.occluded=0", "mix.fused=0"]
+             "data.fused_per_instance=0", "data.image_scale=0.25", "mix.occluded=0", "mix.fused=0", "data.scenes=2",
+             "data.scene_max_views=2"]
     command = ["train", "--config", "configs/pointnet_folder.yaml", f"objects.source={tmp_path / 'models'}", *small]
     assert cli_main(command) == 0  # the README's command
     run = tmp_path / "run"

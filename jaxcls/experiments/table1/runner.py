@@ -155,10 +155,14 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     switched: dict[tuple[str, str], active.Episode] = {}
     pending: list = []  # the call in flight: (its episodes' keys by row, traces, truths, starts, first scene)
 
+    def episodes_clock():
+        """Dispatching a call (the first one compiles) and waiting for one: the devices' share of the run."""
+        first_call = "batched episodes, first call (compiles)"
+        return clock("batched episodes" if first_call in clock.seconds else first_call)
+
     def finish() -> None:
         calls, traces, truths, start, first = pending.pop()
-        first_call = "batched episodes, first call (compiles)"
-        with clock("batched episodes" if first_call in clock.seconds else first_call):
+        with episodes_clock():
             traces = batched.fetch(traces, len(start))
         with clock("records (labels matched to the objects)"):
             for (c, name), keys in calls.items():
@@ -202,7 +206,8 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                     key = np.stack([keys[s][r] for s, r in call])
                     bar.set_postfix(scenes=f"{chunk_range.start}-{chunk_range.stop - 1}", classifier=c,
                                     rows="+".join(names))
-                    traces = batched.dispatch(chosen, depth, T_wc, scene, start, key, device_mesh)
+                    with episodes_clock():
+                        traces = batched.dispatch(chosen, depth, T_wc, scene, start, key, device_mesh)
                     if pending:
                         finish()  # the last call's records, while this one runs
                     calls = {(c, name): [(index[k[2:]], k) for k in chunk_todo
