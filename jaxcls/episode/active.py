@@ -334,7 +334,7 @@ def refinement(episode: Episode, state: EpisodeState, depth: jax.Array | None = 
                       episode.spec.table_height, seen_from(state), yaw=obs.yaw if learned else None,
                       yaw_orders=episode.yaw_orders if learned else None)
 
-    if isinstance(gr, bool):  # the static setting: one branch compiled
+    if episode.choice is None:  # the static setting: one branch compiled
         new = registered() if gr else prior_only(episode, obs)
     else:  # a switched episode's traced choice: both compiled, the chosen one runs
         new = jax.lax.cond(gr, registered, lambda: prior_only(episode, obs))

@@ -89,8 +89,9 @@ class SceneBank:
     def mocap(self, scene_list: Sequence[scenes.Scene]) -> tuple[np.ndarray, np.ndarray]:
         """The mocap poses of each scene: pos [S, nmocap, 3] m and quat [S, nmocap, 4] (w, x, y, z); the
         camera's mocap keeps its rest pose (a renderer moves it)."""
-        pos = np.tile(self.model.body_pos[self._mocap_bodies()], (len(scene_list), 1, 1))
-        quat = np.tile(self.model.body_quat[self._mocap_bodies()], (len(scene_list), 1, 1))
+        bodies = self._mocap_bodies()
+        pos = np.tile(self.model.body_pos[bodies], (len(scene_list), 1, 1))
+        quat = np.tile(self.model.body_quat[bodies], (len(scene_list), 1, 1))
         slot_mocap = self.model.body_mocapid[self._slot_bodies()]
         for s, scene in enumerate(scene_list):
             for slot, T in zip(self.slots(scene), scene.object_poses(), strict=True):
