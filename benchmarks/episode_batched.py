@@ -3,18 +3,22 @@ episodes of one scene from different start views, as issue 23's larger runs will
 
     python benchmarks/episode_batched.py --save data/gpu/scene3.npz          # on a machine with MuJoCo
     python benchmarks/episode_batched.py --frames data/gpu/scene3.npz --batch 1 16 64 [--out BENCHMARKS.md]
-        [--tracking frame_to_model reported]
+        [--tracking frame_to_model reported] [--storage float32 compact] [--precision float32 tf32]
 
-Reports episodes/s and moves/s per batch size and camera tracking (``perception.tracking.mode``: each
-batch size runs every mode, their repeats interleaved), the first call (compilation), and the final F1 of the
-target objects pooled over the batch (prior and refined); ``--trace FILE`` writes each episode's path and
-final labels (JSON) to compare with another device.
+Every combination of camera tracking (``perception.tracking.mode``), the volume's storage
+(``perception.volume.storage``) and PointNet's products (``perception.classification_precision``) is a
+variant; each batch size runs every variant, their repeats interleaved. Reports episodes/s and moves/s, the
+first call (compilation), the program's device memory per episode (XLA's temporaries of the batch over B:
+``compiled.memory_analysis``), the final F1 of the target objects pooled over the batch (prior and refined),
+and the share of episodes whose path and final labels equal the first variant's; ``--trace FILE`` writes each
+episode's path and final labels (JSON) to compare with another device.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import itertools
 import json
 import time
 
@@ -23,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxcls import io, metrics, precision, report
-from jaxcls.episode import active, scoring, setup
+from jaxcls.episode import active, batched, scoring, setup
 from jaxcls.geometry import Intrinsics
 
 
@@ -43,12 +47,19 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--frames", default="data/gpu/scene3.npz")
     parser.add_argument("--save", help="render the frames file here (needs MuJoCo) and stop")
     parser.add_argument("--seed", type=int, default=3)
-    parser.add_argument("--batch", type=int, nargs="+", default=[1, 16, 64])
+    parser.add_argument("--batch", type=int, nargs="*", default=[1, 16, 64])
     parser.add_argument("--moves", type=int, default=10)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--trace", help="write each episode's path and final labels (JSON) here")
     parser.add_argument("--tracking", nargs="+", default=["frame_to_model"], choices=["frame_to_model", "reported"],
                         help="perception.tracking.mode of the episodes (several: compared, interleaved)")
+    parser.add_argument("--storage", nargs="+", default=["float32"], choices=["float32", "compact"],
+                        help="perception.volume.storage (several: compared, interleaved)")
+    parser.add_argument("--precision", nargs="+", default=["float32"], choices=["float32", "tf32"],
+                        help="perception.classification_precision (several: compared, interleaved)")
+    parser.add_argument("--fit", type=int, nargs="*", default=[],
+                        help="batch sizes of Table 1's program (episode.batched): its device memory against the "
+                             "device's, and one call timed where it fits")
     parser.add_argument("--out", help="append the table to this Markdown file")
     args = parser.parse_args(argv)
     if args.save:
@@ -68,10 +79,12 @@ def main(argv: list[str] | None = None) -> None:
     truth = scoring.Truth.from_scene(scene, object_set)
     perception = setup.episode_perception()
     episodes = {}
-    for mode in args.tracking:
+    for mode, storage, product in itertools.product(args.tracking, args.storage, args.precision):
         settings = setup.ActiveConfig(episode=active.EpisodeConfig(moves=args.moves), perception=dataclasses.replace(
-            perception, tracking=dataclasses.replace(perception.tracking, mode=mode)))
-        episodes[mode] = setup.make_episode(settings, object_set, Intrinsics.kinect_v1(), scene.table_height)
+            perception, tracking=dataclasses.replace(perception.tracking, mode=mode),
+            volume=dataclasses.replace(perception.volume, storage=storage), classification_precision=product))
+        episodes[f"{mode}/{storage}/{product}"] = setup.make_episode(settings, object_set, Intrinsics.kinect_v1(),
+                                                                     scene.table_height)
     reset = jax.jit(jax.vmap(active.reset, in_axes=(None, None, 0, 0)))
     rollout = jax.jit(jax.vmap(active.rollout, in_axes=(None, 0, None, None)))
     rows, traces = [], []
@@ -79,8 +92,11 @@ def main(argv: list[str] | None = None) -> None:
     for B in args.batch:
         starts = jnp.asarray(np.random.default_rng(B).integers(0, T_wc.shape[0], B), jnp.int32)
         keys = jax.random.split(jax.random.PRNGKey(B), B)
-        first, times, final, trace = {}, {m: [] for m in episodes}, {}, {}
+        first, times, final, trace, memory = {}, {m: [] for m in episodes}, {}, {}, {}
         for mode, episode in episodes.items():
+            states = jax.eval_shape(reset, episode, T_wc, starts, keys)
+            analysis = rollout.lower(episode, states, depth, T_wc).compile().memory_analysis()
+            memory[mode] = (analysis.temp_size_in_bytes + analysis.output_size_in_bytes) / B if analysis else np.nan
             t0 = time.perf_counter()
             final[mode], trace[mode] = jax.block_until_ready(rollout(episode, reset(episode, T_wc, starts, keys),
                                                                      depth, T_wc))
@@ -90,6 +106,7 @@ def main(argv: list[str] | None = None) -> None:
                 t0 = time.perf_counter()
                 jax.block_until_ready(rollout(episode, reset(episode, T_wc, starts, keys), depth, T_wc))
                 times[mode].append(time.perf_counter() - t0)
+        base = next(iter(episodes))
         for mode in episodes:
             t = float(np.median(times[mode]))
             true, predicted = [], []  # per episode: the targets' true and [prior, refined] labels
@@ -102,22 +119,60 @@ def main(argv: list[str] | None = None) -> None:
             true, predicted = np.concatenate(true), np.concatenate(predicted, axis=1)
             scores = {label: metrics.classification_scores(true, predicted[i], M).f1
                       for i, label in enumerate(("prior", "refined"))}
+            same = (np.all(np.asarray(trace[mode].view) == np.asarray(trace[base].view), axis=1)
+                    & np.all(np.asarray(final[mode].refinement.refined) == np.asarray(final[base].refinement.refined),
+                             axis=1))
             rows.append((B, mode, report.device_name(), f"{first[mode]:.1f}", f"{t * 1e3:.0f}", f"{B / t:.1f}",
-                         f"{B * args.moves / t:.0f}", f"{scores['prior']:.3f}", f"{scores['refined']:.3f}"))
+                         f"{B * args.moves / t:.0f}", f"{memory[mode] / 1e6:.1f}", f"{scores['prior']:.3f}",
+                         f"{scores['refined']:.3f}", f"{np.mean(same):.2f}"))
             print(rows[-1], flush=True)
-            traces += [{"batch": B, "tracking": mode, "start": int(starts[b]),
+            traces += [{"batch": B, "variant": mode, "start": int(starts[b]),
                         "path": np.asarray(trace[mode].view[b]).tolist(),
                         "refined": np.asarray(final[mode].refinement.refined[b]).tolist(),
                         "valid": np.asarray(final[mode].refinement.valid[b]).tolist()} for b in range(min(B, 16))]
+        del final, trace
+    fits = []
+    limit = (jax.devices()[0].memory_stats() or {}).get("bytes_limit", np.nan)
+    program = batched._program(batched.mesh())  # Table 1's program: reset and rollout inside, traces out
+    for B in args.fit:
+        scene = jnp.zeros(B, jnp.int32)
+        starts = jnp.asarray(np.random.default_rng(B).integers(0, T_wc.shape[0], B), jnp.int32)
+        keys = jax.random.split(jax.random.PRNGKey(B), B)
+        for mode, episode in episodes.items():
+            t0 = time.perf_counter()
+            compiled = program.lower(episode, depth[None], T_wc[None], scene, starts, keys).compile()
+            compile_s = time.perf_counter() - t0
+            analysis = compiled.memory_analysis()
+            total = analysis.temp_size_in_bytes + analysis.output_size_in_bytes + analysis.argument_size_in_bytes
+            ran = "-"
+            fits_device = not total > limit  # (no limit known: a CPU)
+            if fits_device:  # run it: the batch fits, and how fast it goes
+                jax.block_until_ready(compiled(episode, depth[None], T_wc[None], scene, starts, keys))
+                t0 = time.perf_counter()
+                jax.block_until_ready(compiled(episode, depth[None], T_wc[None], scene, starts, keys))
+                ran = f"{B * args.moves / (time.perf_counter() - t0):.0f}"
+            fits.append((B, mode, report.device_name(), f"{compile_s:.0f}", f"{total / 1e9:.1f}",
+                         f"{total / B / 1e6:.1f}", f"{limit / 1e9:.1f}", "yes" if fits_device else "no", ran))
+            print(fits[-1], flush=True)
     if args.trace:
         io.write_json(args.trace, traces)
     report.publish(report.section(
         f"Whole episodes batched ({args.moves} moves, 640x480, one scene)", argv,
-        ("episodes", "tracking", "device", "first call s (compile)", "median ms per batch", "episodes/s", "moves/s",
-         "F1 prior (pooled)", "F1 refined (pooled)"), rows,
+        ("episodes", "tracking/storage/PointNet products", "device", "first call s (compile)", "median ms per batch",
+         "episodes/s", "moves/s", "device MB per episode", "F1 prior (pooled)", "F1 refined (pooled)",
+         f"same path and labels as {next(iter(episodes))}"), rows,
         intro=f"`active.rollout` vmapped over episodes from random start views of scene {args.frames} (100 "
               "viewpoints), the episode's defaults (`setup.ActiveConfig()`); frames in device memory."),
         args.out)
+    if fits:
+        report.publish(report.section(
+            "Batched episodes against device memory", argv,
+            ("episodes", "tracking/storage/PointNet products", "device", "compile s", "program GB (XLA's analysis)",
+             "MB per episode", "device GB available", "fits", "moves/s (one call)"), fits,
+            intro="Table 1's program (`episode.batched`: reset and rollout per episode, traces out) over B episodes of "
+                  "one scene: its arguments, outputs and temporaries as XLA's memory analysis gives them, against "
+                  "the device's limit (`XLA_PYTHON_CLIENT_MEM_FRACTION`); where it fits, one call timed after a "
+                  "first."), args.out)
 
 
 if __name__ == "__main__":

@@ -11,6 +11,7 @@ its share of the move, and the whole move (``active.step`` vmapped, one jit) for
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 
@@ -29,6 +30,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--batch", type=int, nargs="+", default=[64, 256])
     parser.add_argument("--warm-moves", type=int, default=4, help="moves made before the stages are timed")
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--storage", default="float32", choices=["float32", "compact"],
+                        help="perception.volume.storage")
+    parser.add_argument("--precision", default="float32", choices=["float32", "tf32"],
+                        help="perception.classification_precision")
     parser.add_argument("--out", help="append the table to this Markdown file")
     args = parser.parse_args(argv)
     precision.full_float32_matmuls()
@@ -41,8 +46,11 @@ def main(argv: list[str] | None = None) -> None:
         T_wc = jnp.asarray(f["T_wc"], jnp.float32)
         scene = Scene.from_dict(json.loads(str(f["scene_json"])), source=args.frames)
     object_set = object_set_from_config(scene.object_set)
-    episode = setup.make_episode(setup.ActiveConfig(), object_set, Intrinsics.kinect_v1(depth.shape[2] / 640),
-                                 scene.table_height)
+    perception = setup.episode_perception()
+    perception = dataclasses.replace(perception, volume=dataclasses.replace(perception.volume, storage=args.storage),
+                                     classification_precision=args.precision)
+    episode = setup.make_episode(setup.ActiveConfig(perception=perception), object_set,
+                                 Intrinsics.kinect_v1(depth.shape[2] / 640), scene.table_height)
     stages = (("arrive", active.arrive), *active.STAGES)
     vstep = jax.jit(jax.vmap(active.step, in_axes=(None, 0, 0, 0)))
     vstages = {name: jax.jit(jax.vmap(fn, in_axes=(None, 0, 0, 0))) for name, fn in stages}
@@ -82,7 +90,8 @@ def main(argv: list[str] | None = None) -> None:
         "A batched move, stage by stage", argv,
         ("episodes", "stage", "device", "median ms", "range ms", "share of the stages", "moves/s (whole move)"), table,
         intro=f"`active.step` and each of its stages vmapped over B episodes of scene {args.frames} (100 "
-              f"viewpoints, 640x480), the episode's defaults, states {args.warm_moves} moves in."),
+              f"viewpoints, 640x480), the episode's defaults with the volume stored {args.storage} and PointNet's "
+              f"products {args.precision}, states {args.warm_moves} moves in."),
         args.out)
 
 

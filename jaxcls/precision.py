@@ -15,6 +15,9 @@ It changes a process-wide setting, so nothing calls it on import: the episode co
 
 from __future__ import annotations
 
+import contextlib
+import enum
+
 import jax
 
 
@@ -27,4 +30,19 @@ def full_float32_matmuls() -> bool:
     return True
 
 
-__all__ = ["full_float32_matmuls"]
+class MatmulPrecision(enum.StrEnum):
+    """The float32 products of one stage on an accelerator (a CPU runs every one at full float32):
+    ``float32``, full precision (the reference; the process's default once ``full_float32_matmuls`` ran);
+    ``tf32``, XLA's default precision, which on an H100 or H200 runs float32 products on the tensor cores as
+    TF32 (10-bit mantissa, ~5e-4 relative). Only stages whose outputs are scores, not camera poses, take it
+    (``perception.classification_precision``: PointNet)."""
+
+    float32 = "float32"
+    tf32 = "tf32"
+
+    def products(self) -> contextlib.AbstractContextManager:
+        """A context in which the products traced take this precision (``jax.default_matmul_precision``)."""
+        return jax.default_matmul_precision("highest" if self is MatmulPrecision.float32 else "default")
+
+
+__all__ = ["MatmulPrecision", "full_float32_matmuls"]

@@ -164,6 +164,19 @@ def test_the_scanned_rollout_is_the_host_run(episode, frames):
     assert bool(final.done) and not np.asarray(trace.done).any()
 
 
+def test_a_stopped_episode_comes_back_unchanged(episode, frames):
+    """``step`` on a state already done returns it leaf for leaf; its volume is left where it is (the frame is
+    fused as one without returns), not selected between two copies."""
+    state = active.reset(episode, frames.T_wc, 0, jax.random.PRNGKey(0))
+    state = active.step_jit(episode, state, *frames.frame(0)).replace(done=jnp.asarray(True))
+    after = active.step_jit(episode, state, *frames.frame(5))
+    for path, (a, b) in zip(jax.tree_util.tree_leaves_with_path(state), zip(jax.tree.leaves(state),
+                                                                              jax.tree.leaves(after), strict=True),
+                            strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=jax.tree_util.keystr(path[0]))
+    assert np.asarray(state.observation.volume.weight).sum() > 0
+
+
 def test_gr_off_keeps_the_prior_and_the_adaptive_stop_ends_early(world, frames):
     off = setup.make_episode(_settings(refinement=False), world.object_set, world.intrinsics, world.table_height)
     log = runner.run(off, frames, 2, jax.random.PRNGKey(0))

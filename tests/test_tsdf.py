@@ -284,3 +284,44 @@ def test_gradient_wrt_depth_matches_finite_differences():
         lo[v, u] -= eps
         fd = (float(loss(jnp.asarray(hi))) - float(loss(jnp.asarray(lo)))) / (2 * eps)
         np.testing.assert_allclose(grad[v, u], fd, rtol=2e-2, atol=1e-2, err_msg=f"pixel {(v, u)}")
+
+
+def test_compact_storage_fuses_the_same_volume_and_surface(scene_frames, fused_scene):
+    """``VolumeStorage.compact`` (int16 fixed-point values, uint8 weights: 3 bytes a voxel, not 8) against the
+    float32 reference on the same 10 frames: the same weights, values within the rounding, the same surface."""
+    _, _, centre, intr, views, depths = scene_frames
+    reference, reference_surface = fused_scene
+    compact = tsdf.integrate_frames(tsdf.create_volume(centre, storage="compact"), jnp.asarray(depths), intr,
+                                    jnp.asarray(views, jnp.float32))
+    assert compact.tsdf.dtype == jnp.int16 and compact.weight.dtype == jnp.uint8
+    assert compact.storage is tsdf.VolumeStorage.compact and reference.storage is tsdf.VolumeStorage.float32
+    np.testing.assert_array_equal(np.asarray(compact.weight), np.asarray(reference.weight))
+    # Half a step of 1 / 32767 a rounding, over <= 10 updates.
+    np.testing.assert_allclose(np.asarray(compact.values), np.asarray(reference.values), atol=2e-4)
+    ours, _ = _surface_points(tsdf.extract_surface(compact, max_points=100_000))
+    theirs, _ = _surface_points(reference_surface)
+    assert abs(len(ours) - len(theirs)) <= 0.001 * len(theirs), (len(ours), len(theirs))
+    distance = cKDTree(theirs).query(ours)[0]
+    assert np.quantile(distance, 0.99) <= 0.01 * reference.voxel_size, np.quantile(distance, 0.99)
+
+
+def test_compact_weights_saturate_and_keep_averaging():
+    """A compact voxel observed more than 255 times keeps weight 255 (KinectFusion's cap) and from then on a
+    running average with that weight; the float32 reference counts on and averages every frame alike."""
+    first, then = 260, 40  # frames of a wall at 0.95 m, then at 1.0 m, from a camera looking straight down
+    T = jnp.asarray(np.stack([_down_camera(1.0)] * (first + then)), jnp.float32)
+    walls = jnp.asarray(np.stack([_wall(SMALL, 0.95)] * first + [_wall(SMALL, 1.0)] * then))
+    out, alone = {}, {}
+    for storage in tsdf.VolumeStorage:
+        vol = tsdf.create_volume(np.array([0.0, 0.0, 0.05]), size=0.2, resolution=16, storage=storage)
+        out[storage] = tsdf.integrate_frames(vol, walls, SMALL, T)
+        alone[storage] = [tsdf.integrate(vol, walls[n], SMALL, T[n]) for n in (0, -1)]
+    a, b = (np.asarray(v.values) for v in alone["float32"])  # each wall's own observation
+    both = (np.asarray(alone["float32"][0].weight) > 0) & (np.asarray(alone["float32"][1].weight) > 0)
+    assert both.sum() > 100
+    assert np.asarray(out["float32"].weight)[both].min() == first + then
+    np.testing.assert_array_equal(np.asarray(out["compact"].weight)[both], tsdf.MAX_COMPACT_WEIGHT)
+    np.testing.assert_allclose(np.asarray(out["float32"].values)[both], ((first * a + then * b) / (first + then))[both],
+                               atol=1e-5)
+    capped = b + (a - b) * (1.0 - 1.0 / tsdf.MAX_COMPACT_WEIGHT) ** then  # a until frame 260, then weight 255
+    np.testing.assert_allclose(np.asarray(out["compact"].values)[both], capped[both], atol=2e-3)

@@ -417,9 +417,19 @@ def step(episode: Episode, state: EpisodeState, depth: jax.Array, T_wc: jax.Arra
     fuse, segment, classify, refine, choose the next view. A state already ``done`` comes back unchanged.
     Pure; ``step_jit`` is its module-level jit."""
     new = arrive(episode, state, depth, T_wc)
+    # A stopped episode's frame has no returns, so the fusion leaves its volume as it was: the volume (most
+    # of the state) is updated in place, not selected between two copies like the other leaves below.
+    depth = jnp.where(state.done, 0.0, jnp.asarray(depth, jnp.float32))
     for _, stage in STAGES:
         new = stage(episode, new, depth, T_wc)
-    return jax.tree.map(lambda old, fresh: jnp.where(state.done, old, fresh), state, new)
+    volume = new.observation.volume
+
+    def without_volume(s: EpisodeState) -> EpisodeState:
+        return s.replace(observation=s.observation.replace(volume=None))
+
+    kept = jax.tree.map(lambda old, fresh: jnp.where(state.done, old, fresh), without_volume(state),
+                        without_volume(new))
+    return kept.replace(observation=kept.observation.replace(volume=volume))
 
 
 step_jit = jax.jit(step)

@@ -55,7 +55,7 @@ def empty_volume(spec: Spec) -> tsdf.TSDFVolume:
     """An unobserved TSDF cube as ``spec.config.volume`` places and sizes it (centre above the table)."""
     v = spec.config.volume
     return tsdf.create_volume(np.asarray(spec.roi_center), size=v.size, resolution=v.resolution,
-                              truncation=v.truncation_voxels * v.voxel_size)
+                              truncation=v.truncation_voxels * v.voxel_size, storage=v.storage)
 
 
 def init_state(spec: Spec) -> Observation:
@@ -78,12 +78,19 @@ def fuse(spec: Spec, volume: tsdf.TSDFVolume, depth: jax.Array, T_wc: jax.Array)
 
 
 def classify_segments(spec: Spec, segments: Segments) -> tuple[jax.Array, jax.Array]:
-    """([N, M] class probabilities, [N, M] yaw estimates, rad) of the segments in one PointNet pass
-    (``pointnet.predict``); [N, 0] both when the spec has no classifier."""
+    """([N, M] class probabilities, [N, M] yaw estimates, rad) of the segments by PointNet (``pointnet.predict``,
+    a segment at a time: the network's widest activations, [P, 1024] per segment, are live for one segment, not
+    N; under vmap the episodes' segments still run together); [N, 0] both when the spec has no classifier."""
     if spec.classifier is None:
         empty = jnp.zeros((spec.num_segments, 0), jnp.float32)
         return empty, empty
-    return pointnet.predict(spec.classifier, segments.points, segments.mask)
+
+    def one(segment: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array]:
+        probs, yaw = pointnet.predict(spec.classifier, segment[0][None], segment[1][None],
+                                      spec.config.classification_precision)
+        return probs[0], yaw[0]
+
+    return jax.lax.map(one, (segments.points, segments.mask))
 
 
 # The move's perception in stages, each ``(spec, state, depth, T_wc) -> state``: ``observe`` folds over them;

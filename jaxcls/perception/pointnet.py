@@ -33,6 +33,7 @@ from flax import serialization, struct
 from jaxcls import io
 from jaxcls.config import bounded, check_bounds
 from jaxcls.math import safe_norm
+from jaxcls.precision import MatmulPrecision
 
 WEIGHTS_DIR = Path(__file__).parent / "weights"
 # The weights shipped for the builtin object set, by name (``load_classifier("builtin_paper")``): ``builtin``
@@ -276,11 +277,14 @@ def classify(classifier: Classifier, points: jax.Array, mask: jax.Array) -> jax.
     return _calibrated(classifier, logits(classifier, points, mask), points, mask)
 
 
-@jax.jit
-def predict(classifier: Classifier, points: jax.Array, mask: jax.Array) -> tuple[jax.Array, jax.Array]:
+@functools.partial(jax.jit, static_argnames=("precision",))
+def predict(classifier: Classifier, points: jax.Array, mask: jax.Array,
+            precision: MatmulPrecision = MatmulPrecision.float32) -> tuple[jax.Array, jax.Array]:
     """(probs [N, M] as ``classify``, yaw [N, M] rad as ``estimate_yaw``, zeros without a yaw head) from
-    ONE forward pass: what a move needs for refinement with learned yaws."""
-    scores, _, head = _forward(classifier, points, mask)
+    ONE forward pass: what a move needs for refinement with learned yaws. ``precision``: the network's
+    products on an accelerator (``MatmulPrecision``; the same on a CPU)."""
+    with MatmulPrecision(precision).products():
+        scores, _, head = _forward(classifier, points, mask)
     yaw = _yaw_angles(classifier, head) if head is not None else jnp.zeros(scores.shape, jnp.float32)
     return _calibrated(classifier, scores, points, mask), yaw
 

@@ -4,11 +4,13 @@ YAML (the ``perception:`` block of a command's config)::
 
     perception:
       foreground: {table_eps: 0.01, max_depth: 1.5}        # which pixels are objects
-      volume: {center: [0, 0, 0.25], size: 0.6, resolution: 128, truncation_voxels: 4}   # the TSDF cube
+      volume: {center: [0, 0, 0.25], size: 0.6, resolution: 128, truncation_voxels: 4,  # the TSDF cube
+               storage: float32}                   # or compact (tsdf.VolumeStorage): 6.3 MB, not 16.8 MB
       segmentation: {dbscan_eps: 0.01, ...}                # DBSCAN, footprint votes, K-means, twin bounds
       shapes: {num_segments: 5, points_per_segment: 1024, surface_points: 16384}        # static shapes
       segmenter: jax                                       # or reference (scikit-learn, host)
       tracking: {mode: frame_to_model, ...}                # each frame registered to the model before fusion
+      classification_precision: float32                    # or tf32: PointNet on a GPU's tensor cores
 
 The table height is not here: it belongs to the world (``SceneConfig.table_height``, a dataset's scene, a
 recording's ``meta.json``) and reaches perception through ``Spec.create(..., table_height=...)``. The
@@ -27,6 +29,8 @@ from flax import struct
 from jaxcls.config import bounded, check_bounds
 from jaxcls.geometry import Intrinsics
 from jaxcls.perception.tracking import TrackingConfig
+from jaxcls.perception.tsdf import VolumeStorage
+from jaxcls.precision import MatmulPrecision
 
 if TYPE_CHECKING:
     from jaxcls.perception.pointnet import Classifier
@@ -61,6 +65,7 @@ class VolumeConfig:
     size: float = bounded(0.6, gt=0.0)  # edge of the cube
     resolution: int = bounded(128, ge=2)  # voxels per edge (0.6 m / 128 = 4.7 mm)
     truncation_voxels: float = bounded(4.0, gt=0.0)  # half-width of the TSDF band, in voxels
+    storage: VolumeStorage = VolumeStorage.float32  # or compact: i16 values, u8 weights (3 of 8 bytes a voxel)
 
     def __post_init__(self) -> None:
         check_bounds(self, "volume.")
@@ -121,6 +126,8 @@ class PerceptionConfig:
     shapes: ShapeConfig = dataclasses.field(default_factory=ShapeConfig)
     segmenter: Segmenter = Segmenter.jax  # or reference: scikit-learn DBSCAN + K-means on the host
     tracking: TrackingConfig = dataclasses.field(default_factory=TrackingConfig)  # the camera pose, before fusion
+    # PointNet's products on an accelerator: float32 (the reference) or tf32 (tensor cores; jaxcls.precision)
+    classification_precision: MatmulPrecision = MatmulPrecision.float32
 
     def __post_init__(self) -> None:
         check_bounds(self, "perception.")

@@ -3,8 +3,9 @@
 The camera poses are known (robot kinematics), so each depth map is fused with a projective TSDF update
 (Curless & Levoy; KinectFusion): every voxel centre is projected into the image, the nearest pixel's depth
 gives the signed distance along the camera's z axis, truncated and averaged with the voxel's running
-weight. One integration is a single vectorised pass over the voxels (no scatter over pixels), with static
-shapes, so it jits, scans over frames and vmaps over episodes.
+weight. One integration is a vectorised pass over the voxels (no scatter over pixels; in a few slabs, updated
+in place, so that its temporaries span a slab), with static shapes, so it jits, scans over frames and vmaps
+over episodes.
 
 Conventions (docs/ARCHITECTURE.md): metres; world z up; OpenCV camera, pose ``T_wc`` camera-to-world; depth is z-depth,
 0 = no return. Voxel ``(i, j, k)`` has its centre at ``origin + voxel_size * (i, j, k)``. Stored TSDF
@@ -14,6 +15,7 @@ unobserved; ``weight`` 0 marks unobserved voxels.
 
 from __future__ import annotations
 
+import enum
 import functools
 
 import jax
@@ -27,6 +29,47 @@ from jaxcls.math import normalize, safe_norm
 
 # Voxel pairs whose values are this close to +-1 sit on a truncation edge, not on the surface.
 _TRUNCATION_EDGE = 0.99
+# A compact volume's tsdf values are int16 multiples of 1 / COMPACT_SCALE.
+COMPACT_SCALE = 32767.0
+# A compact volume's weights saturate here (uint8): a voxel seen more often keeps a running average over its
+# last ~255 observations (KinectFusion's weight cap); episodes fuse 10 frames, PointNetFull 100.
+MAX_COMPACT_WEIGHT = 255
+
+
+class VolumeStorage(enum.StrEnum):
+    """How a volume's voxels are stored (``perception.volume.storage``): ``float32``, the reference (tsdf and
+    weight float32, 8 bytes a voxel; differentiable w.r.t. the depth); ``compact``, tsdf as int16 fixed point
+    (value x ``COMPACT_SCALE``, rounded) and weight uint8 saturating at ``MAX_COMPACT_WEIGHT`` (3 bytes a voxel:
+    a 128^3 volume is 6.3 MB against 16.8 MB, what bounds how many episodes fit a GPU). Every update is
+    computed in float32 and rounded once into the storage: a value moves by < 2e-5 of the truncation (0.4 um
+    at the default 19 mm) a rounding, the same everywhere in [-1, 1], so a long running average does not stall
+    the way float16's coarser steps near +-1 would."""
+
+    float32 = "float32"
+    compact = "compact"
+
+    @property
+    def dtypes(self) -> tuple[jnp.dtype, jnp.dtype]:
+        """(tsdf dtype, weight dtype)."""
+        return (jnp.float32, jnp.float32) if self is VolumeStorage.float32 else (jnp.int16, jnp.uint8)
+
+    def encode(self, values: jax.Array) -> jax.Array:
+        """float32 tsdf values in [-1, 1] as stored."""
+        if self is VolumeStorage.float32:
+            return values.astype(jnp.float32)
+        return jnp.round(values * COMPACT_SCALE).astype(jnp.int16)
+
+    def decode(self, stored: jax.Array) -> jax.Array:
+        """Stored tsdf values as float32 in [-1, 1]."""
+        if self is VolumeStorage.float32:
+            return stored
+        return stored.astype(jnp.float32) * (1.0 / COMPACT_SCALE)
+
+
+# The fusion updates the volume in this many slabs along x, one after another: its float32 temporaries (the
+# depth gathered per voxel, the projections) span a slab, not the volume (under vmap: per episode).
+_SLABS = 8
+
 # Default truncation band, in voxels: wide enough to average a few voxels across the surface, narrow
 # enough not to merge the near sides of objects packed a couple of centimetres apart.
 _DEFAULT_TRUNCATION_VOXELS = 4.0
@@ -36,8 +79,9 @@ _DEFAULT_TRUNCATION_VOXELS = 4.0
 class TSDFVolume:
     """A cube of voxels. Traced: ``tsdf``, ``weight``, ``origin``; static: the grid spacing and band.
 
-    tsdf: [X, Y, Z] f32 signed distance / truncation in [-1, 1]; 1 where unobserved.
-    weight: [X, Y, Z] f32 accumulated observation weights; 0 = unobserved.
+    tsdf: [X, Y, Z] signed distance / truncation in [-1, 1]; 1 where unobserved (f32, or f16 when compact).
+    weight: [X, Y, Z] accumulated observation weights; 0 = unobserved (f32, or u8 when compact:
+    ``VolumeStorage``).
     origin: [3] f32 world position (m) of the centre of voxel (0, 0, 0).
     voxel_size: edge of a voxel, m.
     truncation: half-width of the band of observed signed distances, m.
@@ -52,6 +96,15 @@ class TSDFVolume:
     @property
     def shape(self) -> tuple[int, int, int]:
         return tuple(self.tsdf.shape)
+
+    @property
+    def storage(self) -> VolumeStorage:
+        return VolumeStorage.float32 if self.weight.dtype == jnp.float32 else VolumeStorage.compact
+
+    @property
+    def values(self) -> jax.Array:
+        """[X, Y, Z] f32 the tsdf values in [-1, 1], whatever the storage."""
+        return self.storage.decode(self.tsdf)
 
 
 @struct.dataclass
@@ -69,11 +122,14 @@ class Surface:
 
 
 def create_volume(center: np.ndarray | jax.Array, size: float = 0.6, resolution: int = 128,
-                  truncation: float | None = None) -> TSDFVolume:
+                  truncation: float | None = None, storage: VolumeStorage | str = VolumeStorage.float32
+                  ) -> TSDFVolume:
     """An empty (unobserved) cube of ``resolution``^3 voxels and edge ``size`` m, centred on ``center: [3]``.
 
-    The cube is the paper's space of interest around the objects; ``truncation`` defaults to 4 voxels.
+    The cube is the paper's space of interest around the objects; ``truncation`` defaults to 4 voxels;
+    ``storage`` (``VolumeStorage``) sets the voxels' types.
     """
+    weight_dtype = VolumeStorage(storage).dtypes[1]
     if resolution < 2 or size <= 0:
         raise ValueError(f"create_volume: need resolution >= 2 and size > 0, got {resolution}, {size}")
     center = np.asarray(center, np.float64)
@@ -85,8 +141,8 @@ def create_volume(center: np.ndarray | jax.Array, size: float = 0.6, resolution:
         raise ValueError(f"create_volume: truncation must be > 0, got {truncation}")
     origin = center - 0.5 * size + 0.5 * voxel_size
     shape = (resolution,) * 3
-    return TSDFVolume(tsdf=jnp.ones(shape, jnp.float32), weight=jnp.zeros(shape, jnp.float32),
-                      origin=jnp.asarray(origin, jnp.float32), voxel_size=voxel_size, truncation=truncation)
+    return TSDFVolume(tsdf=VolumeStorage(storage).encode(jnp.ones(shape, jnp.float32)),
+                      weight=jnp.zeros(shape, weight_dtype), origin=jnp.asarray(origin, jnp.float32), voxel_size=voxel_size, truncation=truncation)
 
 
 def check_frame_shapes(depth: np.ndarray | jax.Array, intrinsics: Intrinsics, T_wc: np.ndarray | jax.Array,
@@ -131,25 +187,45 @@ def _integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_w
     base = R.T @ (volume.origin - t)
     step = volume.voxel_size * R.T  # column a: camera-frame step of one voxel along world axis a
     X, Y, Z = volume.shape
-    i = jnp.arange(X, dtype=jnp.float32)[:, None, None]
+    slabs = _SLABS if X % _SLABS == 0 else 1
+    storage = volume.storage
+    sx = X // slabs
     j = jnp.arange(Y, dtype=jnp.float32)[None, :, None]
     k = jnp.arange(Z, dtype=jnp.float32)[None, None, :]
 
-    def camera_coord(row: int) -> jax.Array:
-        return base[row] + step[row, 0] * i + step[row, 1] * j + step[row, 2] * k
+    def update_slab(n: int | jax.Array, carry: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array]:
+        """Voxels x in [n sx, (n + 1) sx): their temporaries are a slab's, not the volume's (in float32)."""
+        tsdf, weight = carry
+        i = (n * sx + jnp.arange(sx)).astype(jnp.float32)[:, None, None]
 
-    x, y, z = camera_coord(0), camera_coord(1), camera_coord(2)
-    in_front = z > 1e-6
-    inv_z = 1.0 / jnp.where(in_front, z, 1.0)
-    u, v = (jnp.round(c) for c in intrinsics.project(x, y, inv_z))
-    inside = in_front & (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
-    pixel = jnp.where(inside, v * W + u, 0.0).astype(jnp.int32)
-    d = depth.at[pixel].get(mode="promise_in_bounds")
-    sdf = d - z
-    update = inside & (d > 0) & (sdf >= -volume.truncation)
-    observed = jnp.clip(sdf * (1.0 / volume.truncation), -1.0, 1.0)
-    weight = volume.weight + update.astype(jnp.float32)
-    tsdf = jnp.where(update, volume.tsdf + (observed - volume.tsdf) / jnp.maximum(weight, 1.0), volume.tsdf)
+        def camera_coord(row: int) -> jax.Array:
+            return base[row] + step[row, 0] * i + step[row, 1] * j + step[row, 2] * k
+
+        x, y, z = camera_coord(0), camera_coord(1), camera_coord(2)
+        in_front = z > 1e-6
+        inv_z = 1.0 / jnp.where(in_front, z, 1.0)
+        u, v = (jnp.round(c) for c in intrinsics.project(x, y, inv_z))
+        inside = in_front & (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
+        pixel = jnp.where(inside, v * W + u, 0.0).astype(jnp.int32)
+        d = depth.at[pixel].get(mode="promise_in_bounds")
+        sdf = d - z
+        update = inside & (d > 0) & (sdf >= -volume.truncation)
+        observed = jnp.clip(sdf * (1.0 / volume.truncation), -1.0, 1.0)
+        # In float32 whatever the storage; a compact volume's weight saturates (MAX_COMPACT_WEIGHT).
+        start = (n * sx, 0, 0)
+        old_tsdf = storage.decode(jax.lax.dynamic_slice(tsdf, start, (sx, Y, Z)))
+        old_weight = jax.lax.dynamic_slice(weight, start, (sx, Y, Z)).astype(jnp.float32)
+        new_weight = old_weight + update.astype(jnp.float32)
+        if storage is VolumeStorage.compact:
+            new_weight = jnp.minimum(new_weight, MAX_COMPACT_WEIGHT)
+        new_tsdf = jnp.where(update, old_tsdf + (observed - old_tsdf) / jnp.maximum(new_weight, 1.0), old_tsdf)
+        return (jax.lax.dynamic_update_slice(tsdf, storage.encode(new_tsdf), start),
+                jax.lax.dynamic_update_slice(weight, new_weight.astype(weight.dtype), start))
+
+    if slabs == 1:
+        tsdf, weight = update_slab(0, (volume.tsdf, volume.weight))
+    else:  # in place, slab after slab
+        tsdf, weight = jax.lax.fori_loop(0, slabs, update_slab, (volume.tsdf, volume.weight))
     return volume.replace(tsdf=tsdf, weight=weight)
 
 
@@ -183,8 +259,9 @@ def integrate_frames(volume: TSDFVolume, depths: jax.Array, intrinsics: Intrinsi
     return volume
 
 
-def _gradient_at(tsdf: jax.Array, idx: jax.Array) -> jax.Array:
-    """[P, 3] central-difference TSDF gradient (per voxel) at integer voxel indices ``idx: [P, 3]``.
+def _gradient_at(tsdf: jax.Array, idx: jax.Array, storage: VolumeStorage) -> jax.Array:
+    """[P, 3] central-difference TSDF gradient (per voxel) at integer voxel indices ``idx: [P, 3]`` of the stored
+    values ``tsdf`` (``storage``).
 
     One-sided at the border of the grid.
     """
@@ -194,8 +271,8 @@ def _gradient_at(tsdf: jax.Array, idx: jax.Array) -> jax.Array:
         e = jnp.zeros(3, jnp.int32).at[a].set(1)
         hi = jnp.minimum(idx + e, dims - 1)
         lo = jnp.maximum(idx - e, 0)
-        f_hi = tsdf[hi[:, 0], hi[:, 1], hi[:, 2]]
-        f_lo = tsdf[lo[:, 0], lo[:, 1], lo[:, 2]]
+        f_hi = storage.decode(tsdf[hi[:, 0], hi[:, 1], hi[:, 2]])
+        f_lo = storage.decode(tsdf[lo[:, 0], lo[:, 1], lo[:, 2]])
         grads.append((f_hi - f_lo) / jnp.maximum(hi[:, a] - lo[:, a], 1).astype(jnp.float32))
     return jnp.stack(grads, axis=-1)
 
@@ -217,12 +294,14 @@ def _next_voxel(words: jax.Array, axis: int) -> jax.Array:
     return jnp.pad(jax.lax.slice_in_dim(words, 1, words.shape[axis], axis=axis), pad)
 
 
-def _crossing_words(f: jax.Array, w: jax.Array, weight_threshold: float | jax.Array) -> jax.Array:
+def _crossing_words(f: jax.Array, w: jax.Array, weight_threshold: float | jax.Array,
+                    storage: VolumeStorage = VolumeStorage.float32) -> jax.Array:
     """[3, X, Y, ceil(Z / 32)] u32: bit of voxel p along axis a is set where the edge p -> p + e_a crosses zero.
 
     Both ends must be trusted (weight >= threshold, |f| off the truncation edge) and of opposite signs. The
     two sign masks are packed once; the three axes' edges are then word operations on 32 voxels at a time.
     """
+    f, w = storage.decode(f), w.astype(jnp.float32)  # any storage (``VolumeStorage``), fused into the packing
     ok = (w >= weight_threshold) & (jnp.abs(f) < _TRUNCATION_EDGE)
     pos, neg = _pack_rows(ok & (f >= 0)), _pack_rows(ok & (f < 0))
     return jnp.stack([(pos & _next_voxel(neg, a)) | (neg & _next_voxel(pos, a)) for a in range(3)])
@@ -268,22 +347,22 @@ def extract_surface(volume: TSDFVolume, max_points: int, weight_threshold: float
     When there are more crossings than ``max_points``, an evenly spread subset is kept.
     Returns ``Surface`` with points [P, 3] m, normals [P, 3], mask [P]; P = ``max_points``.
     """
-    f, w = volume.tsdf, volume.weight
-    words = _crossing_words(f, w, weight_threshold)
+    f, w = volume.tsdf, volume.weight  # read in their storage types; the gathered values cast to float32
+    words = _crossing_words(f, w, weight_threshold, volume.storage)
     flat, mask = _select_bits(words.reshape(-1), max_points)
     X, Y, Z = volume.shape
     axis, rest = jnp.divmod(flat, X * Y * 32 * words.shape[-1])
     idx0 = jnp.stack(jnp.unravel_index(rest, (X, Y, 32 * words.shape[-1])), axis=-1).astype(jnp.int32)  # [P, 3]
     e = jax.nn.one_hot(axis, 3, dtype=jnp.int32)
     idx1 = jnp.minimum(idx0 + e, jnp.asarray([X - 1, Y - 1, Z - 1]))
-    f0 = f[idx0[:, 0], idx0[:, 1], idx0[:, 2]]
-    f1 = f[idx1[:, 0], idx1[:, 1], idx1[:, 2]]
+    f0 = volume.storage.decode(f[idx0[:, 0], idx0[:, 1], idx0[:, 2]])
+    f1 = volume.storage.decode(f[idx1[:, 0], idx1[:, 1], idx1[:, 2]])
     denom = f0 - f1
     safe = mask & (jnp.abs(denom) > 0)
     s = jnp.where(safe, f0 / jnp.where(safe, denom, 1.0), 0.0)[:, None]  # in [0, 1): fraction along the edge
     points = volume.origin + volume.voxel_size * (idx0.astype(jnp.float32) + s * e.astype(jnp.float32))
 
-    grad = (1.0 - s) * _gradient_at(f, idx0) + s * _gradient_at(f, idx1)
+    grad = (1.0 - s) * _gradient_at(f, idx0, volume.storage) + s * _gradient_at(f, idx1, volume.storage)
     # Fallback where the central differences cancel: the difference along the crossing edge itself.
     fallback = e.astype(jnp.float32) * (f1 - f0)[:, None]
     grad = jnp.where(safe_norm(grad, keepdims=True) > 1e-6, grad, fallback)

@@ -59,7 +59,7 @@ def gain(volume: TSDFVolume, T_wc: jax.Array, intrinsics: Intrinsics, config: Ga
         x = origin + t[..., None] * d[:, None, :]
         idx = jnp.clip(jnp.floor((x - lo) / volume.voxel_size).astype(jnp.int32), 0, shape - 1)
         w = volume.weight[idx[..., 0], idx[..., 1], idx[..., 2]]
-        f = volume.tsdf[idx[..., 0], idx[..., 1], idx[..., 2]]
+        f = volume.storage.decode(volume.tsdf[idx[..., 0], idx[..., 1], idx[..., 2]])
         surface = inside & (w > 0) & (f < 0)
         before_surface = jnp.cumsum(surface, axis=1) == 0
         return jnp.sum(inside & (w == 0) & before_surface).astype(jnp.float32)

@@ -49,15 +49,25 @@ def _gaussian_kernel(sigma: float) -> np.ndarray:
     return k / k.sum()
 
 
-def _vote_targets(x: np.ndarray | jax.Array, normals: np.ndarray | jax.Array, spec: Spec, xp=np):
-    """Where side-wall points vote for their object's axis: ([M, R, 3] points, [M] weights |n_xy|, 0 = no vote)."""
+def _vote_radii(spec: Spec) -> np.ndarray:
+    """[R] the radii (m) at which side-wall points vote for their object's axis."""
+    cfg = spec.segmentation
+    return np.linspace(cfg.footprint_cell, cfg.vote_max_radius, cfg.vote_radii)
+
+
+def _vote_directions(normals: np.ndarray | jax.Array, spec: Spec, xp=np):
+    """([M, 2] unit xy directions -n_xy along which points vote, [M] weights |n_xy|, 0 = no vote)."""
     nxy = normals[:, :2]
     h = xp.sqrt(xp.sum(nxy**2, axis=1))
     weight = xp.where(h > spec.segmentation.vote_min_horizontal, h, 0.0)
-    u = nxy / xp.maximum(h, 1e-12)[:, None]
-    cfg = spec.segmentation
-    radii = xp.asarray(np.linspace(cfg.footprint_cell, cfg.vote_max_radius, cfg.vote_radii), x.dtype)
-    xy = x[:, None, :2] - radii[None, :, None] * u[:, None, :]
+    return -nxy / xp.maximum(h, 1e-12)[:, None], weight
+
+
+def _vote_targets(x: np.ndarray | jax.Array, normals: np.ndarray | jax.Array, spec: Spec, xp=np):
+    """Where side-wall points vote for their object's axis: ([M, R, 3] points, [M] weights |n_xy|, 0 = no vote)."""
+    u, weight = _vote_directions(normals, spec, xp)
+    radii = xp.asarray(_vote_radii(spec), x.dtype)
+    xy = x[:, None, :2] + radii[None, :, None] * u[:, None, :]
     return xp.concatenate([xy, xp.zeros_like(xy[..., :1])], axis=-1), weight
 
 

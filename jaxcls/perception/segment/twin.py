@@ -20,7 +20,8 @@ from jaxcls.perception.segment.common import (
     _Merging,
     _order_segments,
     _pointer_jumps,
-    _vote_targets,
+    _vote_directions,
+    _vote_radii,
     pack_segments,
 )
 from jaxcls.perception.segment.grid import (
@@ -46,11 +47,13 @@ def _dense_points(x: jax.Array, valid: jax.Array, spec: Spec) -> jax.Array:
     ijk = jnp.clip(jnp.floor((x - origin) / cell).astype(jnp.int32), 1, G - 2)
     flat = (ijk[:, 0] * G + ijk[:, 1]) * G + ijk[:, 2]
     offsets = jnp.asarray([(i * G + j) * G + k for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)])
-    around = flat[:, None] + offsets  # [P, 27]
 
     def neighbourhood_sum(flags):
         grid = jnp.zeros(G**3, jnp.int16).at[jnp.where(flags, flat, G**3)].add(1, mode="drop")
-        return jnp.sum(grid[around], axis=1, dtype=jnp.int32)
+        # One neighbour cell at a time: [P] gathered live, not [P, 27].
+        total, _ = jax.lax.scan(lambda acc, o: (acc + grid[flat + o].astype(jnp.int32), None),
+                                jnp.zeros(flat.shape, jnp.int32), offsets, unroll=True)
+        return total
 
     core = valid & (neighbourhood_sum(valid) >= spec.segmentation.dbscan_min_samples)
     return valid & (neighbourhood_sum(core) > 0)
@@ -69,13 +72,19 @@ def _footprint_field(x: jax.Array, normals: jax.Array, kept: jax.Array, spec: Sp
     for _ in range(spec.segmentation.closing_steps):
         occ = _morph(occ, False)
     occ = _fill_holes(occ | raw, spec.segmentation.max_cc_iters)
-    targets, weight = _vote_targets(x, normals, spec, xp=jnp)
-    tij = _cell_of(targets.reshape(-1, 3), spec, xp=jnp)
-    weight = jnp.repeat(jnp.where(kept, weight, 0.0), spec.segmentation.vote_radii)
-    # Points that do not vote (tops, noise, padding) are sent out of bounds and dropped, rather than
-    # adding 0 to one cell: on a GPU those additions all contend for that cell.
-    target = jnp.where(weight > 0, tij[:, 0] * G + tij[:, 1], G * G)
-    votes = jnp.zeros(G * G, x.dtype).at[target].add(weight, mode="drop").reshape(G, G)
+    u, weight = _vote_directions(normals, spec, xp=jnp)
+    weight = jnp.where(kept, weight, 0.0)
+
+    def vote(votes: jax.Array, radius: jax.Array) -> tuple[jax.Array, None]:
+        # One radius at a time: [M] votes live, not [M, R]. Points that do not vote (tops, noise, padding) are
+        # sent out of bounds and dropped, rather than adding 0 to one cell: on a GPU those additions all
+        # contend for that cell.
+        tij = _cell_of(x + jnp.pad(radius * u, ((0, 0), (0, 1))), spec, xp=jnp)
+        target = jnp.where(weight > 0, tij[:, 0] * G + tij[:, 1], G * G)
+        return votes.at[target].add(weight, mode="drop"), None
+
+    votes, _ = jax.lax.scan(vote, jnp.zeros(G * G, x.dtype), jnp.asarray(_vote_radii(spec), x.dtype), unroll=True)
+    votes = votes.reshape(G, G)
     votes = _blur(votes * occ, spec.segmentation.vote_sigma)
     votes = votes / jnp.maximum(votes.max(), 1e-12)
     return occ, _distance_transform(occ) * jnp.maximum(votes, 0.0) ** spec.segmentation.vote_exponent
