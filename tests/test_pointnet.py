@@ -7,6 +7,7 @@ import dataclasses
 import json
 
 import jax
+import jax.extend
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -191,3 +192,31 @@ def test_temperature_is_saved_and_old_weights_load_at_one(tmp_path):
     del info["temperature"]  # weights saved before calibration existed
     path.with_suffix(".json").write_text(json.dumps(info))
     assert pointnet.load_classifier(path).temperature == 1.0
+
+
+def _dot_precisions(jaxpr) -> set:
+    """The precisions of every dot_general in ``jaxpr`` (and the jaxprs nested in it)."""
+    found = set()
+    for eqn in jaxpr.eqns:
+        if eqn.primitive.name == "dot_general":
+            found.add(eqn.params["precision"])
+        for sub in jax.extend.core.jaxprs_in_params(eqn.params):
+            found |= _dot_precisions(sub)
+    return found
+
+
+def test_classification_precision_sets_the_networks_products(classifier, clouds):
+    """``MatmulPrecision``: float32 traces every PointNet product at HIGHEST, tf32 at XLA's default (the tensor
+    cores on a GPU), whatever the process-wide default; on the CPU both give the same scores."""
+    from jaxcls.precision import MatmulPrecision
+
+    points, mask = clouds
+    highest = jax.lax.Precision.HIGHEST
+    for precision, want in ((MatmulPrecision.float32, highest), (MatmulPrecision.tf32, jax.lax.Precision.DEFAULT)):
+        jaxpr = jax.make_jaxpr(lambda p, m, c=precision: pointnet.predict.__wrapped__(classifier, p, m, c))(
+            points, mask).jaxpr
+        precisions = _dot_precisions(jaxpr)
+        assert len(precisions) == 1 and next(iter(precisions)) in {(want, want), want}, (precision, precisions)
+    scores = [pointnet.predict(classifier, points, mask, p)[0] for p in MatmulPrecision]
+    if jax.default_backend() == "cpu":
+        np.testing.assert_allclose(np.asarray(scores[0]), np.asarray(scores[1]), atol=1e-6)

@@ -142,7 +142,8 @@ def create_volume(center: np.ndarray | jax.Array, size: float = 0.6, resolution:
     origin = center - 0.5 * size + 0.5 * voxel_size
     shape = (resolution,) * 3
     return TSDFVolume(tsdf=VolumeStorage(storage).encode(jnp.ones(shape, jnp.float32)),
-                      weight=jnp.zeros(shape, weight_dtype), origin=jnp.asarray(origin, jnp.float32), voxel_size=voxel_size, truncation=truncation)
+                      weight=jnp.zeros(shape, weight_dtype), origin=jnp.asarray(origin, jnp.float32),
+                      voxel_size=voxel_size, truncation=truncation)
 
 
 def check_frame_shapes(depth: np.ndarray | jax.Array, intrinsics: Intrinsics, T_wc: np.ndarray | jax.Array,
