@@ -7,7 +7,8 @@ episodes of one scene from different start views, as issue 23's larger runs will
 
 Every combination of camera tracking (``perception.tracking.mode``), the volume's storage
 (``perception.volume.storage``) and PointNet's products (``perception.classification_precision``) is a
-variant; each batch size runs every variant, their repeats interleaved. Reports episodes/s and moves/s, the
+variant, all with the batch's memory layout (``--slabs 8 --segments-per-pass 1``: the fusion in slabs, PointNet a
+segment at a time, as the scale configs run it); each batch size runs every variant, their repeats interleaved. Reports episodes/s and moves/s, the
 first call (compilation), the program's device memory per episode (XLA's temporaries of the batch over B:
 ``compiled.memory_analysis``), the final F1 of the target objects pooled over the batch (prior and refined),
 and the share of episodes whose path and final labels equal the first variant's; ``--trace FILE`` writes each
@@ -57,6 +58,10 @@ def main(argv: list[str] | None = None) -> None:
                         help="perception.volume.storage (several: compared, interleaved)")
     parser.add_argument("--precision", nargs="+", default=["float32"], choices=["float32", "tf32"],
                         help="perception.classification_precision (several: compared, interleaved)")
+    parser.add_argument("--slabs", type=int, default=8,
+                        help="perception.volume.slabs (the batch's memory layout; the library's default is 1)")
+    parser.add_argument("--segments-per-pass", type=int, default=1,
+                        help="perception.shapes.segments_per_pass (PointNet; the library's default is 0: all)")
     parser.add_argument("--fit", type=int, nargs="*", default=[],
                         help="batch sizes of Table 1's program (episode.batched): its device memory against the "
                              "device's, and one call timed where it fits")
@@ -82,7 +87,9 @@ def main(argv: list[str] | None = None) -> None:
     for mode, storage, product in itertools.product(args.tracking, args.storage, args.precision):
         settings = setup.ActiveConfig(episode=active.EpisodeConfig(moves=args.moves), perception=dataclasses.replace(
             perception, tracking=dataclasses.replace(perception.tracking, mode=mode),
-            volume=dataclasses.replace(perception.volume, storage=storage), classification_precision=product))
+            volume=dataclasses.replace(perception.volume, storage=storage, slabs=args.slabs),
+            shapes=dataclasses.replace(perception.shapes, segments_per_pass=args.segments_per_pass),
+            classification_precision=product))
         episodes[f"{mode}/{storage}/{product}"] = setup.make_episode(settings, object_set, Intrinsics.kinect_v1(),
                                                                      scene.table_height)
     reset = jax.jit(jax.vmap(active.reset, in_axes=(None, None, 0, 0)))

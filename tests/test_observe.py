@@ -54,6 +54,32 @@ def test_observe_is_its_stages_composed(classifier):
     assert state.probs.shape == (SHAPES.num_segments, len(classifier.classes))
 
 
+def test_the_batch_memory_layout_gives_the_same_observation(classifier):
+    """``volume.slabs`` (the fusion in slabs along x) and ``shapes.segments_per_pass`` (PointNet in passes) cut a
+    GPU batch's memory; the observation is the same as one pass over the volume and the segments together."""
+    import dataclasses
+
+    world, depth, poses = _frames()
+    base = PerceptionConfig(shapes=SHAPES, tracking=UNTRACKED)
+    lean = dataclasses.replace(base, volume=dataclasses.replace(base.volume, slabs=8),
+                               shapes=dataclasses.replace(SHAPES, segments_per_pass=2))
+    states = []
+    for config in (base, lean):
+        spec = Spec.create(config, world.intrinsics, world.table_height, classifier)
+        state = perception.init_state(spec)
+        for d, T in zip(depth, poses, strict=True):
+            state = perception.observe(spec, state, d, T)
+        states.append(state)
+    one, lean_state = states
+    np.testing.assert_array_equal(np.asarray(lean_state.volume.weight), np.asarray(one.volume.weight))
+    # 1e-5: XLA may contract a slab's multiply-adds differently (~1 float32 ulp of z / truncation).
+    np.testing.assert_allclose(np.asarray(lean_state.volume.tsdf), np.asarray(one.volume.tsdf), atol=1e-5)
+    np.testing.assert_array_equal(np.asarray(lean_state.segments.labels), np.asarray(one.segments.labels))
+    np.testing.assert_allclose(np.asarray(lean_state.probs), np.asarray(one.probs), atol=1e-5)
+    with pytest.raises(ValueError, match=r"volume\.slabs \(3\) must divide volume\.resolution \(128\)"):
+        dataclasses.replace(base.volume, slabs=3)
+
+
 def test_perceive_vmaps_over_episodes_and_jits():
     episodes = [_frames(seed=s) for s in (0, 1)]
     spec = Spec.create(PerceptionConfig(shapes=SHAPES), episodes[0][0].intrinsics)

@@ -74,23 +74,26 @@ def fuse(spec: Spec, volume: tsdf.TSDFVolume, depth: jax.Array, T_wc: jax.Array)
     """The frame's foreground integrated into ``volume`` (depth: [H, W] m, 0 = no return; T_wc: [4, 4])."""
     T_wc = jnp.asarray(T_wc, jnp.float32)
     return tsdf.integrate(volume, foreground.foreground_depth(spec, jnp.asarray(depth), T_wc), spec.intrinsics,
-                          T_wc)
+                          T_wc, slabs=spec.config.volume.slabs)
 
 
 def classify_segments(spec: Spec, segments: Segments) -> tuple[jax.Array, jax.Array]:
-    """([N, M] class probabilities, [N, M] yaw estimates, rad) of the segments by PointNet (``pointnet.predict``,
-    a segment at a time: the network's widest activations, [P, 1024] per segment, are live for one segment, not
-    N; under vmap the episodes' segments still run together); [N, 0] both when the spec has no classifier."""
+    """([N, M] class probabilities, [N, M] yaw estimates, rad) of the segments by PointNet (``pointnet.predict``),
+    ``shapes.segments_per_pass`` segments a pass (0: all N in one; fewer keep the network's widest activations,
+    [Ps, 1024] a segment, live for fewer at once); [N, 0] both when the spec has no classifier."""
     if spec.classifier is None:
         empty = jnp.zeros((spec.num_segments, 0), jnp.float32)
         return empty, empty
 
-    def one(segment: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array]:
-        probs, yaw = pointnet.predict(spec.classifier, segment[0][None], segment[1][None],
-                                      spec.config.classification_precision)
-        return probs[0], yaw[0]
+    def classify(points: jax.Array, mask: jax.Array) -> tuple[jax.Array, jax.Array]:
+        return pointnet.predict(spec.classifier, points, mask, spec.config.classification_precision)
 
-    return jax.lax.map(one, (segments.points, segments.mask))
+    per_pass = spec.config.shapes.segments_per_pass
+    if per_pass == 0 or per_pass >= spec.num_segments:
+        return classify(segments.points, segments.mask)
+    # lax.map hands each pass's segments one by one to a vmapped function: a segment is a batch of one.
+    one = lambda segment: jax.tree.map(lambda x: x[0], classify(segment[0][None], segment[1][None]))  # noqa: E731
+    return jax.lax.map(one, (segments.points, segments.mask), batch_size=per_pass)
 
 
 # The move's perception in stages, each ``(spec, state, depth, T_wc) -> state``: ``observe`` folds over them;

@@ -5,9 +5,10 @@ YAML (the ``perception:`` block of a command's config)::
     perception:
       foreground: {table_eps: 0.01, max_depth: 1.5}        # which pixels are objects
       volume: {center: [0, 0, 0.25], size: 0.6, resolution: 128, truncation_voxels: 4,  # the TSDF cube
-               storage: float32}                   # or compact (tsdf.VolumeStorage): 6.3 MB, not 16.8 MB
+               storage: float32, slabs: 1}         # or compact (tsdf.VolumeStorage): 6.3 MB, not 16.8 MB
       segmentation: {dbscan_eps: 0.01, ...}                # DBSCAN, footprint votes, K-means, twin bounds
-      shapes: {num_segments: 5, points_per_segment: 1024, surface_points: 16384}        # static shapes
+      shapes: {num_segments: 5, points_per_segment: 1024, surface_points: 16384,       # static shapes
+               segments_per_pass: 0}                     # PointNet's segments a pass (0: all)
       segmenter: jax                                       # or reference (scikit-learn, host)
       tracking: {mode: frame_to_model, ...}                # each frame registered to the model before fusion
       classification_precision: float32                    # or tf32: PointNet on a GPU's tensor cores
@@ -66,9 +67,14 @@ class VolumeConfig:
     resolution: int = bounded(128, ge=2)  # voxels per edge (0.6 m / 128 = 4.7 mm)
     truncation_voxels: float = bounded(4.0, gt=0.0)  # half-width of the TSDF band, in voxels
     storage: VolumeStorage = VolumeStorage.float32  # or compact: i16 values, u8 weights (3 of 8 bytes a voxel)
+    # The fusion updates the volume in this many slabs along x, one after another: its float32 temporaries span
+    # a slab (what bounds a GPU's batch of episodes); 1 = one pass over the volume (the fastest on a CPU).
+    slabs: int = bounded(1, ge=1)
 
     def __post_init__(self) -> None:
         check_bounds(self, "volume.")
+        if self.resolution % self.slabs:
+            raise ValueError(f"volume.slabs ({self.slabs}) must divide volume.resolution ({self.resolution})")
 
     @property
     def voxel_size(self) -> float:
@@ -111,6 +117,9 @@ class ShapeConfig:
     num_segments: int = bounded(5, ge=1)  # N, the paper's number of objects on the table
     points_per_segment: int = bounded(1024, ge=1)  # Ps, a segment's padded size (PointNet's input size)
     surface_points: int = bounded(16384, ge=1)  # P, the padded size of the surface extracted from the TSDF
+    # Segments PointNet classifies in one pass (0 = all N): fewer keep its widest activations, [Ps, 1024] a
+    # segment, live for fewer segments at once (a GPU's batch of episodes); all N is the fastest on a CPU.
+    segments_per_pass: int = bounded(0, ge=0)
 
     def __post_init__(self) -> None:
         check_bounds(self, "shapes.")

@@ -3,9 +3,9 @@
 The camera poses are known (robot kinematics), so each depth map is fused with a projective TSDF update
 (Curless & Levoy; KinectFusion): every voxel centre is projected into the image, the nearest pixel's depth
 gives the signed distance along the camera's z axis, truncated and averaged with the voxel's running
-weight. One integration is a vectorised pass over the voxels (no scatter over pixels; in a few slabs, updated
-in place, so that its temporaries span a slab), with static shapes, so it jits, scans over frames and vmaps
-over episodes.
+weight. One integration is a vectorised pass over the voxels (no scatter over pixels; or ``slabs`` passes along
+x, updated in place, so that its temporaries span a slab), with static shapes, so it jits, scans over frames
+and vmaps over episodes.
 
 Conventions (docs/ARCHITECTURE.md): metres; world z up; OpenCV camera, pose ``T_wc`` camera-to-world; depth is z-depth,
 0 = no return. Voxel ``(i, j, k)`` has its centre at ``origin + voxel_size * (i, j, k)``. Stored TSDF
@@ -65,10 +65,6 @@ class VolumeStorage(enum.StrEnum):
             return stored
         return stored.astype(jnp.float32) * (1.0 / COMPACT_SCALE)
 
-
-# The fusion updates the volume in this many slabs along x, one after another: its float32 temporaries (the
-# depth gathered per voxel, the projections) span a slab, not the volume (under vmap: per episode).
-_SLABS = 8
 
 # Default truncation band, in voxels: wide enough to average a few voxels across the surface, narrow
 # enough not to merge the near sides of objects packed a couple of centimetres apart.
@@ -169,7 +165,7 @@ def check_frame(depth: np.ndarray | jax.Array, intrinsics: Intrinsics, T_wc: np.
 
 
 def _integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_wc: jax.Array,
-               max_depth: float | None) -> TSDFVolume:
+               max_depth: float | None, slabs: int = 1) -> TSDFVolume:
     """Unjitted body of ``integrate`` (scanned by ``integrate_frames``)."""
     H, W = intrinsics.height, intrinsics.width
     if tuple(depth.shape) != (H, W) or tuple(T_wc.shape) != (4, 4):
@@ -188,7 +184,8 @@ def _integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_w
     base = R.T @ (volume.origin - t)
     step = volume.voxel_size * R.T  # column a: camera-frame step of one voxel along world axis a
     X, Y, Z = volume.shape
-    slabs = _SLABS if X % _SLABS == 0 else 1
+    if X % slabs:
+        raise ValueError(f"integrate: slabs ({slabs}) must divide the volume's {X} voxels along x")
     storage = volume.storage
     sx = X // slabs
     j = jnp.arange(Y, dtype=jnp.float32)[None, :, None]
@@ -213,40 +210,47 @@ def _integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_w
         update = inside & (d > 0) & (sdf >= -volume.truncation)
         observed = jnp.clip(sdf * (1.0 / volume.truncation), -1.0, 1.0)
         # In float32 whatever the storage; a compact volume's weight saturates (MAX_COMPACT_WEIGHT).
-        start = (n * sx, 0, 0)
-        old_tsdf = storage.decode(jax.lax.dynamic_slice(tsdf, start, (sx, Y, Z)))
-        old_weight = jax.lax.dynamic_slice(weight, start, (sx, Y, Z)).astype(jnp.float32)
+        if slabs > 1:
+            tsdf, weight = (jax.lax.dynamic_slice(a, (n * sx, 0, 0), (sx, Y, Z)) for a in (tsdf, weight))
+        old_tsdf, old_weight = storage.decode(tsdf), weight.astype(jnp.float32)
         new_weight = old_weight + update.astype(jnp.float32)
         if storage is VolumeStorage.compact:
             new_weight = jnp.minimum(new_weight, MAX_COMPACT_WEIGHT)
         new_tsdf = jnp.where(update, old_tsdf + (observed - old_tsdf) / jnp.maximum(new_weight, 1.0), old_tsdf)
-        return (jax.lax.dynamic_update_slice(tsdf, storage.encode(new_tsdf), start),
-                jax.lax.dynamic_update_slice(weight, new_weight.astype(weight.dtype), start))
+        return storage.encode(new_tsdf), new_weight.astype(weight.dtype)
+
+    def update_slab_in_place(n: jax.Array, carry: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array]:
+        tsdf, weight = update_slab(n, carry)
+        start = (n * sx, 0, 0)
+        return (jax.lax.dynamic_update_slice(carry[0], tsdf, start),
+                jax.lax.dynamic_update_slice(carry[1], weight, start))
 
     if slabs == 1:
         tsdf, weight = update_slab(0, (volume.tsdf, volume.weight))
-    else:  # in place, slab after slab
-        tsdf, weight = jax.lax.fori_loop(0, slabs, update_slab, (volume.tsdf, volume.weight))
+    else:  # in place, slab after slab: the temporaries (depth gathered per voxel, projections) span a slab
+        tsdf, weight = jax.lax.fori_loop(0, slabs, update_slab_in_place, (volume.tsdf, volume.weight))
     return volume.replace(tsdf=tsdf, weight=weight)
 
 
-_integrate_jit = jax.jit(_integrate, static_argnames=("intrinsics", "max_depth"))
+_integrate_jit = jax.jit(_integrate, static_argnames=("intrinsics", "max_depth", "slabs"))
 
 
 def integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_wc: jax.Array,
-              max_depth: float | None = None) -> TSDFVolume:
+              max_depth: float | None = None, slabs: int = 1) -> TSDFVolume:
     """Fuse one depth map: projective TSDF with a running average of weight-1 observations.
 
     depth: [H, W] z-depth, m (0, negative, NaN or inf = no return; returns beyond ``max_depth`` m are
     dropped); T_wc: [4, 4] camera-to-world. Voxels in front of the observed surface, or behind it by less
     than the truncation, are updated; the others keep their value. Differentiable w.r.t. ``depth``.
+    ``slabs`` (static; divides the voxels along x): the update in that many passes over slabs along x, the
+    same values, its temporaries a slab's (``perception.volume.slabs``).
 
     Pure and jit-able (a module-level jit: called under another jit it inlines); it cannot raise on values,
     so a host frame is validated first with ``check_frame`` (shapes, a rigid finite pose), as
     ``observation.observe`` does (the shapes, being static, are checked here).
     """
     check_frame_shapes(depth, intrinsics, T_wc, "integrate")
-    return _integrate_jit(volume, depth, intrinsics, T_wc, max_depth)
+    return _integrate_jit(volume, depth, intrinsics, T_wc, max_depth, slabs)
 
 
 @functools.partial(jax.jit, static_argnames=("intrinsics", "max_depth"))
