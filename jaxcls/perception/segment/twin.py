@@ -52,7 +52,7 @@ def _dense_points(x: jax.Array, valid: jax.Array, spec: Spec) -> jax.Array:
         grid = jnp.zeros(G**3, jnp.int16).at[jnp.where(flags, flat, G**3)].add(1, mode="drop")
         # One neighbour cell at a time: [P] gathered live, not [P, 27].
         total, _ = jax.lax.scan(lambda acc, o: (acc + grid[flat + o].astype(jnp.int32), None),
-                                jnp.zeros(flat.shape, jnp.int32), offsets, unroll=True)
+                                jnp.zeros(flat.shape, jnp.int32), offsets)
         return total
 
     core = valid & (neighbourhood_sum(valid) >= spec.segmentation.dbscan_min_samples)
@@ -83,7 +83,7 @@ def _footprint_field(x: jax.Array, normals: jax.Array, kept: jax.Array, spec: Sp
         target = jnp.where(weight > 0, tij[:, 0] * G + tij[:, 1], G * G)
         return votes.at[target].add(weight, mode="drop"), None
 
-    votes, _ = jax.lax.scan(vote, jnp.zeros(G * G, x.dtype), jnp.asarray(_vote_radii(spec), x.dtype), unroll=True)
+    votes, _ = jax.lax.scan(vote, jnp.zeros(G * G, x.dtype), jnp.asarray(_vote_radii(spec), x.dtype))
     votes = votes.reshape(G, G)
     votes = _blur(votes * occ, spec.segmentation.vote_sigma)
     votes = votes / jnp.maximum(votes.max(), 1e-12)
