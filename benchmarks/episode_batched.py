@@ -7,12 +7,14 @@ episodes of one scene from different start views, as issue 23's larger runs will
 
 Every combination of camera tracking (``perception.tracking.mode``), the volume's storage
 (``perception.volume.storage``) and PointNet's products (``perception.classification_precision``) is a
-variant, all with the batch's memory layout (``--slabs 8 --segments-per-pass 1``: the fusion in slabs, PointNet a
-segment at a time, as the scale configs run it); each batch size runs every variant, their repeats interleaved. Reports episodes/s and moves/s, the
-first call (compilation), the program's device memory per episode (XLA's temporaries of the batch over B:
-``compiled.memory_analysis``), the final F1 of the target objects pooled over the batch (prior and refined),
-and the share of episodes whose path and final labels equal the first variant's; ``--trace FILE`` writes each
-episode's path and final labels (JSON) to compare with another device.
+variant, all with the batch's memory layout (``--slabs 8 --segments-per-pass 1``: the fusion in slabs, PointNet
+a segment at a time, as the scale configs run it); each batch size runs every variant, their repeats
+interleaved. Reports episodes/s and moves/s, the first call (compilation), the program's device memory per
+episode (XLA's temporaries of the batch over B: ``compiled.memory_analysis``), the final F1 of the target
+objects pooled over the batch (prior and refined), and the share of episodes whose path and final labels equal
+the first variant's; ``--trace FILE`` writes each episode's path and final labels (JSON) to compare with another
+device. ``--fit B ...`` compiles Table 1's own program (``episode.batched``) at B episodes, checks it against the
+device's memory and times one call where it fits.
 """
 
 from __future__ import annotations

@@ -91,8 +91,11 @@ def classify_segments(spec: Spec, segments: Segments) -> tuple[jax.Array, jax.Ar
     per_pass = spec.config.shapes.segments_per_pass
     if per_pass == 0 or per_pass >= spec.num_segments:
         return classify(segments.points, segments.mask)
-    # lax.map hands each pass's segments one by one to a vmapped function: a segment is a batch of one.
-    one = lambda segment: jax.tree.map(lambda x: x[0], classify(segment[0][None], segment[1][None]))  # noqa: E731
+    def one(segment: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array]:
+        """A segment as a batch of one (lax.map hands a pass's segments one by one to a vmapped function)."""
+        probs, yaw = classify(segment[0][None], segment[1][None])
+        return probs[0], yaw[0]
+
     return jax.lax.map(one, (segments.points, segments.mask), batch_size=per_pass)
 
 
