@@ -67,8 +67,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--fit", type=int, nargs="*", default=[],
                         help="batch sizes of Table 1's program (episode.batched): its device memory against the "
                              "device's, and one call timed where it fits")
+    parser.add_argument("--devices", type=int, nargs="*", default=[],
+                        help="device counts: each batch of --batch runs as Table 1's program (episode.batched) sharded "
+                             "over the first N local devices, the counts interleaved, instead of plain vmap")
     parser.add_argument("--out", help="append the table to this Markdown file")
     args = parser.parse_args(argv)
+    if any(n < 1 or n > len(jax.local_devices()) for n in args.devices):
+        parser.error(f"--devices: each count must lie in 1..{len(jax.local_devices())} (the local devices)")
     if args.save:
         save_frames(args.save, args.seed)
         print(f"wrote {args.save}")
@@ -98,7 +103,7 @@ def main(argv: list[str] | None = None) -> None:
     rollout = jax.jit(jax.vmap(active.rollout, in_axes=(None, 0, None, None)))
     rows, traces = [], []
     M = len(object_set.classes)
-    for B in args.batch:
+    for B in [] if args.devices else args.batch:  # (with --devices, the batches run sharded instead)
         starts = jnp.asarray(np.random.default_rng(B).integers(0, T_wc.shape[0], B), jnp.int32)
         keys = jax.random.split(jax.random.PRNGKey(B), B)
         first, times, final, trace, memory = {}, {m: [] for m in episodes}, {}, {}, {}
@@ -140,6 +145,15 @@ def main(argv: list[str] | None = None) -> None:
                         "refined": np.asarray(final[mode].refinement.refined[b]).tolist(),
                         "valid": np.asarray(final[mode].refinement.valid[b]).tolist()} for b in range(min(B, 16))]
         del final, trace
+    if args.devices:
+        report.publish(report.section(
+            f"Batched episodes sharded over devices ({args.moves} moves, 640x480, one scene)", argv,
+            ("episodes", "devices", "variant", "device", "first call s (compile)", "median ms per batch", "moves/s",
+             "speed-up over the first count", f"same path and labels as {args.devices[0]} device(s)"),
+            sharded_rows(episodes, depth, T_wc, args.batch, args.devices, args.repeats, args.moves),
+            intro="Table 1's program (`episode.batched`: reset and rollout per episode, traces out) over B episodes of "
+                  "one scene, split over a 1-D mesh of the first N local devices (B / N episodes each, no "
+                  "communication); the device counts' repeats interleaved; frames in device memory."), args.out)
     fits = []
     limit = (jax.devices()[0].memory_stats() or {}).get("bytes_limit", np.nan)
     program = batched._program(batched.mesh())  # Table 1's program: reset and rollout inside, traces out
@@ -165,14 +179,16 @@ def main(argv: list[str] | None = None) -> None:
             print(fits[-1], flush=True)
     if args.trace:
         io.write_json(args.trace, traces)
-    report.publish(report.section(
-        f"Whole episodes batched ({args.moves} moves, 640x480, one scene)", argv,
-        ("episodes", "tracking/storage/PointNet products", "device", "first call s (compile)", "median ms per batch",
-         "episodes/s", "moves/s", "device MB per episode", "F1 prior (pooled)", "F1 refined (pooled)",
-         f"same path and labels as {next(iter(episodes))}"), rows,
-        intro=f"`active.rollout` vmapped over episodes from random start views of scene {args.frames} (100 "
-              "viewpoints), the episode's defaults (`setup.ActiveConfig()`); frames in device memory."),
-        args.out)
+    if rows:
+        report.publish(report.section(
+            f"Whole episodes batched ({args.moves} moves, 640x480, one scene)", argv,
+            ("episodes", "tracking/storage/PointNet products", "device", "first call s (compile)",
+             "median ms per batch", "episodes/s", "moves/s", "device MB per episode", "F1 prior (pooled)",
+             "F1 refined (pooled)",
+             f"same path and labels as {next(iter(episodes))}"), rows,
+            intro=f"`active.rollout` vmapped over episodes from random start views of scene {args.frames} (100 "
+                  "viewpoints), the episode's defaults (`setup.ActiveConfig()`); frames in device memory."),
+            args.out)
     if fits:
         report.publish(report.section(
             "Batched episodes against device memory", argv,
@@ -182,6 +198,40 @@ def main(argv: list[str] | None = None) -> None:
                   "one scene: its arguments, outputs and temporaries as XLA's memory analysis gives them, against "
                   "the device's limit (`XLA_PYTHON_CLIENT_MEM_FRACTION`); where it fits, one call timed after a "
                   "first."), args.out)
+
+
+def sharded_rows(episodes: dict[str, active.Episode], depth: jax.Array, T_wc: jax.Array, batches: list[int],
+                 device_counts: list[int], repeats: int, moves: int) -> list[tuple]:
+    """Per batch size B and variant, B episodes through ``episode.batched`` over each count of local devices,
+    the counts' repeats interleaved: the table's rows (moves/s, speed-up over the first count, and the share of
+    episodes whose path and final labels equal the first count's)."""
+    meshes = {n: batched.mesh(jax.local_devices()[:n]) for n in device_counts}
+    rows = []
+    for B, (mode, episode) in itertools.product(batches, episodes.items()):
+        scene = np.zeros(B, np.int32)
+        starts = np.random.default_rng(B).integers(0, T_wc.shape[0], B).astype(np.int32)
+        keys = jax.random.split(jax.random.PRNGKey(B), B)
+        frames = {n: (batched.replicate(depth[None], m), batched.replicate(T_wc[None], m)) for n, m in meshes.items()}
+        first, times, traces = {}, {n: [] for n in meshes}, {}
+        for n, m in meshes.items():
+            t0 = time.perf_counter()
+            traces[n] = batched.rollouts(episode, *frames[n], scene, starts, keys, m)
+            first[n] = time.perf_counter() - t0
+        for _ in range(repeats):
+            for n, m in meshes.items():
+                t0 = time.perf_counter()
+                jax.block_until_ready(batched.dispatch(episode, *frames[n], scene, starts, keys, m))
+                times[n].append(time.perf_counter() - t0)
+        base = device_counts[0]
+        for n in meshes:
+            t = float(np.median(times[n]))
+            same = (np.all(traces[n].view == traces[base].view, axis=1)
+                    & np.all(traces[n].refinement.refined[:, -1] == traces[base].refinement.refined[:, -1], axis=1))
+            rows.append((B, n, mode, report.device_name(), f"{first[n]:.1f}", f"{t * 1e3:.0f}",
+                         f"{B * moves / t:.0f}", f"{float(np.median(times[base])) / t:.2f}", f"{np.mean(same):.2f}"))
+            print(rows[-1], flush=True)
+        del frames, traces
+    return rows
 
 
 if __name__ == "__main__":

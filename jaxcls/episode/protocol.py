@@ -223,23 +223,45 @@ def episode_record(trace: active.Trace, truth: scoring.Truth, **keys: Any) -> di
     and their prior and refined labels after every move (``prior``, ``refined``: [T][K]; -1 = no segment
     matched the object); each frame's tracking status (``tracking.Status``) and the hand-eye estimate Y
     after it (``hand_eye``: [T][6], its SE(3) log, translation m then rotation rad). A move the episode did
-    not make (it had stopped) repeats the last labels."""
-    prior, refined = np.asarray(trace.refinement.prior), np.asarray(trace.refinement.refined)
-    centroid, valid = np.asarray(trace.centroid), np.asarray(trace.refinement.valid)
-    done = np.asarray(trace.done)
-    labels = []
-    for t in range(len(prior)):
-        if done[t] and labels:
-            labels.append(labels[-1])
-            continue
-        labels.append(scoring.object_labels(truth, centroid[t], valid[t], np.stack([prior[t], refined[t]]))
-                      [:, truth.target])
-    labels = np.stack(labels)  # [T, 2, K]
-    hand_eye = np.asarray(jaxlie.SE3.from_matrix(jnp.asarray(trace.hand_eye)).log(), np.float64)[~done]  # [T, 6]
-    return {**keys, "path": np.asarray(trace.view)[~done].tolist(), "true": truth.label[truth.target].tolist(),
-            "prior": labels[:, 0].tolist(), "refined": labels[:, 1].tolist(),
-            "tracking": [tracking.Status(int(s)).name.lower() for s in np.asarray(trace.tracking)[~done]],
-            "hand_eye": np.round(hand_eye, 6).tolist()}
+    not make (it had stopped) repeats the last labels. ``episode_records`` does a batch at once."""
+    return episode_records(jax.tree.map(lambda x: np.asarray(x)[None], trace), [truth], [keys])[0]
+
+
+@jax.jit
+def _se3_log(matrices: jax.Array) -> jax.Array:
+    """[..., 6] the SE(3) log of [..., 4, 4] transforms (jaxlie)."""
+    return jaxlie.SE3.from_matrix(matrices).log()
+
+
+def episode_records(traces: active.Trace, truths: Sequence[scoring.Truth], keys: Sequence[dict[str, Any]]
+                    ) -> list[dict[str, Any]]:
+    """``episode_record`` of E episodes at once (``traces``: [E, T, ...] host leaves; ``truths`` and ``keys``:
+    one per episode): the hand-eye logs in one call on the host's CPU, one assignment per move made."""
+    prior, refined = np.asarray(traces.refinement.prior), np.asarray(traces.refinement.refined)
+    centroid, valid = np.asarray(traces.centroid), np.asarray(traces.refinement.valid)
+    done, views, status = np.asarray(traces.done), np.asarray(traces.view), np.asarray(traces.tracking)
+    E, T = done.shape
+    if not (len(truths) == len(keys) == E):
+        raise ValueError(f"episode_records: {E} episodes, {len(truths)} truths and {len(keys)} key sets")
+    # On the host's CPU: never queued behind the batch an accelerator is running.
+    on_host = jax.device_put(np.asarray(traces.hand_eye, np.float32), jax.local_devices(backend="cpu")[0])
+    hand_eye = np.round(np.asarray(_se3_log(on_host), np.float64), 6)  # [E, T, 6]
+    names = {s.value: s.name.lower() for s in tracking.Status}
+    records = []
+    for e, (truth, key) in enumerate(zip(truths, keys, strict=True)):
+        labels = []
+        for t in range(T):
+            if done[e, t] and labels:
+                labels.append(labels[-1])
+                continue
+            labels.append(scoring.object_labels(truth, centroid[e, t], valid[e, t],
+                                                np.stack([prior[e, t], refined[e, t]]))[:, truth.target])
+        made = ~done[e]
+        labels = np.stack(labels)  # [T, 2, K]
+        records.append({**key, "path": views[e][made].tolist(), "true": truth.label[truth.target].tolist(),
+                        "prior": labels[:, 0].tolist(), "refined": labels[:, 1].tolist(),
+                        "tracking": [names[s] for s in status[e][made]], "hand_eye": hand_eye[e][made].tolist()})
+    return records
 
 
 def per_scene(records: Sequence[dict[str, Any]], move: int, label: str = "refined"
@@ -274,5 +296,5 @@ def moves_to_correct(records: Sequence[dict[str, Any]], label: str = "refined") 
     return (float(np.mean(moves)) if moves else float("nan")), (right / total if total else 0.0)
 
 
-__all__ = ["PAPER_ROWS", "ROWS", "Kind", "Row", "all_views", "episode_record", "moves_to_correct",
+__all__ = ["PAPER_ROWS", "ROWS", "Kind", "Row", "all_views", "episode_record", "episode_records", "moves_to_correct",
            "oracle_rollouts", "per_scene", "rollouts", "row", "run_keys", "start_views"]

@@ -288,15 +288,22 @@ def _draw_instances(rng: np.random.Generator, pool, count: int, distinct: bool) 
 
 def _slide_in(hull: np.ndarray, yaw: float, placed: list[np.ndarray], anchor: np.ndarray,
               direction: float, gap: float, step: float = 0.002) -> np.ndarray:
-    """Bring a footprint from ``anchor`` outwards along ``direction`` until it clears every hull by ``gap``."""
+    """Bring a footprint from ``anchor`` outwards along ``direction`` in steps of ``step`` until it clears every
+    hull by ``gap``: the first step that does.
+
+    The separation is 1-Lipschitz in the footprint's position (a maximum over axes of gaps that each move by at
+    most the distance moved), so a step whose separation falls short by s leaves at least s / step - 1 steps
+    that cannot clear; those are counted (``t`` accumulates exactly as one step at a time) without testing."""
     d = np.array([math.cos(direction), math.sin(direction)])
     t = 0.0
     while True:
         position = anchor + t * d
         moved = _place_footprint(hull, position, yaw)
-        if min(footprint_separation(moved, h) for h in placed) >= gap:
+        short = gap - min(footprint_separation(moved, h) for h in placed)
+        if short <= 0:
             return position
-        t += step
+        for _ in range(max(1, int(short / step))):  # the last one skipped is tested: a step's margin
+            t += step
 
 
 def scene_models(scene: Scene, object_set: ObjectSet | None = None) -> tuple[ObjectModel, ...]:

@@ -167,9 +167,11 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
         with clock("records (labels matched to the objects)"):
             for (c, name), keys in calls.items():
                 moves = 1 if protocol.ROWS[name].kind is protocol.Kind.SINGLE else config.moves
-                records = [{"classifier": c, "row": name, "scene": k[2], **protocol.episode_record(
-                    jax.tree.map(lambda x, e=e, m=moves: x[e, :m], traces), truths[k[2] - first], run=k[3],
-                    start=int(start[e]))} for e, k in keys]
+                index = np.array([e for e, _ in keys], np.int64)
+                records = protocol.episode_records(
+                    jax.tree.map(lambda x, i=index, m=moves: x[i, :m], traces), [truths[k[2] - first] for _, k in keys],
+                    [{"classifier": c, "row": name, "scene": k[2], "run": k[3], "start": int(start[i])}
+                     for i, k in keys])
                 io.append_jsonl(store, records)
                 bar.update(len(records))
 
@@ -237,13 +239,14 @@ def row_records(config: Table1Config, row: protocol.Row, episode: active.Episode
         for chunk in (runs[i:i + size] for i in range(0, len(runs), size)):
             traces = protocol.oracle_rollouts(episode, views.depth, views.T_wc, starts[chunk], keys[np.asarray(chunk)],
                                               truth)
-            records += [protocol.episode_record(jax.tree.map(lambda x, i=i: x[i], traces), truth, run=r,
-                                                start=int(starts[r])) for i, r in enumerate(chunk)]
+            records += protocol.episode_records(jax.device_get(traces), [truth] * len(chunk),
+                                                [{"run": r, "start": int(starts[r])} for r in chunk])
         return records
     # All runs (one compiled shape), brought to the host once.
     traces = jax.device_get(protocol.rollouts(episode, views.depth, views.T_wc, starts, keys))
-    return [protocol.episode_record(jax.tree.map(lambda x, r=r: x[r], traces), truth, run=r,
-                                    start=int(starts[r])) for r in runs]
+    runs_index = np.asarray(runs, np.int64)
+    return protocol.episode_records(jax.tree.map(lambda x: np.asarray(x)[runs_index], traces), [truth] * len(runs),
+                                    [{"run": r, "start": int(starts[r])} for r in runs])
 
 
 def time_modules(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig) -> dict[str, Any]:
