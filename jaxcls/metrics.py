@@ -227,6 +227,18 @@ def _scene_confusions(per_scene: Sequence[tuple[np.ndarray, np.ndarray]], num_cl
         np.zeros((0, num_classes + 1, num_classes + 1), np.int64)
 
 
+def _resampled_sum(cms: np.ndarray, picks: np.ndarray) -> np.ndarray:
+    """``cms[picks].sum(axis=-3)`` without the [..., S, M + 1, M + 1] gather: each resample's scene counts
+    ([..., S], a bincount) times the scenes' matrices ``cms: [S, M + 1, M + 1]``. Counts are exact in float64
+    (integers far below 2^53), so the sums equal the gathered ones."""
+    picks = np.asarray(picks)
+    n, lead = len(cms), picks.shape[:-1]
+    rows = np.arange(int(np.prod(lead)))[:, None] * n
+    counts = np.bincount((rows + picks.reshape(-1, picks.shape[-1])).ravel(), minlength=len(rows) * n)
+    sums = counts.reshape(-1, n).astype(np.float64) @ cms.reshape(n, -1).astype(np.float64)
+    return sums.reshape(*lead, *cms.shape[1:])
+
+
 def _interval(statistic_of, n: int, confidence: float, resamples: int, seed: int) -> tuple[float, float, float]:
     """(estimate, low, high): the percentile bootstrap (``scipy.stats.bootstrap``) of ``statistic_of(picks
     [..., S]) -> [...]`` over ``n`` scenes drawn with replacement."""
@@ -248,7 +260,7 @@ def scene_interval(per_scene: Sequence[tuple[np.ndarray, np.ndarray]], num_class
     interval, resampling whole scenes (objects of one scene share occlusions and a camera path;
     ``scipy.stats.bootstrap``). per_scene: [(true [n_s], predicted [n_s])] per scene."""
     cms = _scene_confusions(per_scene, num_classes)
-    return _interval(lambda picks: confusion_scores(cms[picks].sum(axis=-3))[statistic], len(cms), confidence,
+    return _interval(lambda picks: confusion_scores(_resampled_sum(cms, picks))[statistic], len(cms), confidence,
                      resamples, seed)
 
 
@@ -260,8 +272,8 @@ def paired_difference(per_scene_a: Sequence[tuple[np.ndarray, np.ndarray]],
     if len(per_scene_a) != len(per_scene_b):
         raise ValueError(f"paired_difference: {len(per_scene_a)} and {len(per_scene_b)} scenes; pair the same ones")
     a, b = _scene_confusions(per_scene_a, num_classes), _scene_confusions(per_scene_b, num_classes)
-    return _interval(lambda picks: (confusion_scores(a[picks].sum(axis=-3))[statistic]
-                                    - confusion_scores(b[picks].sum(axis=-3))[statistic]),
+    return _interval(lambda picks: (confusion_scores(_resampled_sum(a, picks))[statistic]
+                                    - confusion_scores(_resampled_sum(b, picks))[statistic]),
                      len(a), confidence, resamples, seed)
 
 

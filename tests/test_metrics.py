@@ -203,6 +203,19 @@ def test_scene_bootstrap_intervals_and_the_paired_difference():
     assert diff > 0 and low > 0  # the difference is significant
     same, low, high = metrics.paired_difference(many, many, 4)
     assert same == 0 and low == 0 and high == 0
+    # The peer: scipy's bootstrap of scikit-learn's macro F1 of the pooled labels, the scenes gathered per resample.
+    from scipy.stats import bootstrap
+    from sklearn.metrics import f1_score
+
+    def pooled_f1(picks):
+        true = np.concatenate([few[i][0] for i in picks])
+        predicted = np.concatenate([few[i][1] for i in picks])
+        return f1_score(true, predicted, average="macro", zero_division=0)
+
+    peer = bootstrap((np.arange(len(few)),), lambda picks, axis: np.apply_along_axis(pooled_f1, -1, picks),
+                     vectorized=True, axis=-1, n_resamples=300, method="percentile", rng=np.random.default_rng(0))
+    ours = metrics.scene_interval(few, 4, resamples=300)
+    assert ours[1:] == pytest.approx((peer.confidence_interval.low, peer.confidence_interval.high), abs=1e-12)
     assert metrics.path_length(np.array([[0, 0, 0], [3, 4, 0], [3, 4, 1.0]])) == pytest.approx(6.0)
     square = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.0]])
     assert metrics.surface_coverage(square, square[:2] + 0.001, radius=0.005) == pytest.approx(0.5)
