@@ -21,6 +21,17 @@ line is dropped). Same config, same numbers. Outputs in ``out_dir``: ``table.md`
 paper's, per classifier, then the paired differences and moves-to-correct), ``table.csv`` (every row x
 move), ``figure4.png`` (F1 over moves, with 95% bands), ``timing.json`` (each module's time per move).
 
+Several hosts (``--distributed``): start the same command once per host (process), each with
+``jax.distributed``'s coordinator, the process count and its index (or none of them where JAX detects the
+cluster: SLURM, Open MPI, ...); process i runs the scenes s with s % count == i on its local devices and
+appends to ``episodes.<i>.jsonl`` (no file is shared while written; a resumed run reads every store, under any
+process count); once all are done, process 0 writes the tables. (A dataset folder is best rendered before,
+by ``jaxcls dataset``, or the scenes drawn with ``scene_source=device``.) Within one host, one process drives every
+local device (the episodes are sharded over them, ``episode.batched``).
+
+    python experiments/table1.py --config table1_synthetic_scale --distributed \
+        --coordinator host0:1234 --processes 2 --process-id 0        # on host 0; --process-id 1 on host 1
+
 This is the command line; the logic is ``jaxcls.experiments.table1`` (``config``, ``data``, ``runner``,
 ``scoring``, ``tables``, ``figure``).
 """
@@ -32,6 +43,8 @@ import json
 import sys
 import time
 from pathlib import Path
+
+import jax
 
 from jaxcls import compile_cache, io, precision, report
 from jaxcls.config import load_config, save_config
@@ -46,8 +59,18 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", help="append the tables to this Markdown file")
     parser.add_argument("--tables-only", action="store_true",
                         help="only the tables of the episodes stored in out_dir (none run, no scene file read)")
+    parser.add_argument("--distributed", action="store_true",
+                        help="one process of several (hosts): jax.distributed.initialize, the scenes split by process")
+    parser.add_argument("--coordinator", help="with --distributed: host:port of process 0 (else detected)")
+    parser.add_argument("--processes", type=int, help="with --distributed: the process count (else detected)")
+    parser.add_argument("--process-id", type=int, help="with --distributed: this process's index (else detected)")
     parser.add_argument("overrides", nargs="*")
     args = parser.parse_intermixed_args(argv)
+    if args.distributed:
+        jax.config.update("jax_cpu_collectives_implementation", "gloo")  # (the barrier, where processes are CPUs)
+        jax.distributed.initialize(args.coordinator, args.processes, args.process_id)
+    elif args.coordinator or args.processes is not None or args.process_id is not None:
+        parser.error("--coordinator, --processes and --process-id need --distributed")
     # No allocator.retain_freed_memory() here: batched episodes gain little from it.
     precision.full_float32_matmuls()  # no TF32 on a GPU (jaxcls.precision)
     compile_cache.enable()  # the row programs kept on disk for the next run (jaxcls.compile_cache)
@@ -62,8 +85,16 @@ def main(argv: list[str] | None = None) -> None:
         records = data.stored_records(config, out / "episodes.jsonl")
     else:
         dataset, scene_set = data.open_scenes(config)
-        save_config(config, out / "config.yaml")
+        if runner.process_share()[0] == 0:
+            save_config(config, out / "config.yaml")
         records = runner.run_episodes(config, scene_set, dataset, out / "episodes.jsonl")
+    if args.distributed:  # every process's episodes stored; process 0 writes the tables
+        from jax.experimental import multihost_utils
+
+        multihost_utils.sync_global_devices("table1: every process's episodes stored")
+        if runner.process_share()[0]:
+            return
+        records = data.stored_records(config, out / "episodes.jsonl")
     if timing is None and config.timing_moves and not args.tables_only:
         timing = runner.time_modules(config, scene_set, dataset)
         io.write_json(timing_file, timing)

@@ -115,6 +115,16 @@ def test_the_timed_host_path_and_the_jitted_step_agree(episode, frames):
         assert all(t > 0 for t in times.values())
 
 
+def test_the_stages_name_their_operations(episode, frames):
+    """Each stage of a move runs under its name (``jax.named_scope``): XLA's op names carry it, so a profile
+    of the compiled move attributes its kernels to stages (``benchmarks/profile_batched.py``)."""
+    state = active.reset(episode, frames.viewpoints, 3, jax.random.PRNGKey(5))
+    depth, T_wc = frames.frame(int(state.next_view))
+    text = active.step_jit.lower(episode, state, depth, T_wc.astype(np.float32)).as_text(debug_info=True)
+    for name in active.MODULES:
+        assert f"/{name}/" in text, name
+
+
 def test_moves_after_the_first_compile_nothing(episode, frames):
     """Three moves of the timed host path (``jaxcls run``'s): after move 1 no jitted stage traces (hence
     compiles) again; a state leaf that changed its type across a move (e.g. a weakly typed ``rho`` from a

@@ -8,6 +8,8 @@ import csv
 import dataclasses
 import importlib.util
 import json
+import socket
+import subprocess
 import sys
 from pathlib import Path
 
@@ -106,6 +108,31 @@ def test_interrupted_experiment_resumes_and_the_same_seed_gives_the_same_numbers
     order = sorted(range(len(records)), key=lambda i: keys[i])
     assert sorted(rendered, key=lambda r: (r["classifier"], r["row"], r["scene"], r["run"])) == [records[i]
                                                                                                   for i in order]
+    # Two processes' shares, as a jax.distributed run splits the scenes (s to process s % 2), each appending to its
+    # own store: together the records of one process. Then two real processes (jax.distributed over localhost)
+    # make the tables of every store: process 0 writes them, after the barrier.
+    split_argv = _small(tmp_path, "s", "scene_source=device", "rows=[vis_occl_hist_gr]")
+    split = load_config(Table1Config, split_argv[1], split_argv[2:])
+    dataset, scene_set = data.open_scenes(split)
+    for index in (0, 1):
+        runner.run_episodes(split, scene_set, dataset, tmp_path / "s" / "episodes.jsonl", show_progress=False,
+                            process=(index, 2))
+    shares = [io.read_jsonl(tmp_path / "s" / f"episodes.{index}.jsonl") for index in (0, 1)]
+    assert [{r["scene"] for r in share} for share in shares] == [{0}, {1}]
+    assert not (tmp_path / "s" / "episodes.jsonl").exists()
+    assert (sorted(shares[0] + shares[1], key=lambda r: (r["scene"], r["run"]))
+            == sorted((r for r in rendered if r["row"] == "vis_occl_hist_gr"), key=lambda r: (r["scene"], r["run"])))
+    with socket.socket() as s:  # a free port for the coordinator
+        s.bind(("localhost", 0))
+        port = s.getsockname()[1]
+    command = [sys.executable, str(ROOT / "experiments" / "table1.py"), *split_argv, "--tables-only", "--distributed",
+               "--coordinator", f"localhost:{port}", "--processes", "2", "--process-id"]
+    processes = [subprocess.Popen([*command, str(index)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                 for index in (0, 1)]
+    logs = [p.communicate(timeout=240)[0] for p in processes]
+    assert [p.returncode for p in processes] == [0, 0], logs
+    assert "4 episodes in" in logs[0] and "episodes in" not in logs[1]  # process 0 alone made the tables
+    assert "| VisOcclHistGR |" in (tmp_path / "s" / "table.md").read_text()
     for r in records:
         assert len(r["refined"]) == (2 if r["row"] == "vis_occl_hist_gr" else 1)
         assert len(r["true"]) == 5 and all(len(labels) == 5 for labels in r["refined"])

@@ -420,8 +420,9 @@ def step(episode: Episode, state: EpisodeState, depth: jax.Array, T_wc: jax.Arra
     # A stopped episode's frame has no returns, so the fusion leaves its volume as it was: the volume (most
     # of the state) is updated in place, not selected between two copies like the other leaves below.
     depth = jnp.where(state.done, 0.0, jnp.asarray(depth, jnp.float32))
-    for _, stage in STAGES:
-        new = stage(episode, new, depth, T_wc)
+    for name, stage in STAGES:
+        with jax.named_scope(name):  # the stage's name in XLA's op names: a profile attributes kernels by it
+            new = stage(episode, new, depth, T_wc)
     volume = new.observation.volume
 
     def without_volume(s: EpisodeState) -> EpisodeState:

@@ -27,9 +27,24 @@ def dataset_config(config: Table1Config) -> DatasetConfig:
     return load_config(DatasetConfig, config.dataset, config.dataset_overrides)
 
 
+def process_store(store: Path, process: tuple[int, int] = (0, 1)) -> Path:
+    """Where process ``index`` of ``count`` (``process``) appends its episodes: ``store`` itself for one process,
+    else ``<stem>.<index>.jsonl`` beside it (no two processes append to one file)."""
+    index, count = process
+    return store if count == 1 else store.with_name(f"{store.stem}.{index}{store.suffix}")
+
+
+def read_stores(store: Path) -> list[dict[str, Any]]:
+    """The records of ``store`` and of every process's store beside it (``process_store``): a run's episodes
+    whichever processes (and however many) stored them."""
+    shares = sorted(store.parent.glob(f"{store.stem}.*{store.suffix}"))
+    return [r for path in [store, *shares] for r in io.read_jsonl(path)]
+
+
 def stored_records(config: Table1Config, store: Path) -> list[dict[str, Any]]:
-    """The stored episodes of this config's classifiers, rows and first ``scenes`` scenes (all if 0)."""
-    return [r for r in io.read_jsonl(store) if r["classifier"] in config.classifiers and r["row"] in config.rows
+    """The stored episodes (every process's, ``read_stores``) of this config's classifiers, rows and first
+    ``scenes`` scenes (all if 0)."""
+    return [r for r in read_stores(store) if r["classifier"] in config.classifiers and r["row"] in config.rows
             and (not config.scenes or int(r["scene"]) < config.scenes)]
 
 

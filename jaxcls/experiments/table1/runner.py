@@ -20,7 +20,7 @@ from tqdm.auto import tqdm
 from jaxcls import io, report
 from jaxcls.episode import active, batched, protocol, runner, scoring, setup, sources
 from jaxcls.experiments.table1.config import Table1Config
-from jaxcls.experiments.table1.data import Scenes
+from jaxcls.experiments.table1.data import Scenes, process_store, read_stores
 from jaxcls.geometry import Intrinsics
 from jaxcls.perception import pointnet
 from jaxcls.planning import nbv
@@ -78,26 +78,39 @@ def passes(programs: list, platform: str) -> list[list]:
 BATCHED = (protocol.Kind.SINGLE, protocol.Kind.POLICY)  # rows run by the batched, switched program
 
 
+def process_share() -> tuple[int, int]:
+    """(this process's index, the process count): one process unless ``jax.distributed`` was initialised."""
+    return jax.process_index(), jax.process_count()
+
+
 def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig, store: Path,
-                 show_progress: bool = True) -> list[dict[str, Any]]:
-    """Every (classifier, row, scene, run) episode not yet in ``store`` (JSONL), appended as each batch of a
-    row finishes; returns all records of this config's rows and scenes. The single-view and policy rows run
-    batched over scenes and runs (``run_batched``); PointNetFull and the oracle scene by scene."""
+                 show_progress: bool = True, process: tuple[int, int] | None = None) -> list[dict[str, Any]]:
+    """Every (classifier, row, scene, run) episode not yet stored, appended to ``store`` (JSONL) as each batch
+    of a row finishes; returns all stored records of this config's rows and scenes. The single-view and policy
+    rows run batched over scenes and runs (``run_batched``); PointNetFull and the oracle scene by scene.
+
+    Several processes (``process``: (index, count), default ``process_share()``; hosts of a ``jax.distributed``
+    run) split the scenes: process i runs the scenes s with s % count == i on its local devices and appends to
+    its own store (``data.process_store``); what is done is read from every process's store, so a run resumes
+    under another process count too."""
+    index, count = process or process_share()
     object_set = object_set_from_config(dataset.objects)
     classifiers = {name: setup.load_classifier(path, object_set, f"classifiers.{name}")
                    for name, path in config.classifiers.items()}
     rows = {name: protocol.row(name) for name in config.rows}
-    done = {record_key(r) for r in io.read_jsonl(store)}
-    wanted = [(c, name, s, run) for s in range(scene_set.count) for c in classifiers for name, row in rows.items()
-              if row.kind is not protocol.Kind.ORACLE or s < config.oracle_scenes
-              for run in range(runs_of(row, config.runs))]
+    done = {record_key(r) for r in read_stores(store)}
+    every = [(c, name, s, run) for s in range(scene_set.count) for c in classifiers for name, row in rows.items()
+             if row.kind is not protocol.Kind.ORACLE or s < config.oracle_scenes
+             for run in range(runs_of(row, config.runs))]
+    wanted = [k for k in every if k[2] % count == index]
     todo = [k for k in wanted if k not in done]
+    mine = process_store(store, (index, count))  # where this process appends
     clock, began = Phases(), time.perf_counter()
     with tqdm(total=len(wanted), initial=len(wanted) - len(todo), desc="episodes", unit="episode",
               disable=not show_progress) as bar:
         batched_todo = [k for k in todo if rows[k[1]].kind in BATCHED]
         if batched_todo:
-            run_batched(config, scene_set, dataset, classifiers, object_set, batched_todo, store, bar, clock)
+            run_batched(config, scene_set, dataset, classifiers, object_set, batched_todo, mine, bar, clock)
         todo = [k for k in todo if rows[k[1]].kind not in BATCHED]
         programs = [(c, name) for c in classifiers for name in rows if any(k[:2] == (c, name) for k in todo)]
         for group in passes(programs, jax.default_backend()):
@@ -122,14 +135,14 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
                     bar.set_postfix(scene=s, classifier=c, row=name)
                     with clock("scene by scene (PointNetFull, the oracle)"):
                         records = row_records(config, row, episodes[c, name], views, truth, starts, keys, missing)
-                    io.append_jsonl(store, [{"classifier": c, "row": name, "scene": s, **r} for r in records])
+                    io.append_jsonl(mine, [{"classifier": c, "row": name, "scene": s, **r} for r in records])
                     bar.update(len(records))
             jax.clear_caches()  # the pass's compiled programs (and their memory maps) go
     if todo or batched_todo:
-        write_run_times(store.parent / "run_times.json", clock, time.perf_counter() - began,
-                        len(batched_todo) + len(todo))
-    keep = set(wanted)
-    return [r for r in io.read_jsonl(store) if record_key(r) in keep]
+        write_run_times(store.parent / process_store(Path("run_times.json"), (index, count)).name, clock,
+                        time.perf_counter() - began, len(batched_todo) + len(todo))
+    keep = set(every)
+    return [r for r in read_stores(store) if record_key(r) in keep]
 
 
 def program_row(row: protocol.Row) -> protocol.Row:
@@ -145,15 +158,16 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                 classifiers: dict[str, pointnet.Classifier], object_set, todo: list[tuple[str, str, int, int]],
                 store: Path, bar: tqdm, clock: Phases | None = None) -> None:
     """The single-view and policy rows' episodes ``todo`` batched over scenes and runs and sharded over the
-    local devices (``episode.batched``): ``scene_chunk`` scenes' frames at a time, one switched program per
-    classifier and model library running every row (``Episode.switched``), at most ``batch_episodes`` episodes a
-    call. Rows that share a program row (PointNetSingle and VisOcclHist with the same GR) share its episodes. A
-    call's records are built and appended while the next call runs on the devices."""
+    local devices (``episode.batched``): the frames of ``scene_chunk`` of ``todo``'s scenes at a time, one
+    switched program per classifier and model library running every row (``Episode.switched``), at most
+    ``batch_episodes`` episodes a call. Rows that share a program row (PointNetSingle and VisOcclHist with the
+    same GR) share its episodes. A call's records are built and appended while the next call runs on the
+    devices."""
     clock = clock or Phases()
     device_mesh = batched.mesh()
     policies = tuple(dict.fromkeys(program_row(protocol.ROWS[k[1]]).policy for k in todo))
     switched: dict[tuple[str, str], active.Episode] = {}
-    pending: list = []  # the call in flight: (its episodes' keys by row, traces, truths, starts, first scene)
+    pending: list = []  # the call in flight: (its episodes' keys by row, traces, truths, starts, scene positions)
 
     def episodes_clock():
         """Dispatching a call (the first one compiles) and waiting for one: the devices' share of the run."""
@@ -161,7 +175,7 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
         return clock("batched episodes" if first_call in clock.seconds else first_call)
 
     def finish() -> None:
-        calls, traces, truths, start, first = pending.pop()
+        calls, traces, truths, start, at = pending.pop()
         with episodes_clock():
             traces = batched.fetch(traces, len(start))
         with clock("records (labels matched to the objects)"):
@@ -169,24 +183,24 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                 moves = 1 if protocol.ROWS[name].kind is protocol.Kind.SINGLE else config.moves
                 index = np.array([e for e, _ in keys], np.int64)
                 records = protocol.episode_records(
-                    jax.tree.map(lambda x, i=index, m=moves: x[i, :m], traces), [truths[k[2] - first] for _, k in keys],
+                    jax.tree.map(lambda x, i=index, m=moves: x[i, :m], traces), [truths[at[k[2]]] for _, k in keys],
                     [{"classifier": c, "row": name, "scene": k[2], "run": k[3], "start": int(start[i])}
                      for i, k in keys])
                 io.append_jsonl(store, records)
                 bar.update(len(records))
 
-    for first in range(0, scene_set.count, config.scene_chunk):
-        chunk_range = range(first, min(first + config.scene_chunk, scene_set.count))
-        chunk_todo = [k for k in todo if k[2] in chunk_range]
-        if not chunk_todo:
-            continue
+    scenes = sorted({k[2] for k in todo})  # (a process of several: its share)
+    for first in range(0, len(scenes), config.scene_chunk):
+        chunk_scenes = scenes[first:first + config.scene_chunk]
+        at = {s: i for i, s in enumerate(chunk_scenes)}  # a scene's position in the chunk's frames
+        chunk_todo = [k for k in todo if k[2] in at]
         with clock("frames (rendered or read)"):
-            chunk = scene_set.chunk(chunk_range)
+            chunk = scene_set.chunk(chunk_scenes)
             depth, T_wc = batched.replicate(chunk.depth, device_mesh), batched.replicate(chunk.T_wc, device_mesh)
         truths = [scoring.Truth.from_scene(scene, object_set) for scene in chunk.scenes]
         V = chunk.T_wc.shape[1]
-        starts = {s: protocol.start_views(config.seed, s, config.runs, V) for s in chunk_range}
-        keys = {s: np.asarray(protocol.run_keys(config.seed, s, config.runs)) for s in chunk_range}
+        starts = {s: protocol.start_views(config.seed, s, config.runs, V) for s in chunk_scenes}
+        keys = {s: np.asarray(protocol.run_keys(config.seed, s, config.runs)) for s in chunk_scenes}
         for c in classifiers:
             programs: dict[tuple, tuple[protocol.Row, list[str]]] = {}  # (policy, GR, library) -> the rows it gives
             for name in dict.fromkeys(k[1] for k in chunk_todo if k[0] == c):
@@ -203,10 +217,10 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                 for part in range(0, len(runs), size):
                     call = runs[part:part + size]
                     index = {sr: e for e, sr in enumerate(call)}
-                    scene = np.array([s - first for s, _ in call], np.int32)
+                    scene = np.array([at[s] for s, _ in call], np.int32)
                     start = np.array([starts[s][r] for s, r in call], np.int32)
                     key = np.stack([keys[s][r] for s, r in call])
-                    bar.set_postfix(scenes=f"{chunk_range.start}-{chunk_range.stop - 1}", classifier=c,
+                    bar.set_postfix(scenes=f"{chunk_scenes[0]}-{chunk_scenes[-1]}", classifier=c,
                                     rows="+".join(names))
                     with episodes_clock():
                         traces = batched.dispatch(chosen, depth, T_wc, scene, start, key, device_mesh)
@@ -214,7 +228,7 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                         finish()  # the last call's records, while this one runs
                     calls = {(c, name): [(index[k[2:]], k) for k in chunk_todo
                                          if k[:2] == (c, name) and k[2:] in index] for name in names}
-                    pending.append((calls, traces, truths, start, first))
+                    pending.append((calls, traces, truths, start, at))
     if pending:
         finish()
 
