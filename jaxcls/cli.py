@@ -248,8 +248,15 @@ class CtrlC:
             sys.stdout.flush()
         except Exception:  # a flush racing the main thread's own write: what was printed is out already
             pass
-        os.write(2, (self.message + "\n").encode())
+        os.write(2, (_fresh_line() + self.message + "\n").encode())
         os._exit(130)
+
+
+def _fresh_line() -> str:
+    """A newline where a progress bar (tqdm's, redrawn in place with a carriage return) holds stderr's current
+    line, so that a message after it starts a line of its own; else nothing."""
+    tqdm_module = sys.modules.get("tqdm.std")
+    return "\n" if tqdm_module is not None and len(getattr(tqdm_module.tqdm, "_instances", ())) else ""
 
 
 def _interrupted_in(frame: Any) -> str:
@@ -306,7 +313,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if entry:
             ctrl_c.exit()  # no interpreter shutdown behind an interrupted run (see the module docstring)
         ctrl_c.caught = True
-        print(ctrl_c.message, file=sys.stderr)
+        print(_fresh_line() + ctrl_c.message, file=sys.stderr)
         return 130
     except (ValueError, OSError, RuntimeError) as e:  # bad input (ConfigError is one), files, missing GPU
         ctrl_c.caught = True
