@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import itertools
 import json
 import time
@@ -70,6 +71,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--devices", type=int, nargs="*", default=[],
                         help="device counts: each batch of --batch runs as Table 1's program (episode.batched) sharded "
                              "over the first N local devices, the counts interleaved, instead of plain vmap")
+    parser.add_argument("--render", action="store_true",
+                        help="each batch also renders its frames as it moves (episode.batched.rendered: the scene's "
+                             "renderer, warp on a GPU, MJX's ray caster on a CPU, and the world's sensor inside the "
+                             "timed program), against the frames in memory, interleaved")
     parser.add_argument("--out", help="append the table to this Markdown file")
     args = parser.parse_args(argv)
     if any(n < 1 or n > len(jax.local_devices()) for n in args.devices):
@@ -103,7 +108,7 @@ def main(argv: list[str] | None = None) -> None:
     rollout = jax.jit(jax.vmap(active.rollout, in_axes=(None, 0, None, None)))
     rows, traces = [], []
     M = len(object_set.classes)
-    for B in [] if args.devices else args.batch:  # (with --devices, the batches run sharded instead)
+    for B in [] if args.devices or args.render else args.batch:  # (--devices, --render: their own tables)
         starts = jnp.asarray(np.random.default_rng(B).integers(0, T_wc.shape[0], B), jnp.int32)
         keys = jax.random.split(jax.random.PRNGKey(B), B)
         first, times, final, trace, memory = {}, {m: [] for m in episodes}, {}, {}, {}
@@ -154,6 +159,16 @@ def main(argv: list[str] | None = None) -> None:
             intro="Table 1's program (`episode.batched`: reset and rollout per episode, traces out) over B episodes of "
                   "one scene, split over a 1-D mesh of the first N local devices (B / N episodes each, no "
                   "communication); the device counts' repeats interleaved; frames in device memory."), args.out)
+    if args.render:
+        report.publish(report.section(
+            f"Batched episodes rendering their frames as they move ({args.moves} moves, 640x480, one scene)", argv,
+            ("episodes", "variant", "frames", "device", "first call s (compile)", "median ms per batch", "moves/s",
+             "share of the frames in memory's moves/s", "same path and labels as frames in memory"),
+            rendered_rows(episodes, depth, T_wc, scene, args.batch, args.repeats, args.moves),
+            intro="One device. Frames in memory: Table 1's program (`episode.batched`) over the frames rendered "
+                  "beforehand; rendered: `episode.batched.rendered`, each move's frames drawn by the scene's "
+                  "renderer and the world's sensor model inside the timed program (its noise drawn a move at a "
+                  "time, so paths may differ); repeats interleaved."), args.out)
     fits = []
     limit = (jax.devices()[0].memory_stats() or {}).get("bytes_limit", np.nan)
     program = batched._program(batched.mesh())  # Table 1's program: reset and rollout inside, traces out
@@ -198,6 +213,51 @@ def main(argv: list[str] | None = None) -> None:
                   "one scene: its arguments, outputs and temporaries as XLA's memory analysis gives them, against "
                   "the device's limit (`XLA_PYTHON_CLIENT_MEM_FRACTION`); where it fits, one call timed after a "
                   "first."), args.out)
+
+
+def rendered_rows(episodes: dict[str, active.Episode], depth: jax.Array, T_wc: jax.Array, scene, batches: list[int],
+                  repeats: int, moves: int) -> list[tuple]:
+    """Per batch size B and variant: B episodes over frames in memory against the same episodes rendering
+    their frames as they move (``batched.rendered``), repeats interleaved: the table's rows."""
+    from jaxcls.world import WorldConfig, make_world
+    from jaxcls.world.render.sensor import apply_sensor
+
+    world = make_world(WorldConfig(backend="warp" if jax.default_backend() == "gpu" else "mjx"), scene=scene)
+    T_true = jnp.asarray(world.viewpoints, jnp.float32)
+    mesh = batched.mesh(jax.local_devices()[:1])
+    rows = []
+    for B, (mode, episode) in itertools.product(batches, episodes.items()):
+        depth_fn, sensor = world.renderer.depth_fn(B), world.config.sensor
+
+        def render(T: jax.Array, key: jax.Array, depth_fn=depth_fn, sensor=sensor) -> jax.Array:
+            return apply_sensor(key, depth_fn(T), world.intrinsics, sensor)
+
+        scenes = np.zeros(B, np.int32)
+        starts = np.random.default_rng(B).integers(0, T_wc.shape[0], B).astype(np.int32)
+        keys = jax.random.split(jax.random.PRNGKey(B), B)
+        runs = {"in memory": functools.partial(batched.dispatch, episode, depth[None], T_wc[None], scenes, starts,
+                                               keys, mesh),
+                "rendered": functools.partial(batched.rendered, episode, render, T_true, T_wc, starts, keys)}
+        first, times, traces = {}, {name: [] for name in runs}, {}
+        for name, run in runs.items():
+            t0 = time.perf_counter()
+            traces[name] = jax.device_get(run())
+            first[name] = time.perf_counter() - t0
+        for _ in range(repeats):
+            for name, run in runs.items():
+                t0 = time.perf_counter()
+                jax.block_until_ready(run())
+                times[name].append(time.perf_counter() - t0)
+        base = float(np.median(times["in memory"]))
+        for name in runs:
+            t = float(np.median(times[name]))
+            same = (np.all(traces[name].view == traces["in memory"].view, axis=1)
+                    & np.all(traces[name].refinement.refined[:, -1] == traces["in memory"].refinement.refined[:, -1],
+                             axis=1))
+            rows.append((B, mode, name, report.device_name(), f"{first[name]:.1f}", f"{t * 1e3:.0f}",
+                         f"{B * moves / t:.0f}", f"{base / t:.2f}", f"{np.mean(same):.2f}"))
+            print(rows[-1], flush=True)
+    return rows
 
 
 def sharded_rows(episodes: dict[str, active.Episode], depth: jax.Array, T_wc: jax.Array, batches: list[int],

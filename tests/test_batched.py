@@ -142,3 +142,27 @@ def test_bad_batches_are_refused():
         batched.rollouts(episode, depth, T_wc[:1], np.array([0, 1]), np.array([0, 1]), keys)
     with pytest.raises(ValueError, match="one entry per episode"):
         batched.rollouts(episode, depth, T_wc, np.array([0, 1]), np.array([0]), keys)
+
+
+def test_episodes_that_render_as_they_move_give_the_records_of_frames_rendered_before():
+    """``batched.rendered``: each move's frames rendered inside the episodes' program (MJX's ray caster here, a
+    renderer's ``depth_fn``; Warp's batch renderer on a GPU) give the traces of ``rollouts`` over the same
+    renderer's frames of every viewpoint, rendered beforehand."""
+    config = dataclasses.replace(WORLD, camera=CameraConfig.kinect_v1(0.125), backend="mjx",
+                                 viewpoints=dataclasses.replace(WORLD.viewpoints, count=12))
+    world = make_world(config, seed=1)
+    renderer = world.renderer
+    T_true = np.asarray(world.viewpoints, np.float32)
+    depth = np.asarray(renderer.render(T_true).depth)  # [V, H, W] before the episodes
+    episode = setup.make_episode(SETTINGS, world.object_set, world.intrinsics, world.table_height)
+    start = np.array([0, 7], np.int32)
+    keys = np.asarray(jax.vmap(jax.random.PRNGKey)(np.arange(2)))
+    before = batched.rollouts(episode, depth[None], T_true[None], np.zeros(2, np.int32), start, keys,
+                              batched.mesh(jax.local_devices()[:1]))
+    render = renderer.depth_fn(2)
+    live = jax.device_get(batched.rendered(episode, lambda T, key: render(T), T_true, T_true, start, keys))
+    assert np.array_equal(live.view, before.view) and len(set(live.view[0].tolist())) > 1
+    assert np.array_equal(live.refinement.refined, before.refinement.refined)
+    assert np.array_equal(live.points, before.points)
+    with pytest.raises(ValueError, match=r"T_true and T_wc must both be \[V, 4, 4\]"):
+        batched.rendered(episode, lambda T, key: render(T), T_true[:3], T_true, start, keys)

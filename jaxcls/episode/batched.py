@@ -14,6 +14,9 @@ GR on or off (``Episode.choose``): a batch holds one row, the choice is not batc
     episode = make_episode(...).switched(policies)         # one program for every row
     traces = batched.rollouts(episode.choose("random", False), depth, T_wc, scene, start, keys, mesh)
 
+``rendered`` runs E episodes of one scene that render their frames as they move (a renderer's ``depth_fn``
+called once a move inside the program) instead of reading frames from memory; one device.
+
 Multi-host: after ``jax.distributed.initialize()`` each process runs its own share of the scenes on its local
 devices with ``mesh(jax.local_devices())`` (the episodes of a scene never span processes), and the records
 each writes are merged by their keys (classifier, row, scene, run).
@@ -54,6 +57,43 @@ def _program(device_mesh: Mesh):
     sharded = jax.shard_map(local, mesh=device_mesh, in_specs=(replicated, replicated, replicated, split, split, split),
                             out_specs=split, check_vma=False)
     return jax.jit(sharded)
+
+
+def _rendered(episode: active.Episode, render, T_true: jax.Array, T_wc: jax.Array, start: jax.Array,
+              keys: jax.Array, frame_key: jax.Array) -> active.Trace:
+    states = jax.vmap(active.reset, in_axes=(None, None, 0, 0))(episode, T_wc, start, keys)
+    step = jax.vmap(active.step, in_axes=(None, 0, 0, 0))
+
+    def body(states: active.EpisodeState, move: jax.Array) -> tuple[active.EpisodeState, active.Trace]:
+        view, skipped = states.next_view, states.done
+        depth = render(T_true[view], jax.random.fold_in(frame_key, move))  # one render call for the batch
+        states = step(episode, states, depth, T_wc[view])
+        return states, jax.vmap(active.trace)(states, view, skipped)
+
+    _, traces = jax.lax.scan(body, states, jnp.arange(episode.config.moves))
+    return jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), traces)  # [T, E, ...] -> [E, T, ...]
+
+
+_rendered_jit = jax.jit(_rendered, static_argnums=1)
+
+
+def rendered(episode: active.Episode, render, T_true: jax.Array, T_wc: jax.Array, start: np.ndarray,
+             keys: jax.Array, frame_key: jax.Array | None = None) -> active.Trace:
+    """E episodes of one scene whose frames are rendered as they move, on one device: each move renders the E
+    episodes' next views in one call of ``render(T_true [E, 4, 4], key) -> depth [E, H, W]`` (m, traceable: a
+    renderer's ``depth_fn(E)``, e.g. MuJoCo Warp's batch renderer on a GPU or MJX's ray caster on a CPU, with a
+    sensor model drawn from ``key``, the move's fold of ``frame_key``) inside the episodes' program
+    (``lax.scan`` over the moves, the step vmapped over the episodes). T_true [V, 4, 4]: the viewpoints' true
+    poses (rendered from); T_wc [V, 4, 4]: the poses the episode is told; start [E], keys [E]. Returns a
+    ``Trace`` with [E, T, ...] device leaves: ``rollouts``' traces for the same frames rendered beforehand."""
+    start = jnp.asarray(start, jnp.int32)
+    if T_true.shape != T_wc.shape or T_wc.ndim != 3 or T_wc.shape[1:] != (4, 4):
+        raise ValueError(f"rendered: T_true and T_wc must both be [V, 4, 4], got {T_true.shape} and {T_wc.shape}")
+    if start.ndim != 1 or keys.shape[0] != start.shape[0]:
+        raise ValueError(f"rendered: start [E] and keys [E, ...] must agree, got {start.shape} and {keys.shape}")
+    frame_key = jax.random.PRNGKey(0) if frame_key is None else frame_key
+    return _rendered_jit(episode, render, jnp.asarray(T_true, jnp.float32), jnp.asarray(T_wc, jnp.float32), start,
+                         keys, frame_key)
 
 
 def replicate(x: np.ndarray | jax.Array, device_mesh: Mesh | None = None) -> jax.Array:
@@ -105,4 +145,4 @@ def rollouts(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, scene: 
     return fetch(dispatch(episode, depth, T_wc, scene, start, keys, device_mesh), len(scene))
 
 
-__all__ = ["AXIS", "dispatch", "fetch", "mesh", "replicate", "rollouts"]
+__all__ = ["AXIS", "dispatch", "fetch", "mesh", "rendered", "replicate", "rollouts"]

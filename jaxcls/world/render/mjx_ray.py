@@ -90,3 +90,15 @@ class MJXRenderer:
         """T_wc: [B, 4, 4] | [4, 4]. Returns JAX [B, H, W] f32 depth and i32 object ids."""
         T = jnp.asarray(contract.check_poses(T_wc), jnp.float32)
         return self._render(self._mx, self._dx, self._geom_object, T)
+
+    def depth_fn(self, batch: int):
+        """A traceable ``T_wc [batch, 4, 4] -> depth [batch, H, W]`` (m, 0 = no return): the frames of ``render``
+        inside a caller's jit (an episode that renders as it moves, ``episode.batched.rendered``); no host-side
+        checks on the poses."""
+        del batch  # the rays of any batch share one chunked map
+
+        def depth(T_wc: jax.Array) -> jax.Array:
+            return render_depth(self._mx, self._dx, self._geom_object, T_wc.astype(jnp.float32), self.intrinsics,
+                                self.chunk).depth
+
+        return depth

@@ -220,6 +220,17 @@ class WarpRenderer:
             self._contexts[batch] = (rc, jax.jit(render))
         return self._contexts[batch]
 
+    def depth_fn(self, batch: int):
+        """A traceable ``T_wc [batch, 4, 4] -> depth [batch, H, W]`` (m, 0 = no return) of this renderer's
+        static scene: ``render``'s frames inside a caller's jit (``episode.batched.rendered``), one render
+        context of ``batch`` worlds; no host-side checks on the poses."""
+        _, render = self._context(batch)
+
+        def depth(T_wc: jax.Array) -> jax.Array:
+            return render(self._mx, self._dx0, self._geom_object, T_wc.astype(jnp.float32), None, None).depth
+
+        return depth
+
     def render(self, T_wc: np.ndarray, mocap_pos: jax.Array | None = None,
                mocap_quat: jax.Array | None = None) -> DepthFrames:
         """T_wc: [B, 4, 4] | [4, 4]. Returns JAX [B, H, W] f32 depth and i32 object ids. With ``mocap_pos``
