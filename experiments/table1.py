@@ -45,11 +45,12 @@ import time
 from pathlib import Path
 
 import jax
+from jax.experimental import multihost_utils
 
 from jaxcls import compile_cache, io, precision, report
 from jaxcls.config import load_config, save_config
 from jaxcls.experiments.table1 import data, figure, runner, tables
-from jaxcls.experiments.table1.config import Table1Config, check_out_dir
+from jaxcls.experiments.table1.config import SceneSource, Table1Config, check_out_dir
 from jaxcls.world.objects import object_set_from_config
 
 
@@ -84,13 +85,15 @@ def main(argv: list[str] | None = None) -> None:
         dataset = data.dataset_config(config)
         records = data.stored_records(config, out / "episodes.jsonl")
     else:
+        if args.distributed and config.scene_source is SceneSource.dataset:  # missing scenes rendered once
+            if runner.process_share()[0] == 0:
+                data.open_scenes(config)
+            multihost_utils.sync_global_devices("table1: the dataset is rendered")
         dataset, scene_set = data.open_scenes(config)
         if runner.process_share()[0] == 0:
             save_config(config, out / "config.yaml")
         records = runner.run_episodes(config, scene_set, dataset, out / "episodes.jsonl")
     if args.distributed:  # every process's episodes stored; process 0 writes the tables
-        from jax.experimental import multihost_utils
-
         multihost_utils.sync_global_devices("table1: every process's episodes stored")
         if runner.process_share()[0]:
             return

@@ -233,6 +233,8 @@ def _resampled_sum(cms: np.ndarray, picks: np.ndarray) -> np.ndarray:
     (integers far below 2^53), so the sums equal the gathered ones."""
     picks = np.asarray(picks)
     n, lead = len(cms), picks.shape[:-1]
+    if not n or not picks.shape[-1]:  # no scenes: every sum is empty
+        return np.zeros((*lead, *cms.shape[1:]))
     rows = np.arange(int(np.prod(lead)))[:, None] * n
     counts = np.bincount((rows + picks.reshape(-1, picks.shape[-1])).ravel(), minlength=len(rows) * n)
     sums = counts.reshape(-1, n).astype(np.float64) @ cms.reshape(n, -1).astype(np.float64)

@@ -219,3 +219,13 @@ def test_scene_bootstrap_intervals_and_the_paired_difference():
     assert metrics.path_length(np.array([[0, 0, 0], [3, 4, 0], [3, 4, 1.0]])) == pytest.approx(6.0)
     square = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.0]])
     assert metrics.surface_coverage(square, square[:2] + 0.001, radius=0.005) == pytest.approx(0.5)
+
+
+def test_resampled_sums_equal_the_gathered_ones_and_no_scenes_score_zero():
+    rng = np.random.default_rng(1)
+    cms = np.stack([metrics.confusion(rng.integers(0, 4, 6), rng.integers(-1, 4, 6), 4) for _ in range(9)])
+    for shape in [(9,), (5, 9), (2, 3, 9)]:
+        picks = rng.integers(0, 9, shape)
+        assert np.array_equal(metrics._resampled_sum(cms, picks), cms[picks].sum(axis=-3))
+    assert metrics.scene_interval([], 4) == (0.0, 0.0, 0.0)
+    assert metrics.paired_difference([], [], 4) == (0.0, 0.0, 0.0)

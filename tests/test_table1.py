@@ -129,7 +129,11 @@ def test_interrupted_experiment_resumes_and_the_same_seed_gives_the_same_numbers
                "--coordinator", f"localhost:{port}", "--processes", "2", "--process-id"]
     processes = [subprocess.Popen([*command, str(index)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
                  for index in (0, 1)]
-    logs = [p.communicate(timeout=240)[0] for p in processes]
+    try:
+        logs = [p.communicate(timeout=240)[0] for p in processes]
+    finally:
+        for p in processes:  # none left holding the coordinator's port
+            p.kill()
     assert [p.returncode for p in processes] == [0, 0], logs
     assert "4 episodes in" in logs[0] and "episodes in" not in logs[1]  # process 0 alone made the tables
     assert "| VisOcclHistGR |" in (tmp_path / "s" / "table.md").read_text()
@@ -301,3 +305,32 @@ def test_fused_views_subsets_and_pose_errors():
     np.testing.assert_allclose(errors["translation_mm"], 2.0, atol=1e-6)
     np.testing.assert_allclose(errors["relative_mm"], 0.0, atol=1e-6)
     np.testing.assert_allclose(errors["rotation_deg"], 0.0, atol=1e-6)
+
+
+def test_records_of_a_batch_are_each_episodes_own():
+    """``protocol.episode_records`` over E episodes gives each episode's ``episode_record``; a stopped episode
+    keeps its last labels and lists only the moves it made."""
+    from jaxcls.episode import active, scoring
+
+    rng = np.random.default_rng(0)
+    E, T, N, K = 3, 4, 6, 4
+    done = np.zeros((E, T), bool)
+    done[1, 2:] = True
+    hand_eye = np.tile(np.eye(4, dtype=np.float32), (E, T, 1, 1))
+    hand_eye[..., :3, 3] = rng.normal(0, 0.01, (E, T, 3))
+    refinement = jax.tree.map(lambda x: np.broadcast_to(np.asarray(x), (E, T, *x.shape)).copy(),
+                              active.empty_refinement(N, 3))
+    refinement = refinement.replace(prior=rng.integers(0, 5, (E, T, N)), refined=rng.integers(0, 5, (E, T, N)),
+                                    valid=rng.random((E, T, N)) < 0.8)
+    traces = active.Trace(view=rng.integers(0, 30, (E, T)), refinement=refinement, probs=np.zeros((E, T, N, 5)),
+                          centroid=rng.normal(0, 0.1, (E, T, N, 3)), points=np.zeros((E, T, N), np.int32),
+                          next_view=np.zeros((E, T), np.int32), tracking=rng.integers(0, 3, (E, T)).astype(np.int32),
+                          pose=hand_eye.copy(), hand_eye=hand_eye, done=done)
+    truths = [scoring.Truth(centroid=rng.normal(0, 0.1, (K, 3)), label=rng.integers(0, 5, K),
+                            target=np.arange(K) < 3, surface=(), names=()) for _ in range(E)]
+    together = protocol.episode_records(traces, truths, [{"run": e} for e in range(E)])
+    for e in range(E):
+        assert together[e] == protocol.episode_record(jax.tree.map(lambda x, e=e: x[e], traces), truths[e], run=e)
+    stopped = together[1]
+    assert len(stopped["path"]) == len(stopped["hand_eye"]) == 2 and stopped["refined"][3] == stopped["refined"][1]
+    assert np.allclose(np.asarray(together[0]["hand_eye"])[:, :3], hand_eye[0, :, :3, 3], atol=1e-5)

@@ -86,6 +86,9 @@ def rendered(episode: active.Episode, render, T_true: jax.Array, T_wc: jax.Array
     (``lax.scan`` over the moves, the step vmapped over the episodes). T_true [V, 4, 4]: the viewpoints' true
     poses (rendered from); T_wc [V, 4, 4]: the poses the episode is told; start [E], keys [E]. Returns a
     ``Trace`` with [E, T, ...] device leaves: ``rollouts``' traces for the same frames rendered beforehand."""
+    if episode.config.off_grid:
+        raise ValueError("rendered: off_grid views are not rendered here yet (the fixed viewpoints only); use "
+                         "runner.run with a sources.Rendered source")
     start = jnp.asarray(start, jnp.int32)
     if T_true.shape != T_wc.shape or T_wc.ndim != 3 or T_wc.shape[1:] != (4, 4):
         raise ValueError(f"rendered: T_true and T_wc must both be [V, 4, 4], got {T_true.shape} and {T_wc.shape}")

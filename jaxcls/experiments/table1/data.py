@@ -13,7 +13,7 @@ import numpy as np
 
 from jaxcls import io
 from jaxcls.config import ConfigError, load_config, resolve_config
-from jaxcls.episode import sources
+from jaxcls.episode import protocol, sources
 from jaxcls.experiments.table1.config import SceneSource, Table1Config
 from jaxcls.world.dataset import DatasetConfig, build_dataset, scene_file, scene_key, scene_seeds
 from jaxcls.world.render.types import Backend
@@ -43,9 +43,10 @@ def read_stores(store: Path) -> list[dict[str, Any]]:
 
 def stored_records(config: Table1Config, store: Path) -> list[dict[str, Any]]:
     """The stored episodes (every process's, ``read_stores``) of this config's classifiers, rows and first
-    ``scenes`` scenes (all if 0)."""
+    ``scenes`` scenes (all if 0), the oracle's on its first ``oracle_scenes`` (``runner.run_episodes``' rule)."""
     return [r for r in read_stores(store) if r["classifier"] in config.classifiers and r["row"] in config.rows
-            and (not config.scenes or int(r["scene"]) < config.scenes)]
+            and (not config.scenes or int(r["scene"]) < config.scenes)
+            and (protocol.ROWS[r["row"]].kind is not protocol.Kind.ORACLE or int(r["scene"]) < config.oracle_scenes)]
 
 
 def open_dataset(config: Table1Config) -> tuple[DatasetConfig, list[Path]]:
