@@ -215,6 +215,28 @@ def main(argv: list[str] | None = None) -> None:
                   "first."), args.out)
 
 
+def interleaved(runs: dict, repeats: int) -> tuple[dict, dict, dict]:
+    """Each of ``runs`` (name -> a call returning a ``Trace``) once (its first call: compiling) then ``repeats``
+    times round-robin: ({name: first call s}, {name: median s}, {name: its traces on the host})."""
+    first, times, traces = {}, {name: [] for name in runs}, {}
+    for name, run in runs.items():
+        t0 = time.perf_counter()
+        traces[name] = jax.device_get(run())
+        first[name] = time.perf_counter() - t0
+    for _ in range(repeats):
+        for name, run in runs.items():
+            t0 = time.perf_counter()
+            jax.block_until_ready(run())
+            times[name].append(time.perf_counter() - t0)
+    return first, {name: float(np.median(t)) for name, t in times.items()}, traces
+
+
+def same_paths(traces: active.Trace, base: active.Trace) -> float:
+    """The share of episodes whose path and final refined labels equal ``base``'s."""
+    return float(np.mean(np.all(traces.view == base.view, axis=1)
+                         & np.all(traces.refinement.refined[:, -1] == base.refinement.refined[:, -1], axis=1)))
+
+
 def rendered_rows(episodes: dict[str, active.Episode], depth: jax.Array, T_wc: jax.Array, scene, batches: list[int],
                   repeats: int, moves: int) -> list[tuple]:
     """Per batch size B and variant: B episodes over frames in memory against the same episodes rendering
@@ -238,24 +260,12 @@ def rendered_rows(episodes: dict[str, active.Episode], depth: jax.Array, T_wc: j
         runs = {"in memory": functools.partial(batched.dispatch, episode, depth[None], T_wc[None], scenes, starts,
                                                keys, mesh),
                 "rendered": functools.partial(batched.rendered, episode, render, T_true, T_wc, starts, keys)}
-        first, times, traces = {}, {name: [] for name in runs}, {}
-        for name, run in runs.items():
-            t0 = time.perf_counter()
-            traces[name] = jax.device_get(run())
-            first[name] = time.perf_counter() - t0
-        for _ in range(repeats):
-            for name, run in runs.items():
-                t0 = time.perf_counter()
-                jax.block_until_ready(run())
-                times[name].append(time.perf_counter() - t0)
-        base = float(np.median(times["in memory"]))
+        first, times, traces = interleaved(runs, repeats)
         for name in runs:
-            t = float(np.median(times[name]))
-            same = (np.all(traces[name].view == traces["in memory"].view, axis=1)
-                    & np.all(traces[name].refinement.refined[:, -1] == traces["in memory"].refinement.refined[:, -1],
-                             axis=1))
+            t = times[name]
             rows.append((B, mode, name, report.device_name(), f"{first[name]:.1f}", f"{t * 1e3:.0f}",
-                         f"{B * moves / t:.0f}", f"{base / t:.2f}", f"{np.mean(same):.2f}"))
+                         f"{B * moves / t:.0f}", f"{times['in memory'] / t:.2f}",
+                         f"{same_paths(traces[name], traces['in memory']):.2f}"))
             print(rows[-1], flush=True)
     return rows
 
@@ -272,23 +282,15 @@ def sharded_rows(episodes: dict[str, active.Episode], depth: jax.Array, T_wc: ja
         starts = np.random.default_rng(B).integers(0, T_wc.shape[0], B).astype(np.int32)
         keys = jax.random.split(jax.random.PRNGKey(B), B)
         frames = {n: (batched.replicate(depth[None], m), batched.replicate(T_wc[None], m)) for n, m in meshes.items()}
-        first, times, traces = {}, {n: [] for n in meshes}, {}
-        for n, m in meshes.items():
-            t0 = time.perf_counter()
-            traces[n] = batched.rollouts(episode, *frames[n], scene, starts, keys, m)
-            first[n] = time.perf_counter() - t0
-        for _ in range(repeats):
-            for n, m in meshes.items():
-                t0 = time.perf_counter()
-                jax.block_until_ready(batched.dispatch(episode, *frames[n], scene, starts, keys, m))
-                times[n].append(time.perf_counter() - t0)
+        runs = {n: functools.partial(batched.dispatch, episode, *frames[n], scene, starts, keys, m)
+                for n, m in meshes.items()}
+        first, times, traces = interleaved(runs, repeats)
         base = device_counts[0]
         for n in meshes:
-            t = float(np.median(times[n]))
-            same = (np.all(traces[n].view == traces[base].view, axis=1)
-                    & np.all(traces[n].refinement.refined[:, -1] == traces[base].refinement.refined[:, -1], axis=1))
+            t = times[n]
             rows.append((B, n, mode, report.device_name(), f"{first[n]:.1f}", f"{t * 1e3:.0f}",
-                         f"{B * moves / t:.0f}", f"{float(np.median(times[base])) / t:.2f}", f"{np.mean(same):.2f}"))
+                         f"{B * moves / t:.0f}", f"{times[base] / t:.2f}",
+                         f"{same_paths(traces[n], traces[base]):.2f}"))
             print(rows[-1], flush=True)
         del frames, traces
     return rows

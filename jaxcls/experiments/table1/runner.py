@@ -139,7 +139,7 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
                     bar.update(len(records))
             jax.clear_caches()  # the pass's compiled programs (and their memory maps) go
     if todo or batched_todo:
-        write_run_times(store.parent / process_store(Path("run_times.json"), (index, count)).name, clock,
+        write_run_times(process_store(store.parent / "run_times.json", (index, count)), clock,
                         time.perf_counter() - began, len(batched_todo) + len(todo))
     keep = set(every)
     return [r for r in read_stores(store) if record_key(r) in keep]
