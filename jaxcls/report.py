@@ -66,10 +66,12 @@ def cpu_name() -> str:
 
 
 def device_name() -> str:
-    """JAX's default device as the tables name it (the CPU, or ``GPU (kind)``, ``N x GPU (kind)``)."""
+    """This process's devices as the tables name them (the CPU, or ``GPU (kind)``, ``N x GPU (kind)``; under
+    ``jax.distributed`` a process's own, not every host's)."""
     import jax
 
-    d = jax.devices()[0]
+    local = jax.local_devices()
+    d = local[0]
     if d.platform == "cpu":
         return cpu_name()
-    return f"GPU ({d.device_kind})" if jax.device_count() == 1 else f"{jax.device_count()} x GPU ({d.device_kind})"
+    return f"GPU ({d.device_kind})" if len(local) == 1 else f"{len(local)} x GPU ({d.device_kind})"

@@ -89,6 +89,13 @@ def test_one_program_runs_every_row_as_its_own_program_does(data):
         assert together == alone, name
         assert all(len(set(r["path"])) == moves for r in together)
     assert compiled == [1] * len(ROWS), "switching the row compiled the batch again"
+    # Table 1's last, shorter chunk and call: one scene's frames padded to the chunk's two scenes, one episode
+    # padded to the call's four (copies, dropped): the same program, compiled nothing, and that episode's records.
+    padded = [batched.replicate(x[:1], batched.mesh(), rows=len(worlds)) for x in (depth, T_wc)]
+    np.testing.assert_array_equal(np.asarray(padded[0][1]), depth[0])
+    one = batched.fetch(batched.dispatch(chosen, *padded, scene[:1], start[:1], keys[:1], size=len(scene)), 1)
+    assert program._cache_size() == 1
+    assert records(one, truths, scene[:1], start[:1], moves) == together[:1]
     # A policy outside the program, or choosing on an unswitched episode, is refused by name.
     with pytest.raises(ValueError, match="continuous"):
         switched.choose("continuous", True)

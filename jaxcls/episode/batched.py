@@ -99,19 +99,25 @@ def rendered(episode: active.Episode, render, T_true: jax.Array, T_wc: jax.Array
                          keys, frame_key)
 
 
-def replicate(x: np.ndarray | jax.Array, device_mesh: Mesh | None = None) -> jax.Array:
-    """``x`` as float32 on every device of ``device_mesh`` (frames shared by the calls of a chunk: copied once)."""
+def replicate(x: np.ndarray | jax.Array, device_mesh: Mesh | None = None, rows: int | None = None) -> jax.Array:
+    """``x`` as float32 on every device of ``device_mesh`` (frames shared by the calls of a chunk: copied once),
+    its first axis padded to ``rows`` with copies of ``x[0]`` (a last, shorter chunk of scenes keeps the chunks'
+    shape, so the program does not compile again)."""
     device_mesh = device_mesh or mesh()
-    return jax.device_put(jnp.asarray(x, jnp.float32), NamedSharding(device_mesh, PartitionSpec()))
+    x = jnp.asarray(x, jnp.float32)
+    if rows is not None and rows > x.shape[0]:
+        x = jnp.concatenate([x, jnp.broadcast_to(x[:1], (rows - x.shape[0], *x.shape[1:]))])
+    return jax.device_put(x, NamedSharding(device_mesh, PartitionSpec()))
 
 
 def dispatch(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, scene: np.ndarray, start: np.ndarray,
-             keys: jax.Array, device_mesh: Mesh | None = None) -> active.Trace:
+             keys: jax.Array, device_mesh: Mesh | None = None, size: int | None = None) -> active.Trace:
     """E episodes over the frames of S scenes, started on the devices and returned at once (JAX dispatches
     asynchronously; ``fetch`` waits for them): depth [S, V, H, W] m (0 = no return), T_wc [S, V, 4, 4] every
     viewpoint's frame; scene [E] i32 each episode's scene, start [E] i32 its start view, keys [E] its key. A
-    ``Trace`` with [E', T, ...] device leaves, E' = E padded to a multiple of the devices. Sharded over
-    ``device_mesh`` (default: all local devices). Frames already on the device stay there."""
+    ``Trace`` with [E', T, ...] device leaves, E' = E padded to ``size`` (at least; one compiled shape for a
+    run's calls, the last shorter one too) and to a multiple of the devices. Sharded over ``device_mesh``
+    (default: all local devices). Frames already on the device stay there."""
     device_mesh = device_mesh or mesh()
     scene, start = np.asarray(scene, np.int32), np.asarray(start, np.int32)
     E, S, V = len(scene), depth.shape[0], depth.shape[1]
@@ -124,7 +130,8 @@ def dispatch(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, scene: 
     if E and (scene.min() < 0 or scene.max() >= S or start.min() < 0 or start.max() >= V):
         raise ValueError(f"batched: scenes must lie in 0..{S - 1} and start views in 0..{V - 1}")
     n = device_mesh.devices.size
-    pad = -E % n
+    padded = max(E, size or 0)
+    pad = padded - E + (-padded % n)
     if pad:  # copies of the first episode, dropped by fetch
         scene = np.concatenate([scene, np.repeat(scene[:1], pad)])
         start = np.concatenate([start, np.repeat(start[:1], pad)])

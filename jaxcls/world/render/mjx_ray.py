@@ -68,8 +68,9 @@ def put_scene(model: mujoco.MjModel) -> tuple[mjx.Model, mjx.Data, jax.Array]:
     mjm = contract.render_model(model)
     data = mujoco.MjData(mjm)
     mujoco.mj_forward(mjm, data)  # host kinematics: mjx.kinematics refuses models without DoFs
-    mx = mjx.put_model(mjm, impl="jax")
-    dx = mjx.put_data(mjm, data, impl="jax")
+    device = jax.local_devices()[0]  # (MJX's default, the first global device, is process 0's)
+    mx = mjx.put_model(mjm, impl="jax", device=device)
+    dx = mjx.put_data(mjm, data, impl="jax", device=device)
     return mx, dx, jnp.asarray(contract.object_ids_of_geoms(mjm))
 
 

@@ -56,6 +56,13 @@ def warp_unavailable_reason() -> str | None:
     return None
 
 
+def render_device() -> jax.Device:
+    """The GPU that renders: this process's first local CUDA device (Warp's ``cuda:0``). MJX's own default is
+    the first *global* CUDA device, which under ``jax.distributed`` belongs to process 0: a model put there
+    from another process could not run ("executable expects 0 computations")."""
+    return jax.local_devices(backend="cuda")[0]
+
+
 # ---------------------------------------------------------------- pure parts (CPU-testable)
 
 @struct.dataclass
@@ -187,9 +194,10 @@ class WarpRenderer:
         # static, 6.0k forward). JAX capture: 12.8k static, but mjx.forward cannot be captured by JAX;
         # staged Warp capture: 10.7k forward.
         graph = mjxw.types.GraphMode
-        self._mx = mjx.put_model(self._mjm, impl="warp",
+        device = render_device()
+        self._mx = mjx.put_model(self._mjm, impl="warp", device=device,
                                  graph_mode=graph.JAX if kinematics == "static" else graph.WARP_STAGED)
-        self._dx0 = mjx.make_data(self._mjm, impl="warp")
+        self._dx0 = mjx.make_data(self._mjm, impl="warp", device=device)
         data = mujoco.MjData(self._mjm)
         mujoco.mj_forward(self._mjm, data)
         self._geom_xpos = jnp.asarray(data.geom_xpos, jnp.float32)
