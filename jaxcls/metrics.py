@@ -168,15 +168,21 @@ class Scores:
 def confusion(true: np.ndarray, predicted: np.ndarray, num_classes: int) -> np.ndarray:
     """[M + 1, M + 1] i64 counts of (true, predicted) labels; row/column M holds "no class" (-1 predicted:
     the object was not matched by any segment). true: [n] in [0, M); predicted: [n] in [-1, M)."""
+    true, predicted = _checked_labels(true, predicted, num_classes)
+    cm = np.zeros((num_classes + 1, num_classes + 1), np.int64)
+    np.add.at(cm, (true, np.where(predicted < 0, num_classes, predicted)), 1)
+    return cm
+
+
+def _checked_labels(true: np.ndarray, predicted: np.ndarray, num_classes: int) -> tuple[np.ndarray, np.ndarray]:
+    """(true, predicted) as i64 [n] each, or ValueError naming what is wrong (``confusion``'s ranges)."""
     true, predicted = np.asarray(true, np.int64), np.asarray(predicted, np.int64)
     if true.shape != predicted.shape or true.ndim != 1:
         raise ValueError(f"classification_scores: need true [n] and predicted [n], got {true.shape}, {predicted.shape}")
     if len(true) and (true.min() < 0 or true.max() >= num_classes or predicted.max() >= num_classes
                       or predicted.min() < -1):
         raise ValueError(f"classification_scores: labels must lie in [0, {num_classes}) (predicted may be -1)")
-    cm = np.zeros((num_classes + 1, num_classes + 1), np.int64)
-    np.add.at(cm, (true, np.where(predicted < 0, num_classes, predicted)), 1)
-    return cm
+    return true, predicted
 
 
 def confusion_scores(cm: np.ndarray) -> dict[str, np.ndarray]:
@@ -222,9 +228,20 @@ def classification_scores(true: np.ndarray, predicted: np.ndarray, num_classes: 
 
 
 def _scene_confusions(per_scene: Sequence[tuple[np.ndarray, np.ndarray]], num_classes: int) -> np.ndarray:
-    """[S, M + 1, M + 1]: each scene's confusion matrix (resampled whole by the bootstraps)."""
-    return np.stack([confusion(t, p, num_classes) for t, p in per_scene]) if len(per_scene) else \
-        np.zeros((0, num_classes + 1, num_classes + 1), np.int64)
+    """[S, M + 1, M + 1]: each scene's confusion matrix (``confusion``; resampled whole by the bootstraps), all
+    counted in one ``bincount`` over (scene, true, predicted)."""
+    S, M = len(per_scene), num_classes + 1
+    if not S:
+        return np.zeros((0, M, M), np.int64)
+    for t, p in per_scene:
+        if np.shape(t) != np.shape(p) or np.ndim(t) != 1:
+            raise ValueError(f"classification_scores: need true [n] and predicted [n] per scene, got {np.shape(t)}, "
+                             f"{np.shape(p)}")
+    true, predicted = _checked_labels(np.concatenate([t for t, _ in per_scene]),
+                                      np.concatenate([p for _, p in per_scene]), num_classes)
+    scene = np.repeat(np.arange(S), [len(t) for t, _ in per_scene])
+    cell = (scene * M + true) * M + np.where(predicted < 0, num_classes, predicted)
+    return np.bincount(cell, minlength=S * M * M).reshape(S, M, M)
 
 
 def _resampled_sum(cms: np.ndarray, picks: np.ndarray) -> np.ndarray:

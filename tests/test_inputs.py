@@ -202,6 +202,15 @@ def test_weights_json_model_out_of_range_names_the_file(tmp_path):
         pointnet.load_classifier(path)
 
 
+def test_weights_for_another_class_count_name_the_layer(tmp_path):
+    path = _weights(tmp_path)
+    info = json.loads(path.with_suffix(".json").read_text())
+    info["classes"] = ["a", "b", "c"]  # the .msgpack holds 8 classes' output layer
+    path.with_suffix(".json").write_text(json.dumps(info))
+    with pytest.raises(ValueError, match=r"w\.msgpack: .*\['bias'\] has shape \(8,\), expected \(3,\) for the 3 cl"):
+        pointnet.load_classifier(path)
+
+
 # ---------------------------------------------------------------------------------------------- shapes
 
 @pytest.fixture(scope="module")

@@ -229,3 +229,36 @@ def test_resampled_sums_equal_the_gathered_ones_and_no_scenes_score_zero():
         assert np.array_equal(metrics._resampled_sum(cms, picks), cms[picks].sum(axis=-3))
     assert metrics.scene_interval([], 4) == (0.0, 0.0, 0.0)
     assert metrics.paired_difference([], [], 4) == (0.0, 0.0, 0.0)
+
+
+def test_scene_pooling_and_confusions_equal_the_plain_loops():
+    """``protocol.per_scene`` pools each scene's runs (scenes ascending, runs in the records' order, an episode
+    of fewer moves counted with its last) and ``_scene_confusions`` counts them in one bincount: both equal the
+    plain per-record and per-scene loops; bad labels are refused by name."""
+    from jaxcls.episode import protocol
+
+    rng = np.random.default_rng(4)
+    records = []
+    for s in rng.permutation(7):
+        for run in range(3):
+            K, T = int(rng.integers(1, 5)), int(rng.choice([1, 4]))
+            records.append({"scene": int(s), "run": run, "true": rng.integers(0, 5, K).tolist(),
+                            "refined": rng.integers(-1, 5, (T, K)).tolist()})
+    rng.shuffle(records)
+    for move in (1, 3, 4):
+        pooled = protocol.per_scene(records, move)
+        want = []
+        for s in sorted({r["scene"] for r in records}):
+            mine = [r for r in records if r["scene"] == s]
+            want.append((np.concatenate([r["true"] for r in mine]),
+                         np.concatenate([r["refined"][min(move, len(r["refined"])) - 1] for r in mine])))
+        assert len(pooled) == len(want) == 7
+        for (t, p), (wt, wp) in zip(pooled, want, strict=True):
+            assert np.array_equal(t, wt) and np.array_equal(p, wp)
+        assert np.array_equal(metrics._scene_confusions(pooled, 5),
+                              np.stack([metrics.confusion(t, p, 5) for t, p in want]))
+    assert protocol.per_scene([], 1) == []
+    with pytest.raises(ValueError, match="labels must lie in"):
+        metrics._scene_confusions([(np.array([0, 1]), np.array([0, 5]))], 5)
+    with pytest.raises(ValueError, match="differ in length"):
+        protocol.per_scene([{"scene": 0, "true": [1, 2], "refined": [[1]]}], 1)

@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 import functools
+import itertools
 from collections.abc import Sequence
 from typing import Any
 
@@ -273,15 +274,22 @@ def per_scene(records: Sequence[dict[str, Any]], move: int, label: str = "refine
     """[(true [n_s], predicted [n_s])] per scene (sorted by scene), pooling a row's runs of each scene, with
     the labels after ``move`` (1-based; an episode of fewer moves, PointNetSingle or PointNetFull, counts
     with its last)."""
-    scenes: dict[int, list[dict[str, Any]]] = {}
-    for r in records:
-        scenes.setdefault(int(r["scene"]), []).append(r)
-    out = []
-    for s in sorted(scenes):
-        true = np.concatenate([np.asarray(r["true"], np.int64) for r in scenes[s]])
-        predicted = np.concatenate([np.asarray(r[label][min(move, len(r[label])) - 1], np.int64) for r in scenes[s]])
-        out.append((true, predicted))
-    return out
+    if not records:
+        return []
+    scene = np.array([int(r["scene"]) for r in records], np.int64)
+    order = np.argsort(scene, kind="stable")  # scenes ascending, each scene's runs in the records' order
+    ordered = [records[i] for i in order]
+    true = [r["true"] for r in ordered]
+    predicted = [r[label][min(move, len(r[label])) - 1] for r in ordered]
+    sizes = np.array([len(t) for t in true], np.int64)
+    if not np.array_equal(sizes, [len(p) for p in predicted]):
+        raise ValueError(f"per_scene: a record's {label!r} labels and its true labels differ in length")
+    true = np.fromiter(itertools.chain.from_iterable(true), np.int64, int(sizes.sum()))
+    predicted = np.fromiter(itertools.chain.from_iterable(predicted), np.int64, len(true))
+    scene = scene[order]
+    starts = np.flatnonzero(np.diff(scene)) + 1  # the records where a new scene begins
+    cuts = np.cumsum(sizes)[starts - 1]  # ... and where its labels begin
+    return list(zip(np.split(true, cuts), np.split(predicted, cuts), strict=True))
 
 
 def moves_to_correct(records: Sequence[dict[str, Any]], label: str = "refined") -> tuple[float, float]:
