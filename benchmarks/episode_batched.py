@@ -171,7 +171,7 @@ def main(argv: list[str] | None = None) -> None:
                   "time, so paths may differ); repeats interleaved."), args.out)
     fits = []
     limit = (jax.devices()[0].memory_stats() or {}).get("bytes_limit", np.nan)
-    program = batched._program(batched.mesh())  # Table 1's program: reset and rollout inside, traces out
+    program = batched._program(batched.mesh(), False)  # Table 1's program: reset and rollout inside, traces out
     for B in args.fit:
         scene = jnp.zeros(B, jnp.int32)
         starts = jnp.asarray(np.random.default_rng(B).integers(0, T_wc.shape[0], B), jnp.int32)

@@ -69,7 +69,7 @@ def test_one_program_runs_every_row_as_its_own_program_does(data):
     scene = np.repeat(np.arange(len(worlds)), RUNS)
     start = np.concatenate([protocol.start_views(0, s, RUNS, T_wc.shape[1]) for s in range(len(worlds))])
     keys = np.concatenate([np.asarray(protocol.run_keys(0, s, RUNS)) for s in range(len(worlds))])
-    program = batched._program(batched.mesh())
+    program = batched._program(batched.mesh(), False)
     compiled = []
     for name in ROWS:
         row = protocol.ROWS[name]
@@ -114,25 +114,32 @@ world = worlds[0]
 truths = [scoring.Truth.from_scene(w.scene, w.object_set) for w in worlds]
 episode = setup.make_episode(t.SETTINGS, world.object_set, world.intrinsics, world.table_height)
 episode = episode.switched(("vis_occl_hist", "random")).choose("vis_occl_hist", True)
-scene = np.array([0, 1, 1, 0, 1, 0], np.int32)   # 6 episodes: padded to 8 on 4 devices
+scene = np.array([0, 1, 1, 0, 1, 0], np.int32)   # 6 episodes
 start = np.array([3, 9, 17, 25, 2, 11], np.int32)
 keys = np.asarray(jax.vmap(jax.random.PRNGKey)(np.arange(6)))
-out = {{}}
-for n in (4, 1):
-    mesh = batched.mesh(jax.devices()[:n])
-    out[n] = t.records(batched.rollouts(episode, depth, T_wc, scene, start, keys, mesh), truths, scene, start)
-print(json.dumps({{"devices": len(jax.devices()), "four": out[4], "one": out[1]}}))
+# Four devices, the frames split by scene (Table 1's layout): the 2 scenes padded to 4, a scene a device; the
+# episodes grouped by the device that holds their scene (3 each on devices 0 and 1, padding on 2 and 3) and
+# returned in the order given. One device: every frame replicated, the plain batch.
+four = batched.mesh(jax.devices()[:4])
+split = [batched.split_frames(x, four) for x in (depth, T_wc)]
+out = {{4: t.records(batched.rollouts(episode, *split, scene, start, keys, four, split_scenes=True), truths, scene,
+                    start),
+       1: t.records(batched.rollouts(episode, depth, T_wc, scene, start, keys, batched.mesh(jax.devices()[:1])),
+                    truths, scene, start)}}
+print(json.dumps({{"devices": len(jax.devices()), "shards": [s.data.shape[0] for s in split[0].addressable_shards],
+                  "four": out[4], "one": out[1]}}))
 """
 
 
 def test_sharded_over_four_devices_gives_the_records_of_one():
+    """Four CPU-simulated devices, the frames split by scene, against one device holding them all."""
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=4", "JAX_PLATFORMS": "cpu",
            "JAXCLS_CACHE_DIR": "off"}
     code = _SHARDED.format(tests=str(ROOT / "tests"))
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT)
     assert done.returncode == 0, done.stderr[-3000:]
     result = json.loads(done.stdout.strip().splitlines()[-1])
-    assert result["devices"] == 4
+    assert result["devices"] == 4 and result["shards"] == [1, 1, 1, 1]
     assert result["four"] == result["one"]
     assert len(result["four"]) == 6 and all(len(r["path"]) == MOVES for r in result["four"])
 

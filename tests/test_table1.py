@@ -334,3 +334,17 @@ def test_records_of_a_batch_are_each_episodes_own():
     stopped = together[1]
     assert len(stopped["path"]) == len(stopped["hand_eye"]) == 2 and stopped["refined"][3] == stopped["refined"][1]
     assert np.allclose(np.asarray(together[0]["hand_eye"])[:, :3], hand_eye[0, :, :3, 3], atol=1e-5)
+
+
+def test_a_chunk_is_dealt_round_robin_over_the_devices_and_padded_per_device():
+    assert runner.chunk_layout([10, 11, 12, 13, 14, 15, 16], 3, 3) == [10, 13, 16, 11, 14, 11, 12, 15, 12]
+    assert runner.chunk_layout([4, 5], 1, 3) == [4, 5, 4]  # one device: the chunk, its last slots padded
+    assert runner.chunk_layout([7], 2, 1) == [7, 7]  # a device with no scene repeats the chunk's first
+    with pytest.raises(ValueError, match="do not fit 2 x 1 slots"):
+        runner.chunk_layout([1, 2, 3], 2, 1)
+    # Calls of 2 slots a device over 3 devices x 3 slots: every scene in one call, from the slot that holds it,
+    # at most 2 a device; the padding slots (11, 12 repeated) run nothing.
+    slots = runner.chunk_layout([10, 11, 12, 13, 14, 15, 16], 3, 3)
+    groups = runner.call_scenes(slots, 3, 2)
+    assert groups == [{10, 13, 11, 14, 12, 15}, {16}]
+    assert runner.call_scenes(runner.chunk_layout(list(range(8)), 2, 4), 2, 4) == [set(range(8))]

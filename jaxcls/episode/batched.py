@@ -3,9 +3,13 @@
 A batch is E episodes, each (scene, start view, key) over the frames of S scenes held on the devices
 (depth [S, V, H, W], T_wc [S, V, 4, 4]); every episode reads only its own frames (``active.rollout`` with
 ``scene``). The batch is split over a 1-D ``jax.sharding.Mesh`` of the local devices along its episode axis
-(``mesh``; any device count, one included): each device runs its share of episodes on a replicated copy of
-the frames and the episode's settings, with no communication. E is padded to a multiple of the device count
-with copies of the first episode, dropped from the result.
+(``mesh``; any device count, one included): each device runs its share of episodes and the episode's settings,
+with no communication, on the frames laid out one of two ways:
+- ``replicate``: every device holds every scene's frames (one scene's frames for many runs: the benchmarks);
+- ``split_frames``: device d holds the scenes [d S/n, (d+1) S/n) and runs their episodes (Table 1: a chunk's
+  frames copied once, not n times, and 1/n of them in each device's memory; ``dispatch(..., split_scenes=True)``
+  groups the episodes by the device that holds their scene and returns them in the order given).
+E is padded (to ``size`` and a multiple of the device count) with copies of an episode, dropped from the result.
 
 With a switched episode (``active.Episode.switched``) the same compiled program runs every policy row with
 GR on or off (``Episode.choose``): a batch holds one row, the choice is not batched, so only its kernel runs.
@@ -50,13 +54,20 @@ def _one(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, scene: jax.
 
 
 @functools.lru_cache(maxsize=8)
-def _program(device_mesh: Mesh):
-    """The jitted, sharded batch for one mesh: compiled once per episode settings and shapes."""
+def _program(device_mesh: Mesh, split_scenes: bool):
+    """The jitted, sharded batch for one mesh and frame layout: compiled once per episode settings and shapes."""
     replicated, split = PartitionSpec(), PartitionSpec(AXIS)
+    frames = split if split_scenes else replicated
     local = jax.vmap(_one, in_axes=(None, None, None, 0, 0, 0))
-    sharded = jax.shard_map(local, mesh=device_mesh, in_specs=(replicated, replicated, replicated, split, split, split),
+    sharded = jax.shard_map(local, mesh=device_mesh, in_specs=(replicated, frames, frames, split, split, split),
                             out_specs=split, check_vma=False)
     return jax.jit(sharded)
+
+
+@jax.jit
+def _reordered(traces: active.Trace, rows: jax.Array) -> active.Trace:
+    """``traces``' episodes ``rows`` (the episodes back in the order given, after ``split_scenes``' grouping)."""
+    return jax.tree.map(lambda x: x[rows], traces)
 
 
 def _rendered(episode: active.Episode, render, T_true: jax.Array, T_wc: jax.Array, start: jax.Array,
@@ -104,20 +115,39 @@ def replicate(x: np.ndarray | jax.Array, device_mesh: Mesh | None = None, rows: 
     its first axis padded to ``rows`` with copies of ``x[0]`` (a last, shorter chunk of scenes keeps the chunks'
     shape, so the program does not compile again)."""
     device_mesh = device_mesh or mesh()
+    return jax.device_put(_padded(x, rows), NamedSharding(device_mesh, PartitionSpec()))
+
+
+def split_frames(x: np.ndarray | jax.Array, device_mesh: Mesh | None = None, rows: int | None = None) -> jax.Array:
+    """``x`` [S, ...] as float32 split by scene over the devices of ``device_mesh`` (device d holds the rows
+    [d S'/n, (d+1) S'/n)), its first axis padded with copies of ``x[0]`` to ``rows`` (at least) and a multiple of
+    the devices: the frames of ``dispatch(..., split_scenes=True)``."""
+    device_mesh = device_mesh or mesh()
+    n = device_mesh.devices.size
+    S = max(x.shape[0], rows or 0)
+    return jax.device_put(_padded(x, S + (-S % n)), NamedSharding(device_mesh, PartitionSpec(AXIS)))
+
+
+def _padded(x: np.ndarray | jax.Array, rows: int | None) -> jax.Array:
+    """``x`` as float32, its first axis padded to ``rows`` with copies of ``x[0]``."""
     x = jnp.asarray(x, jnp.float32)
     if rows is not None and rows > x.shape[0]:
         x = jnp.concatenate([x, jnp.broadcast_to(x[:1], (rows - x.shape[0], *x.shape[1:]))])
-    return jax.device_put(x, NamedSharding(device_mesh, PartitionSpec()))
+    return x
 
 
 def dispatch(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, scene: np.ndarray, start: np.ndarray,
-             keys: jax.Array, device_mesh: Mesh | None = None, size: int | None = None) -> active.Trace:
+             keys: jax.Array, device_mesh: Mesh | None = None, size: int | None = None,
+             split_scenes: bool = False) -> active.Trace:
     """E episodes over the frames of S scenes, started on the devices and returned at once (JAX dispatches
     asynchronously; ``fetch`` waits for them): depth [S, V, H, W] m (0 = no return), T_wc [S, V, 4, 4] every
     viewpoint's frame; scene [E] i32 each episode's scene, start [E] i32 its start view, keys [E] its key. A
     ``Trace`` with [E', T, ...] device leaves, E' = E padded to ``size`` (at least; one compiled shape for a
     run's calls, the last shorter one too) and to a multiple of the devices. Sharded over ``device_mesh``
-    (default: all local devices). Frames already on the device stay there."""
+    (default: all local devices). Frames already on the device stay there. ``split_scenes``: the frames are
+    split by scene over the devices (``split_frames``; S a multiple of the devices), each episode runs on the
+    device that holds its scene (every device's share padded to the largest), and the first E rows of the
+    result are the episodes in the order given."""
     device_mesh = device_mesh or mesh()
     scene, start = np.asarray(scene, np.int32), np.asarray(start, np.int32)
     E, S, V = len(scene), depth.shape[0], depth.shape[1]
@@ -131,17 +161,44 @@ def dispatch(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, scene: 
         raise ValueError(f"batched: scenes must lie in 0..{S - 1} and start views in 0..{V - 1}")
     n = device_mesh.devices.size
     padded = max(E, size or 0)
-    pad = padded - E + (-padded % n)
-    if pad:  # copies of the first episode, dropped by fetch
-        scene = np.concatenate([scene, np.repeat(scene[:1], pad)])
-        start = np.concatenate([start, np.repeat(start[:1], pad)])
-        keys = jnp.concatenate([keys, jnp.repeat(keys[:1], pad, axis=0)])
+    order = None
+    if split_scenes:
+        if S % n:
+            raise ValueError(f"batched: {S} scenes do not split over {n} devices (batched.split_frames pads them)")
+        scene, start, keys, order = _grouped(scene, start, keys, S // n, n, -(-padded // n))
+    else:
+        pad = padded - E + (-padded % n)
+        if pad:  # copies of the first episode, dropped by fetch
+            scene = np.concatenate([scene, np.repeat(scene[:1], pad)])
+            start = np.concatenate([start, np.repeat(start[:1], pad)])
+            keys = jnp.concatenate([keys, jnp.repeat(keys[:1], pad, axis=0)])
     split = NamedSharding(device_mesh, PartitionSpec(AXIS))
-    replicated = NamedSharding(device_mesh, PartitionSpec())
-    return _program(device_mesh)(
-        jax.device_put(episode, replicated), jax.device_put(jnp.asarray(depth, jnp.float32), replicated),
-        jax.device_put(jnp.asarray(T_wc, jnp.float32), replicated), jax.device_put(scene, split),
-        jax.device_put(start, split), jax.device_put(keys, split))
+    frames = split if split_scenes else NamedSharding(device_mesh, PartitionSpec())
+    traces = _program(device_mesh, split_scenes)(
+        jax.device_put(episode, NamedSharding(device_mesh, PartitionSpec())),
+        jax.device_put(jnp.asarray(depth, jnp.float32), frames), jax.device_put(jnp.asarray(T_wc, jnp.float32), frames),
+        jax.device_put(scene, split), jax.device_put(start, split), jax.device_put(keys, split))
+    return traces if order is None else _reordered(traces, order)
+
+
+def _grouped(scene: np.ndarray, start: np.ndarray, keys: jax.Array, per: int, n: int, least: int
+             ) -> tuple[np.ndarray, np.ndarray, jax.Array, np.ndarray]:
+    """The episodes grouped by the device that holds their scene (device d: scenes [d per, (d+1) per)), each
+    device's share padded to the largest (and to ``least``) with runs of its first scene: (local scene [n m],
+    start, keys, rows [n m]: the given episodes' places first, then the padding's)."""
+    owner = scene // per
+    shares = [np.flatnonzero(owner == d) for d in range(n)]
+    m = max(least, *(len(share) for share in shares))
+    slots = np.full((n, m), -1, np.int64)  # the episode in each device's place, -1: padding
+    for d, share in enumerate(shares):
+        slots[d, :len(share)] = share
+    slots = slots.reshape(-1)
+    real, first = slots >= 0, np.repeat(np.arange(n) * per, m)
+    pick = np.maximum(slots, 0)
+    local = np.where(real, scene[pick], first) - first
+    rows = np.concatenate([np.flatnonzero(real)[np.argsort(slots[real])], np.flatnonzero(~real)])
+    return (local.astype(np.int32), np.where(real, start[pick], 0).astype(np.int32), jnp.asarray(keys)[pick],
+            rows.astype(np.int32))
 
 
 def fetch(traces: active.Trace, episodes: int) -> active.Trace:
@@ -150,9 +207,10 @@ def fetch(traces: active.Trace, episodes: int) -> active.Trace:
 
 
 def rollouts(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, scene: np.ndarray, start: np.ndarray,
-             keys: jax.Array, device_mesh: Mesh | None = None) -> active.Trace:
+             keys: jax.Array, device_mesh: Mesh | None = None, split_scenes: bool = False) -> active.Trace:
     """``dispatch`` then ``fetch``: a ``Trace`` with [E, T, ...] NumPy leaves."""
-    return fetch(dispatch(episode, depth, T_wc, scene, start, keys, device_mesh), len(scene))
+    return fetch(dispatch(episode, depth, T_wc, scene, start, keys, device_mesh, split_scenes=split_scenes),
+                 len(scene))
 
 
-__all__ = ["AXIS", "dispatch", "fetch", "mesh", "rendered", "replicate", "rollouts"]
+__all__ = ["AXIS", "dispatch", "fetch", "mesh", "rendered", "replicate", "rollouts", "split_frames"]

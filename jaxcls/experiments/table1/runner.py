@@ -158,11 +158,12 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                 classifiers: dict[str, pointnet.Classifier], object_set, todo: list[tuple[str, str, int, int]],
                 store: Path, bar: tqdm, clock: Phases | None = None) -> None:
     """The single-view and policy rows' episodes ``todo`` batched over scenes and runs and sharded over the
-    local devices (``episode.batched``): the frames of ``scene_chunk`` of ``todo``'s scenes at a time, one
-    switched program per classifier and model library running every row (``Episode.switched``), at most
-    ``batch_episodes`` episodes a call. Rows that share a program row (PointNetSingle and VisOcclHist with the
-    same GR) share its episodes. A call's records are built and appended while the next call runs on the
-    devices."""
+    local devices (``episode.batched``): the frames of ``scene_chunk`` of ``todo``'s scenes at a time, split by
+    scene over the devices (each holds 1/n of them and runs their episodes), one switched program per classifier
+    and model library running every row (``Episode.switched``), at most ``batch_episodes`` episodes a call
+    (whole scenes, as many on every device; at least one a device). Rows that share a program row
+    (PointNetSingle and VisOcclHist with the same GR) share its episodes. A call's records are built and appended
+    while the next call runs on the devices."""
     clock = clock or Phases()
     device_mesh = batched.mesh()
     policies = tuple(dict.fromkeys(program_row(protocol.ROWS[k[1]]).policy for k in todo))
@@ -190,19 +191,30 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                 bar.update(len(records))
 
     scenes = sorted({k[2] for k in todo})  # (a process of several: its share)
-    # One shape for every call: a last, shorter chunk padded to the chunk's scenes and a last, shorter call to the
-    # call's episodes (copies, dropped), so that nothing compiles again (~20 s a shape on an H200).
-    rows = min(config.scene_chunk, len(scenes))
-    size = min(config.batch_episodes or rows * config.runs, rows * config.runs)
+    n = device_mesh.devices.size
+    # The frames split by scene over the devices, ``per`` scenes each (a chunk round-robin, so that a call of
+    # consecutive scenes keeps every device busy); a call takes ``per_call`` scenes of each device. One shape for
+    # every call: a last, shorter chunk and call padded (copies, dropped), so that nothing compiles again (~20 s
+    # a shape on an H200).
+    per = -(-min(config.scene_chunk, len(scenes)) // n)
+    per_call = max(1, min(per, config.batch_episodes // (n * config.runs))) if config.batch_episodes else per
+    size = per_call * n * config.runs
     for first in range(0, len(scenes), config.scene_chunk):
         chunk_scenes = scenes[first:first + config.scene_chunk]
-        at = {s: i for i, s in enumerate(chunk_scenes)}  # a scene's position in the chunk's frames
+        slots = chunk_layout(chunk_scenes, n, per)  # the scene in each frame slot (device d: slots d per ...)
+        at = {}  # a scene's slot in the chunk's frames (its first, where padding repeats it)
+        for slot, s in enumerate(slots):
+            at.setdefault(s, slot)
         chunk_todo = [k for k in todo if k[2] in at]
+        groups = call_scenes(slots, n, per_call)
         with clock("frames (rendered or read)"):
-            chunk = scene_set.chunk(chunk_scenes)
-            depth = batched.replicate(chunk.depth, device_mesh, rows)
-            T_wc = batched.replicate(chunk.T_wc, device_mesh, rows)
-        truths = [scoring.Truth.from_scene(scene, object_set) for scene in chunk.scenes]
+            order = list(dict.fromkeys(slots))  # rendered in slot order: a full chunk needs no reordering
+            chunk = scene_set.chunk(order)
+            place = {s: i for i, s in enumerate(order)}
+            laid = np.array([place[s] for s in slots])
+            depth, T_wc = (x if np.array_equal(laid, np.arange(len(x))) else x[laid] for x in (chunk.depth, chunk.T_wc))
+            depth, T_wc = batched.split_frames(depth, device_mesh), batched.split_frames(T_wc, device_mesh)
+        truths = [scoring.Truth.from_scene(chunk.scenes[i], object_set) for i in laid]  # by slot
         V = chunk.T_wc.shape[1]
         starts = {s: protocol.start_views(config.seed, s, config.runs, V) for s in chunk_scenes}
         keys = {s: np.asarray(protocol.run_keys(config.seed, s, config.runs)) for s in chunk_scenes}
@@ -217,17 +229,19 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                                                        chunk.scenes[0].table_height, dataset.scene.split)
                     switched[c, row.library] = switched[c, row.library].switched(policies)
                 chosen = switched[c, row.library].choose(row.policy, row.refinement)
-                runs = sorted({k[2:] for k in chunk_todo if k[0] == c and k[1] in names})  # (scene, run)
-                for part in range(0, len(runs), size):
-                    call = runs[part:part + size]
-                    index = {sr: e for e, sr in enumerate(call)}
+                for in_call in groups:
+                    call = sorted({k[2:] for k in chunk_todo if k[0] == c and k[1] in names and k[2] in in_call})
+                    if not call:
+                        continue
+                    index = {sr: e for e, sr in enumerate(call)}  # (scene, run) -> its place in the call
                     scene = np.array([at[s] for s, _ in call], np.int32)
                     start = np.array([starts[s][r] for s, r in call], np.int32)
                     key = np.stack([keys[s][r] for s, r in call])
                     bar.set_postfix(scenes=f"{chunk_scenes[0]}-{chunk_scenes[-1]}", classifier=c,
                                     rows="+".join(names))
                     with episodes_clock():
-                        traces = batched.dispatch(chosen, depth, T_wc, scene, start, key, device_mesh, size)
+                        traces = batched.dispatch(chosen, depth, T_wc, scene, start, key, device_mesh, size,
+                                                  split_scenes=True)
                     if pending:
                         finish()  # the last call's records, while this one runs
                     calls = {(c, name): [(index[k[2:]], k) for k in chunk_todo
@@ -235,6 +249,27 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                     pending.append((calls, traces, truths, start, at))
     if pending:
         finish()
+
+
+def chunk_layout(chunk_scenes: list[int], devices: int, per: int) -> list[int]:
+    """The scene in each of ``devices * per`` frame slots (device d holds slots [d per, (d+1) per)): the chunk's
+    scenes dealt round-robin (device d: scenes d, d + devices, ...), each device's last slots repeating its
+    first scene (the chunk's first, where it has none)."""
+    blocks = [chunk_scenes[d::devices] for d in range(devices)]
+    if any(len(block) > per for block in blocks):
+        raise ValueError(f"chunk_layout: {len(chunk_scenes)} scenes do not fit {devices} x {per} slots")
+    return [s for block in blocks for s in block + [(block or chunk_scenes)[0]] * (per - len(block))]
+
+
+def call_scenes(slots: list[int], devices: int, per_call: int) -> list[set[int]]:
+    """The scenes of each call over a chunk laid out in ``slots`` (``chunk_layout``): ``per_call`` slots of
+    every device a call, each scene once (a padding slot's scene runs from its first slot)."""
+    per = len(slots) // devices
+    first = {}
+    for slot, s in enumerate(slots):
+        first.setdefault(s, slot)
+    return [{slots[d * per + j] for d in range(devices) for j in range(part, min(part + per_call, per))
+             if first[slots[d * per + j]] == d * per + j} for part in range(0, per, per_call)]
 
 
 def episode(config: Table1Config, row: protocol.Row, classifier: pointnet.Classifier, object_set,
