@@ -27,8 +27,9 @@ cluster: SLURM, Open MPI, ...); process i runs the scenes s with s % count == i 
 appends to ``episodes.<i>.jsonl`` (no file is shared while written; a resumed run reads every store, under any
 process count); once all are done, process 0 writes the tables. (A dataset folder is best rendered before,
 by ``jaxcls dataset``, or the scenes drawn with ``scene_source=device``.) Within one host, one process drives every
-local device (the episodes are sharded over them, ``episode.batched``); or one process a GPU, each started with
-``CUDA_VISIBLE_DEVICES=I`` and ``--coordinator localhost:PORT`` (the frames, records and start-up split too).
+local device (the episodes are sharded over them, ``episode.batched``); or one process a GPU, process I started
+as ``CUDA_VISIBLE_DEVICES=I python experiments/table1.py ... --distributed --coordinator localhost:PORT
+--processes N --process-id I`` (the frames, records and start-up split too).
 
     python experiments/table1.py --config table1_synthetic_scale --distributed \
         --coordinator host0:1234 --processes 2 --process-id 0        # on host 0; --process-id 1 on host 1

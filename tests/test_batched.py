@@ -105,43 +105,71 @@ def test_one_program_runs_every_row_as_its_own_program_does(data):
 
 _SHARDED = """
 import json, sys
+from pathlib import Path
 import jax, numpy as np
+from tqdm.auto import tqdm
 sys.path.insert(0, {tests!r})
 import test_batched as t
-from jaxcls.episode import batched, protocol, scoring, setup
-depth, T_wc, worlds = t.scenes()
-world = worlds[0]
+from jaxcls import io
+from jaxcls.episode import batched, protocol, scoring
+from jaxcls.experiments.table1 import runner
+from jaxcls.experiments.table1.config import Table1Config
+from jaxcls.experiments.table1.data import Chunk
+from jaxcls.perception import pointnet
+from jaxcls.world.dataset import DatasetConfig
+
+depth, T_wc, worlds = t.scenes(5)
+world, classifier, split = worlds[0], pointnet.load_classifier(), DatasetConfig().scene.split
+config = Table1Config(out_dir={out!r}, runs=t.RUNS, moves=t.MOVES, rows=("vis_occl_hist_gr",), scene_chunk=4,
+                      classifiers={{"shipped": ""}}, perception=t.SETTINGS.perception)
+
+
+class Frames:  # the five scenes' frames, handed out as Table 1's scene set does
+    def chunk(self, indices):
+        i = list(indices)
+        return Chunk(scenes=[worlds[k].scene for k in i], depth=depth[i], T_wc=T_wc[i], intrinsics=world.intrinsics)
+
+
+# Table 1's runner on four devices: chunks of 4 scenes, a scene a device (the fifth scene's chunk padded to one a
+# device), the frames split by scene; scene 1's run 0 stored before (a resumed run), so it is not run again.
+store = Path({out!r}) / "episodes.jsonl"
+io.append_jsonl(store, [{{"classifier": "shipped", "row": "vis_occl_hist_gr", "scene": 1, "run": 0}}])
+todo = [("shipped", "vis_occl_hist_gr", s, r) for s in range(5) for r in range(t.RUNS) if (s, r) != (1, 0)]
+with tqdm(disable=True) as bar:
+    runner.run_batched(config, Frames(), DatasetConfig(), {{"shipped": classifier}}, world.object_set, todo, store, bar)
+written = io.read_jsonl(store)[1:]
+# The same episodes on one device, every frame replicated: the row's program as the runner builds it.
+row = runner.program_row(protocol.ROWS["vis_occl_hist_gr"])
+episode = runner.episode(config, row, classifier, world.object_set, world.intrinsics, world.table_height, split)
+episode = episode.switched((row.policy,)).choose(row.policy, row.refinement)
+scene = np.repeat(np.arange(5), t.RUNS).astype(np.int32)
+start = np.concatenate([protocol.start_views(config.seed, s, t.RUNS, T_wc.shape[1]) for s in range(5)])
+keys = np.concatenate([np.asarray(protocol.run_keys(config.seed, s, t.RUNS)) for s in range(5)])
 truths = [scoring.Truth.from_scene(w.scene, w.object_set) for w in worlds]
-episode = setup.make_episode(t.SETTINGS, world.object_set, world.intrinsics, world.table_height)
-episode = episode.switched(("vis_occl_hist", "random")).choose("vis_occl_hist", True)
-scene = np.array([0, 1, 1, 0, 1, 0], np.int32)   # 6 episodes
-start = np.array([3, 9, 17, 25, 2, 11], np.int32)
-keys = np.asarray(jax.vmap(jax.random.PRNGKey)(np.arange(6)))
-# Four devices, the frames split by scene (Table 1's layout): the 2 scenes padded to 4, a scene a device; the
-# episodes grouped by the device that holds their scene (3 each on devices 0 and 1, padding on 2 and 3) and
-# returned in the order given. One device: every frame replicated, the plain batch.
-four = batched.mesh(jax.devices()[:4])
-split = [batched.split_frames(x, four) for x in (depth, T_wc)]
-out = {{4: t.records(batched.rollouts(episode, *split, scene, start, keys, four, split_scenes=True), truths, scene,
-                    start),
-       1: t.records(batched.rollouts(episode, depth, T_wc, scene, start, keys, batched.mesh(jax.devices()[:1])),
-                    truths, scene, start)}}
-print(json.dumps({{"devices": len(jax.devices()), "shards": [s.data.shape[0] for s in split[0].addressable_shards],
-                  "four": out[4], "one": out[1]}}))
+one = t.records(batched.rollouts(episode, depth, T_wc, scene, start, keys, batched.mesh(jax.devices()[:1])), truths,
+                scene, start)
+print(json.dumps({{"devices": len(jax.devices()), "programs": batched._program(batched.mesh(), True)._cache_size(),
+                  "four": {{f"{{r['scene']}}/{{r['run']}}": {{k: r[k] for k in ("path", "prior", "refined")}}
+                           for r in written}},
+                  "written": len(written),
+                  "one": {{f"{{s}}/{{r}}": one[s * t.RUNS + r] for s in range(5) for r in range(t.RUNS)}}}}))
 """
 
 
-def test_sharded_over_four_devices_gives_the_records_of_one():
-    """Four CPU-simulated devices, the frames split by scene, against one device holding them all."""
+def test_table1_runner_on_four_devices_gives_the_records_of_one(tmp_path):
+    """Four CPU-simulated devices running Table 1's batched rows (the frames split by scene, the last chunk and a
+    resumed scene's call padded) against one device holding every frame: the same records, each episode once,
+    one compiled program."""
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=4", "JAX_PLATFORMS": "cpu",
            "JAXCLS_CACHE_DIR": "off"}
-    code = _SHARDED.format(tests=str(ROOT / "tests"))
+    code = _SHARDED.format(tests=str(ROOT / "tests"), out=str(tmp_path))
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT)
     assert done.returncode == 0, done.stderr[-3000:]
     result = json.loads(done.stdout.strip().splitlines()[-1])
-    assert result["devices"] == 4 and result["shards"] == [1, 1, 1, 1]
-    assert result["four"] == result["one"]
-    assert len(result["four"]) == 6 and all(len(r["path"]) == MOVES for r in result["four"])
+    assert result["devices"] == 4 and result["programs"] == 1
+    assert result["written"] == len(result["four"]) == 5 * RUNS - 1  # each episode once, scene 1's run 0 not again
+    assert result["four"] == {k: v for k, v in result["one"].items() if k != "1/0"}
+    assert all(len(r["path"]) == MOVES for r in result["four"].values())
 
 
 def test_bad_batches_are_refused():

@@ -4,12 +4,14 @@ A batch is E episodes, each (scene, start view, key) over the frames of S scenes
 (depth [S, V, H, W], T_wc [S, V, 4, 4]); every episode reads only its own frames (``active.rollout`` with
 ``scene``). The batch is split over a 1-D ``jax.sharding.Mesh`` of the local devices along its episode axis
 (``mesh``; any device count, one included): each device runs its share of episodes and the episode's settings,
-with no communication, on the frames laid out one of two ways:
+with no communication during the episodes, on the frames laid out one of two ways:
 - ``replicate``: every device holds every scene's frames (one scene's frames for many runs: the benchmarks);
 - ``split_frames``: device d holds the scenes [d S/n, (d+1) S/n) and runs their episodes (Table 1: a chunk's
   frames copied once, not n times, and 1/n of them in each device's memory; ``dispatch(..., split_scenes=True)``
-  groups the episodes by the device that holds their scene and returns them in the order given).
-E is padded (to ``size`` and a multiple of the device count) with copies of an episode, dropped from the result.
+  groups the episodes by the device that holds their scene, and gathers their traces back into the order given:
+  one small gather across the devices after the episodes).
+E is padded (to ``size`` and a multiple of the device count; split: every device's share to the largest) with
+runs of an episode's scene, dropped from the result.
 
 With a switched episode (``active.Episode.switched``) the same compiled program runs every policy row with
 GR on or off (``Episode.choose``): a batch holds one row, the choice is not batched, so only its kernel runs.
@@ -112,8 +114,8 @@ def rendered(episode: active.Episode, render, T_true: jax.Array, T_wc: jax.Array
 
 def replicate(x: np.ndarray | jax.Array, device_mesh: Mesh | None = None, rows: int | None = None) -> jax.Array:
     """``x`` as float32 on every device of ``device_mesh`` (frames shared by the calls of a chunk: copied once),
-    its first axis padded to ``rows`` with copies of ``x[0]`` (a last, shorter chunk of scenes keeps the chunks'
-    shape, so the program does not compile again)."""
+    its first axis padded to ``rows`` with copies of ``x[0]`` (a shorter set of scenes keeps a program's shape,
+    so it does not compile again)."""
     device_mesh = device_mesh or mesh()
     return jax.device_put(_padded(x, rows), NamedSharding(device_mesh, PartitionSpec()))
 
@@ -128,11 +130,13 @@ def split_frames(x: np.ndarray | jax.Array, device_mesh: Mesh | None = None, row
     return jax.device_put(_padded(x, S + (-S % n)), NamedSharding(device_mesh, PartitionSpec(AXIS)))
 
 
-def _padded(x: np.ndarray | jax.Array, rows: int | None) -> jax.Array:
-    """``x`` as float32, its first axis padded to ``rows`` with copies of ``x[0]``."""
-    x = jnp.asarray(x, jnp.float32)
+def _padded(x: np.ndarray | jax.Array, rows: int | None) -> np.ndarray | jax.Array:
+    """``x`` as float32, its first axis padded to ``rows`` with copies of ``x[0]``: on the host for a NumPy
+    ``x`` (put from there straight to its devices, not first whole onto one), where it lies for a JAX one."""
+    xp = np if isinstance(x, np.ndarray) else jnp
+    x = xp.asarray(x, xp.float32)
     if rows is not None and rows > x.shape[0]:
-        x = jnp.concatenate([x, jnp.broadcast_to(x[:1], (rows - x.shape[0], *x.shape[1:]))])
+        x = xp.concatenate([x, xp.broadcast_to(x[:1], (rows - x.shape[0], *x.shape[1:]))])
     return x
 
 
@@ -143,7 +147,8 @@ def dispatch(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, scene: 
     asynchronously; ``fetch`` waits for them): depth [S, V, H, W] m (0 = no return), T_wc [S, V, 4, 4] every
     viewpoint's frame; scene [E] i32 each episode's scene, start [E] i32 its start view, keys [E] its key. A
     ``Trace`` with [E', T, ...] device leaves, E' = E padded to ``size`` (at least; one compiled shape for a
-    run's calls, the last shorter one too) and to a multiple of the devices. Sharded over ``device_mesh``
+    run's calls, the last shorter one too, as long as no device's share exceeds size / n) and to a multiple of
+    the devices. Sharded over ``device_mesh``
     (default: all local devices). Frames already on the device stay there. ``split_scenes``: the frames are
     split by scene over the devices (``split_frames``; S a multiple of the devices), each episode runs on the
     device that holds its scene (every device's share padded to the largest), and the first E rows of the
@@ -157,7 +162,9 @@ def dispatch(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, scene: 
     if not (start.shape == (E,) and keys.shape[0] == E):
         raise ValueError(f"batched: scene, start and keys need one entry per episode, got {scene.shape}, "
                          f"{start.shape} and {keys.shape}")
-    if E and (scene.min() < 0 or scene.max() >= S or start.min() < 0 or start.max() >= V):
+    if not E:
+        raise ValueError("batched: no episodes to run")
+    if scene.min() < 0 or scene.max() >= S or start.min() < 0 or start.max() >= V:
         raise ValueError(f"batched: scenes must lie in 0..{S - 1} and start views in 0..{V - 1}")
     n = device_mesh.devices.size
     padded = max(E, size or 0)

@@ -42,8 +42,10 @@ class Table1Config:
     # accelerator (6.8x one at a time on an H100, BENCHMARKS.md), one at a time on the CPU (no faster there).
     oracle_runs_per_call: int = bounded(0, ge=0)
     # The single-view and policy rows run batched over scenes and runs (``episode.batched``): the frames of
-    # this many scenes sit in device memory at once (100 views at 640x480: 123 MB a scene), and at most
-    # ``batch_episodes`` episodes run in one call (0: all of a row's episodes of those scenes).
+    # this many scenes (rounded up to a multiple of the devices) sit in device memory at once, split over the
+    # devices (100 views at 640x480: 123 MB a scene), and at most ``batch_episodes`` episodes run in one call
+    # (0: all of a row's episodes of those scenes; a call holds whole scenes, as many on every device, so at
+    # least devices x runs episodes). To keep a device's share as on one device, scale both with the devices.
     scene_chunk: int = bounded(8, ge=1)
     batch_episodes: int = bounded(0, ge=0)
     # name: weights (a .msgpack path or a shipped name, "" = the shipped weights); no default, so that a

@@ -158,10 +158,11 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                 classifiers: dict[str, pointnet.Classifier], object_set, todo: list[tuple[str, str, int, int]],
                 store: Path, bar: tqdm, clock: Phases | None = None) -> None:
     """The single-view and policy rows' episodes ``todo`` batched over scenes and runs and sharded over the
-    local devices (``episode.batched``): the frames of ``scene_chunk`` of ``todo``'s scenes at a time, split by
-    scene over the devices (each holds 1/n of them and runs their episodes), one switched program per classifier
-    and model library running every row (``Episode.switched``), at most ``batch_episodes`` episodes a call
-    (whole scenes, as many on every device; at least one a device). Rows that share a program row
+    local devices (``episode.batched``): the frames of ``scene_chunk`` of ``todo``'s scenes at a time (rounded up
+    to a multiple of the devices), split by scene over the devices (each holds 1/n of them and runs their
+    episodes), one switched program per classifier and model library running every row (``Episode.switched``),
+    at most ``batch_episodes`` episodes a call (whole scenes, as many on every device: at least one scene's runs
+    a device, n x runs episodes, whatever ``batch_episodes`` says). Rows that share a program row
     (PointNetSingle and VisOcclHist with the same GR) share its episodes. A call's records are built and appended
     while the next call runs on the devices."""
     clock = clock or Phases()
@@ -196,11 +197,11 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     # consecutive scenes keeps every device busy); a call takes ``per_call`` scenes of each device. One shape for
     # every call: a last, shorter chunk and call padded (copies, dropped), so that nothing compiles again (~20 s
     # a shape on an H200).
-    per = -(-min(config.scene_chunk, len(scenes)) // n)
+    per = -(-min(config.scene_chunk, len(scenes)) // n)  # (a chunk: scene_chunk rounded up to the devices)
     per_call = max(1, min(per, config.batch_episodes // (n * config.runs))) if config.batch_episodes else per
     size = per_call * n * config.runs
-    for first in range(0, len(scenes), config.scene_chunk):
-        chunk_scenes = scenes[first:first + config.scene_chunk]
+    for first in range(0, len(scenes), n * per):
+        chunk_scenes = scenes[first:first + n * per]
         slots = chunk_layout(chunk_scenes, n, per)  # the scene in each frame slot (device d: slots d per ...)
         at = {}  # a scene's slot in the chunk's frames (its first, where padding repeats it)
         for slot, s in enumerate(slots):
