@@ -148,6 +148,61 @@ def match_objects(segment_centroids: np.ndarray, segment_valid: np.ndarray, obje
     return out
 
 
+def match_objects_batched(segment_centroids: np.ndarray, segment_valid: np.ndarray, object_centroids: np.ndarray,
+                          max_distance: float = MATCH_DISTANCE) -> np.ndarray:
+    """``match_objects`` of B sets of segments against one scene's objects at once: [B, K] i64.
+
+    With at least as many live segments as objects, where each object's nearest live segment is strictly nearer
+    than its others and no two objects share one, that pairing is the assignment's unique optimum (its cost, the
+    sum of the row minima, bounds every assignment's, and any other pays strictly more), so it is SciPy's answer
+    too; with fewer live segments, the same holds for each segment's nearest object. Those sets are matched here
+    all at once; the others go through ``match_objects`` (SciPy's Hungarian).
+
+    segment_centroids: [B, N, 3] m; segment_valid: [B, N] bool; object_centroids: [K, 3] m."""
+    seg = np.asarray(segment_centroids, np.float64)
+    obj = np.asarray(object_centroids, np.float64)
+    valid = np.asarray(segment_valid, bool)
+    if seg.ndim != 3 or seg.shape[2:] != (3,) or valid.shape != seg.shape[:2] or obj.ndim != 2 or obj.shape[1] != 3:
+        raise ValueError(f"match_objects_batched: need segment_centroids [B, N, 3], segment_valid [B, N], "
+                         f"object_centroids [K, 3]; got {seg.shape}, {valid.shape}, {obj.shape}")
+    (B, N), K = valid.shape, len(obj)
+    out = np.full((B, K), -1, np.int64)
+    if not B or not K or not N:
+        return out
+    # The same float64 distances as match_objects' (the same expression, element by element).
+    cost = np.linalg.norm(obj[None, :, None, :] - seg[:, None, :, :], axis=-1)  # [B, K, N]
+    live = valid.sum(axis=-1)
+    rows = live >= K  # every object gets a segment: each object's nearest segment
+    by_row = np.where(valid[:, None, :], cost, np.inf)
+    seg_of, row_ok = _strict_nearest(by_row)  # [B, K]
+    fast_rows = rows & row_ok.all(axis=-1) & _distinct(seg_of)
+    # every live segment gets an object: each segment's nearest object (a dead segment's own negative tag)
+    obj_of, col_ok = _strict_nearest(np.swapaxes(cost, 1, 2))  # [B, N]
+    fast_cols = ~rows & np.all(col_ok | ~valid, axis=-1) & _distinct(np.where(valid, obj_of, -1 - np.arange(N)))
+    near = np.take_along_axis(by_row, seg_of[..., None], axis=-1)[..., 0] <= max_distance
+    out[fast_rows] = np.where(near[fast_rows], seg_of[fast_rows], -1)
+    for b in np.flatnonzero(fast_cols):
+        n = np.flatnonzero(valid[b] & (cost[b, obj_of[b], np.arange(N)] <= max_distance))
+        out[b, obj_of[b, n]] = n
+    for b in np.flatnonzero(~fast_rows & ~fast_cols):
+        out[b] = match_objects(seg[b], valid[b], obj, max_distance)
+    return out
+
+
+def _strict_nearest(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(argmin over the last axis, whether that minimum is finite and strictly below the rest) of ``cost``."""
+    nearest = np.argmin(cost, axis=-1)
+    first = np.take_along_axis(cost, nearest[..., None], axis=-1)[..., 0]
+    second = np.partition(cost, 1, axis=-1)[..., 1] if cost.shape[-1] > 1 else np.full(first.shape, np.inf)
+    return nearest, np.isfinite(first) & (first < second)
+
+
+def _distinct(values: np.ndarray) -> np.ndarray:
+    """[B] whether the entries of each row of ``values`` [B, n] differ."""
+    ordered = np.sort(values, axis=-1)
+    return np.all(ordered[:, 1:] != ordered[:, :-1], axis=-1)
+
+
 @dataclasses.dataclass(frozen=True)
 class Scores:
     """Classification of target objects, macro-averaged over the classes as the paper does.

@@ -262,3 +262,60 @@ def test_scene_pooling_and_confusions_equal_the_plain_loops():
         metrics._scene_confusions([(np.array([0, 1]), np.array([0, 5]))], 5)
     with pytest.raises(ValueError, match="differ in length"):
         protocol.per_scene([{"scene": 0, "true": [1, 2], "refined": [[1]]}], 1)
+
+
+def _segments_near(rng, objects, sets, n):
+    """[sets, n, 3] segment centroids, each near one of ``objects`` (a permutation, repeated), some noisy."""
+    K = len(objects)
+    picks = rng.permutation(np.resize(np.arange(K), max(n, K)))[:n]
+    return objects[picks][None].repeat(sets, 0) + rng.normal(0, rng.choice([0.002, 0.02, 0.2]), (sets, n, 3))
+
+
+def test_batched_matching_is_scipys_hungarian_assignment():
+    """``match_objects_batched`` (the unique optima taken directly, the rest through SciPy) equals
+    ``match_objects`` set by set: more or fewer live segments than objects, dead segments, exact ties between
+    segments or between objects, pairs beyond the match distance, no segments or no objects."""
+    rng = np.random.default_rng(0)
+    for trial in range(300):
+        B, N, K = int(rng.integers(1, 20)), int(rng.integers(0, 9)), int(rng.integers(0, 8))
+        objects = rng.uniform(-0.2, 0.2, (K, 3))
+        segments = _segments_near(rng, objects, B, N) if K else rng.normal(0, 0.1, (B, N, 3))
+        if trial % 5 == 0 and N > 1:
+            segments[:, 1] = segments[:, 0]
+        if trial % 7 == 0 and K > 1:
+            objects[1] = objects[0]
+        valid = rng.random((B, N)) < rng.choice([0.5, 0.9, 1.0])
+        want = np.stack([metrics.match_objects(segments[b], valid[b], objects) for b in range(B)])
+        np.testing.assert_array_equal(metrics.match_objects_batched(segments, valid, objects), want)
+    with pytest.raises(ValueError, match=r"segment_valid \[B, N\]"):
+        metrics.match_objects_batched(np.zeros((2, 3, 3)), np.ones((2, 4), bool), np.zeros((1, 3)))
+
+
+def test_a_batchs_records_match_each_move_as_the_plain_loop_does():
+    """``protocol.episode_records`` (a scene's episodes matched together, every move at once, a stopped
+    episode keeping its last labels) gives the labels of matching each move of each episode on its own."""
+    from types import SimpleNamespace
+
+    from jaxcls.episode import protocol, scoring
+
+    rng = np.random.default_rng(1)
+    E, T, N, K = 60, 6, 6, 5
+    truths = [SimpleNamespace(centroid=rng.uniform(-0.2, 0.2, (K, 3)), label=rng.integers(0, 8, K),
+                              target=np.array([0, 2, 3])) for _ in range(6)]
+    scene = np.repeat(np.arange(6), 10)
+    centroid = np.stack([_segments_near(rng, truths[s].centroid, T, N) for s in scene])  # [E, T, N, 3]
+    done = np.cumsum(rng.random((E, T)) < 0.15, axis=1) > 0
+    refinement = SimpleNamespace(prior=rng.integers(0, 8, (E, T, N)), refined=rng.integers(0, 8, (E, T, N)),
+                                 valid=rng.random((E, T, N)) < 0.8)
+    traces = SimpleNamespace(refinement=refinement, centroid=centroid, done=done, view=rng.integers(0, 30, (E, T)),
+                             tracking=np.zeros((E, T), np.int32), hand_eye=np.tile(np.eye(4), (E, T, 1, 1)))
+    records = protocol.episode_records(traces, [truths[s] for s in scene], [{"run": e} for e in range(E)])
+    for e, record in enumerate(records):
+        truth, labels = truths[scene[e]], []
+        for t in range(T):
+            labels.append(labels[-1] if done[e, t] and labels else scoring.object_labels(
+                truth, centroid[e, t], refinement.valid[e, t],
+                np.stack([refinement.prior[e, t], refinement.refined[e, t]]))[:, truth.target])
+        labels = np.stack(labels)
+        assert record["prior"] == labels[:, 0].tolist() and record["refined"] == labels[:, 1].tolist()
+        assert record["path"] == traces.view[e][~done[e]].tolist()

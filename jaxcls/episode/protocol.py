@@ -33,6 +33,7 @@ import jax.numpy as jnp
 import jaxlie
 import numpy as np
 
+from jaxcls import metrics
 from jaxcls.episode import active, scoring, setup
 from jaxcls.episode.setup import ActiveConfig
 from jaxcls.geometry import Intrinsics
@@ -252,19 +253,29 @@ def episode_records(traces: active.Trace, truths: Sequence[scoring.Truth], keys:
         pass
     hand_eye = np.round(np.asarray(_se3_log(on_host), np.float64), 6)  # [E, T, 6]
     names = {s.value: s.name.lower() for s in tracking.Status}
+    # Each scene's episodes matched to its objects together (one truth, every move at once); a move after the
+    # episode stopped keeps the labels of the move before.
+    labels: list[np.ndarray | None] = [None] * E  # [T, 2, targets] each
+    same_truth: dict[int, list[int]] = {}
+    for e, truth in enumerate(truths):
+        same_truth.setdefault(id(truth), []).append(e)
+    for members in same_truth.values():
+        truth, idx = truths[members[0]], np.asarray(members)
+        N = centroid.shape[2]
+        match = metrics.match_objects_batched(centroid[idx].reshape(-1, N, 3), valid[idx].reshape(-1, N),
+                                              truth.centroid).reshape(len(idx), T, -1)  # [n, T, K]
+        both = np.stack([prior[idx], refined[idx]], axis=2)  # [n, T, 2, N]
+        picked = np.take_along_axis(both, np.maximum(match, 0)[:, :, None, :], axis=-1)
+        picked = np.where(match[:, :, None, :] >= 0, picked, -1)[..., truth.target]  # [n, T, 2, targets]
+        for t in range(1, T):
+            picked[:, t] = np.where(done[idx, t][:, None, None], picked[:, t - 1], picked[:, t])
+        for i, e in enumerate(members):
+            labels[e] = picked[i]
     records = []
     for e, (truth, key) in enumerate(zip(truths, keys, strict=True)):
-        labels = []
-        for t in range(T):
-            if done[e, t] and labels:
-                labels.append(labels[-1])
-                continue
-            labels.append(scoring.object_labels(truth, centroid[e, t], valid[e, t],
-                                                np.stack([prior[e, t], refined[e, t]]))[:, truth.target])
         made = ~done[e]
-        labels = np.stack(labels)  # [T, 2, K]
         records.append({**key, "path": views[e][made].tolist(), "true": truth.label[truth.target].tolist(),
-                        "prior": labels[:, 0].tolist(), "refined": labels[:, 1].tolist(),
+                        "prior": labels[e][:, 0].tolist(), "refined": labels[e][:, 1].tolist(),
                         "tracking": [names[s] for s in status[e][made]], "hand_eye": hand_eye[e][made].tolist()})
     return records
 
