@@ -59,7 +59,7 @@ def data():
     return scenes()
 
 
-def test_one_program_runs_every_row_as_its_own_program_does(data):
+def test_one_program_runs_every_row_as_its_own_program_does(data, tmp_path):
     depth, T_wc, worlds = data
     world = worlds[0]
     truths = [scoring.Truth.from_scene(w.scene, w.object_set) for w in worlds]
@@ -70,7 +70,7 @@ def test_one_program_runs_every_row_as_its_own_program_does(data):
     start = np.concatenate([protocol.start_views(0, s, RUNS, T_wc.shape[1]) for s in range(len(worlds))])
     keys = np.concatenate([np.asarray(protocol.run_keys(0, s, RUNS)) for s in range(len(worlds))])
     program = batched._program(batched.mesh(), False)
-    compiled = []
+    compiled, own_records = [], {}
     for name in ROWS:
         row = protocol.ROWS[name]
         # PointNetSingle: the first move of the program's VisOcclHist with the same GR (Table 1's runner).
@@ -87,6 +87,7 @@ def test_one_program_runs_every_row_as_its_own_program_does(data):
             traces = jax.device_get(protocol.rollouts(own, depth[s], T_wc[s], start[mine], keys[mine]))
             alone += records(traces, truths, scene[mine], start[mine], moves)
         assert together == alone, name
+        own_records[name] = alone
         assert all(len(set(r["path"])) == moves for r in together)
     assert compiled == [1] * len(ROWS), "switching the row compiled the batch again"
     # Table 1's last, shorter chunk and call: one scene's frames padded to the chunk's two scenes, one episode
@@ -96,6 +97,15 @@ def test_one_program_runs_every_row_as_its_own_program_does(data):
     one = batched.fetch(batched.dispatch(chosen, *padded, scene[:1], start[:1], keys[:1], size=len(scene)), 1)
     assert program._cache_size() == 1
     assert records(one, truths, scene[:1], start[:1], moves) == together[:1]
+    # Table 1's runner on four CPU-simulated devices (the frames split by scene, a resumed scene's call padded):
+    # the records of the row's own program on one device, each episode once, one compiled program.
+    four = four_devices_run_table1(tmp_path)
+    assert four["devices"] == 4 and four["programs"] == 1
+    runs = np.tile(np.arange(RUNS), len(worlds))
+    want = {(int(s), int(r)): own for s, r, own in zip(scene, runs, own_records["vis_occl_hist_gr"], strict=True)}
+    assert sorted((r["scene"], r["run"]) for r in four["records"]) == sorted(k for k in want if k != (1, 0))
+    for r in four["records"]:
+        assert {k: r[k] for k in ("path", "prior", "refined")} == want[r["scene"], r["run"]]
     # A policy outside the program, or choosing on an unswitched episode, is refused by name.
     with pytest.raises(ValueError, match="continuous"):
         switched.choose("continuous", True)
@@ -106,70 +116,52 @@ def test_one_program_runs_every_row_as_its_own_program_does(data):
 _SHARDED = """
 import json, sys
 from pathlib import Path
-import jax, numpy as np
+import jax
 from tqdm.auto import tqdm
 sys.path.insert(0, {tests!r})
 import test_batched as t
 from jaxcls import io
-from jaxcls.episode import batched, protocol, scoring
+from jaxcls.episode import batched
 from jaxcls.experiments.table1 import runner
 from jaxcls.experiments.table1.config import Table1Config
 from jaxcls.experiments.table1.data import Chunk
 from jaxcls.perception import pointnet
 from jaxcls.world.dataset import DatasetConfig
 
-depth, T_wc, worlds = t.scenes(5)
-world, classifier, split = worlds[0], pointnet.load_classifier(), DatasetConfig().scene.split
+depth, T_wc, worlds = t.scenes()
 config = Table1Config(out_dir={out!r}, runs=t.RUNS, moves=t.MOVES, rows=("vis_occl_hist_gr",), scene_chunk=4,
                       classifiers={{"shipped": ""}}, perception=t.SETTINGS.perception)
 
 
-class Frames:  # the five scenes' frames, handed out as Table 1's scene set does
+class Frames:  # the scenes' frames, handed out as Table 1's scene set does
     def chunk(self, indices):
         i = list(indices)
-        return Chunk(scenes=[worlds[k].scene for k in i], depth=depth[i], T_wc=T_wc[i], intrinsics=world.intrinsics)
+        return Chunk(scenes=[worlds[k].scene for k in i], depth=depth[i], T_wc=T_wc[i],
+                     intrinsics=worlds[0].intrinsics)
 
 
-# Table 1's runner on four devices: chunks of 4 scenes, a scene a device (the fifth scene's chunk padded to one a
-# device), the frames split by scene; scene 1's run 0 stored before (a resumed run), so it is not run again.
+# Table 1's runner on four devices: a scene a device (two devices hold padding), the frames split by scene;
+# scene 1's run 0 stored before (a resumed run), so it is not run again, and its call padded.
 store = Path({out!r}) / "episodes.jsonl"
 io.append_jsonl(store, [{{"classifier": "shipped", "row": "vis_occl_hist_gr", "scene": 1, "run": 0}}])
-todo = [("shipped", "vis_occl_hist_gr", s, r) for s in range(5) for r in range(t.RUNS) if (s, r) != (1, 0)]
+todo = [("shipped", "vis_occl_hist_gr", s, r) for s in range(len(worlds)) for r in range(t.RUNS) if (s, r) != (1, 0)]
 with tqdm(disable=True) as bar:
-    runner.run_batched(config, Frames(), DatasetConfig(), {{"shipped": classifier}}, world.object_set, todo, store, bar)
+    runner.run_batched(config, Frames(), DatasetConfig(), {{"shipped": pointnet.load_classifier()}},
+                       worlds[0].object_set, todo, store, bar)
 written = io.read_jsonl(store)[1:]
-# The same episodes on one device, every frame replicated: the row's program as the runner builds it.
-row = runner.program_row(protocol.ROWS["vis_occl_hist_gr"])
-episode = runner.episode(config, row, classifier, world.object_set, world.intrinsics, world.table_height, split)
-episode = episode.switched((row.policy,)).choose(row.policy, row.refinement)
-scene = np.repeat(np.arange(5), t.RUNS).astype(np.int32)
-start = np.concatenate([protocol.start_views(config.seed, s, t.RUNS, T_wc.shape[1]) for s in range(5)])
-keys = np.concatenate([np.asarray(protocol.run_keys(config.seed, s, t.RUNS)) for s in range(5)])
-truths = [scoring.Truth.from_scene(w.scene, w.object_set) for w in worlds]
-one = t.records(batched.rollouts(episode, depth, T_wc, scene, start, keys, batched.mesh(jax.devices()[:1])), truths,
-                scene, start)
 print(json.dumps({{"devices": len(jax.devices()), "programs": batched._program(batched.mesh(), True)._cache_size(),
-                  "four": {{f"{{r['scene']}}/{{r['run']}}": {{k: r[k] for k in ("path", "prior", "refined")}}
-                           for r in written}},
-                  "written": len(written),
-                  "one": {{f"{{s}}/{{r}}": one[s * t.RUNS + r] for s in range(5) for r in range(t.RUNS)}}}}))
+                  "records": [{{k: r[k] for k in ("scene", "run", "path", "prior", "refined")}} for r in written]}}))
 """
 
 
-def test_table1_runner_on_four_devices_gives_the_records_of_one(tmp_path):
-    """Four CPU-simulated devices running Table 1's batched rows (the frames split by scene, the last chunk and a
-    resumed scene's call padded) against one device holding every frame: the same records, each episode once,
-    one compiled program."""
+def four_devices_run_table1(tmp_path: Path) -> dict:
+    """Table 1's runner over ``scenes()`` on four CPU-simulated devices (``_SHARDED``): its output."""
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=4", "JAX_PLATFORMS": "cpu",
            "JAXCLS_CACHE_DIR": "off"}
     code = _SHARDED.format(tests=str(ROOT / "tests"), out=str(tmp_path))
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT)
     assert done.returncode == 0, done.stderr[-3000:]
-    result = json.loads(done.stdout.strip().splitlines()[-1])
-    assert result["devices"] == 4 and result["programs"] == 1
-    assert result["written"] == len(result["four"]) == 5 * RUNS - 1  # each episode once, scene 1's run 0 not again
-    assert result["four"] == {k: v for k, v in result["one"].items() if k != "1/0"}
-    assert all(len(r["path"]) == MOVES for r in result["four"].values())
+    return json.loads(done.stdout.strip().splitlines()[-1])
 
 
 def test_bad_batches_are_refused():
