@@ -260,14 +260,20 @@ def rendered_rows(episodes: dict[str, active.Episode], depth: jax.Array, T_wc: j
         runs = {"in memory": functools.partial(batched.dispatch, episode, depth[None], T_wc[None], scenes, starts,
                                                keys, mesh),
                 "rendered": functools.partial(batched.rendered, episode, render, T_true, T_wc, starts, keys)}
-        first, times, traces = interleaved(runs, repeats)
-        for name in runs:
-            t = times[name]
-            rows.append((B, mode, name, report.device_name(), f"{first[name]:.1f}", f"{t * 1e3:.0f}",
-                         f"{B * moves / t:.0f}", f"{times['in memory'] / t:.2f}",
-                         f"{same_paths(traces[name], traces['in memory']):.2f}"))
-            print(rows[-1], flush=True)
+        rows += [(B, mode, name, *cells) for name, cells in compared(runs, "in memory", repeats, B * moves).items()]
     return rows
+
+
+def compared(runs: dict, base, repeats: int, moves: int) -> dict:
+    """``interleaved`` ``runs`` of ``moves`` moves each, as table cells per run: (device, first call s, median ms,
+    moves/s, speed-up over ``base``'s run, share of paths and labels equal to ``base``'s); each printed."""
+    first, times, traces = interleaved(runs, repeats)
+    cells = {}
+    for name, t in times.items():
+        cells[name] = (report.device_name(), f"{first[name]:.1f}", f"{t * 1e3:.0f}", f"{moves / t:.0f}",
+                       f"{times[base] / t:.2f}", f"{same_paths(traces[name], traces[base]):.2f}")
+        print(name, cells[name], flush=True)
+    return cells
 
 
 def sharded_rows(episodes: dict[str, active.Episode], depth: jax.Array, T_wc: jax.Array, batches: list[int],
@@ -284,15 +290,9 @@ def sharded_rows(episodes: dict[str, active.Episode], depth: jax.Array, T_wc: ja
         frames = {n: (batched.replicate(depth[None], m), batched.replicate(T_wc[None], m)) for n, m in meshes.items()}
         runs = {n: functools.partial(batched.dispatch, episode, *frames[n], scene, starts, keys, m)
                 for n, m in meshes.items()}
-        first, times, traces = interleaved(runs, repeats)
-        base = device_counts[0]
-        for n in meshes:
-            t = times[n]
-            rows.append((B, n, mode, report.device_name(), f"{first[n]:.1f}", f"{t * 1e3:.0f}",
-                         f"{B * moves / t:.0f}", f"{times[base] / t:.2f}",
-                         f"{same_paths(traces[n], traces[base]):.2f}"))
-            print(rows[-1], flush=True)
-        del frames, traces
+        cells = compared(runs, device_counts[0], repeats, B * moves)
+        rows += [(B, n, mode, *cells[n]) for n in meshes]
+        del frames
     return rows
 
 

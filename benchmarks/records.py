@@ -72,12 +72,12 @@ def records_one_at_a_time(traces, truths, keys) -> list[dict]:
 def direct_share(traces, truths) -> float:
     """The share of moves whose matching took the direct path (a unique optimum; not SciPy)."""
     slow = []
-    original = metrics.match_objects
-    metrics.match_objects = lambda *a, **k: slow.append(1) or original(*a, **k)
+    original = metrics._hungarian  # what the direct path falls back to
+    metrics._hungarian = lambda *a, **k: slow.append(1) or original(*a, **k)
     try:
         protocol.episode_records(traces, truths, [{} for _ in truths])
     finally:
-        metrics.match_objects = original
+        metrics._hungarian = original
     return 1 - len(slow) / traces.done.size
 
 

@@ -129,14 +129,29 @@ def match_objects(segment_centroids: np.ndarray, segment_valid: np.ndarray, obje
     segment never stands in for a target); pairs farther apart than ``max_distance`` are no match.
 
     segment_centroids: [N, 3] m; segment_valid: [N] bool; object_centroids: [K, 3] m."""
-    from scipy.optimize import linear_sum_assignment
+    return _hungarian(*_match_inputs(segment_centroids, segment_valid, object_centroids, sets=False), max_distance)
 
+
+def _match_inputs(segment_centroids: np.ndarray, segment_valid: np.ndarray, object_centroids: np.ndarray,
+                  sets: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(segments f64, valid bool, objects f64) of a matcher, or ValueError naming the shapes: [N, 3], [N] (or
+    with ``sets`` [B, N, 3], [B, N]) and [K, 3]."""
     seg = np.asarray(segment_centroids, np.float64)
     obj = np.asarray(object_centroids, np.float64)
     valid = np.asarray(segment_valid, bool)
-    if seg.ndim != 2 or seg.shape[1:] != (3,) or valid.shape != seg.shape[:1] or obj.ndim != 2 or obj.shape[1] != 3:
-        raise ValueError(f"match_objects: need segment_centroids [N, 3], segment_valid [N], object_centroids "
-                         f"[K, 3]; got {seg.shape}, {valid.shape}, {obj.shape}")
+    if (seg.ndim != 2 + sets or seg.shape[-1] != 3 or valid.shape != seg.shape[:-1] or obj.ndim != 2
+            or obj.shape[1] != 3):
+        lead = "B, " if sets else ""
+        raise ValueError(f"match_objects{'_batched' if sets else ''}: need segment_centroids [{lead}N, 3], "
+                         f"segment_valid [{lead}N], object_centroids [K, 3]; got {seg.shape}, {valid.shape}, "
+                         f"{obj.shape}")
+    return seg, valid, obj
+
+
+def _hungarian(seg: np.ndarray, valid: np.ndarray, obj: np.ndarray, max_distance: float) -> np.ndarray:
+    """``match_objects`` on checked inputs: SciPy's assignment over the live segments."""
+    from scipy.optimize import linear_sum_assignment
+
     out = np.full(len(obj), -1, np.int64)
     live = np.flatnonzero(valid)
     if not len(live) or not len(obj):
@@ -159,12 +174,7 @@ def match_objects_batched(segment_centroids: np.ndarray, segment_valid: np.ndarr
     all at once; the others go through ``match_objects`` (SciPy's Hungarian).
 
     segment_centroids: [B, N, 3] m; segment_valid: [B, N] bool; object_centroids: [K, 3] m."""
-    seg = np.asarray(segment_centroids, np.float64)
-    obj = np.asarray(object_centroids, np.float64)
-    valid = np.asarray(segment_valid, bool)
-    if seg.ndim != 3 or seg.shape[2:] != (3,) or valid.shape != seg.shape[:2] or obj.ndim != 2 or obj.shape[1] != 3:
-        raise ValueError(f"match_objects_batched: need segment_centroids [B, N, 3], segment_valid [B, N], "
-                         f"object_centroids [K, 3]; got {seg.shape}, {valid.shape}, {obj.shape}")
+    seg, valid, obj = _match_inputs(segment_centroids, segment_valid, object_centroids, sets=True)
     (B, N), K = valid.shape, len(obj)
     out = np.full((B, K), -1, np.int64)
     if not B or not K or not N:
@@ -185,7 +195,7 @@ def match_objects_batched(segment_centroids: np.ndarray, segment_valid: np.ndarr
         n = np.flatnonzero(valid[b] & (cost[b, obj_of[b], np.arange(N)] <= max_distance))
         out[b, obj_of[b, n]] = n
     for b in np.flatnonzero(~fast_rows & ~fast_cols):
-        out[b] = match_objects(seg[b], valid[b], obj, max_distance)
+        out[b] = _hungarian(seg[b], valid[b], obj, max_distance)
     return out
 
 
