@@ -55,8 +55,11 @@ from jaxcls.experiments.table1 import data, figure, runner, tables
 from jaxcls.experiments.table1.config import SceneSource, Table1Config, check_out_dir
 from jaxcls.world.objects import object_set_from_config
 
+STARTUP = "start-up (Python, imports, config)"
+
 
 def main(argv: list[str] | None = None) -> None:
+    main_began = time.perf_counter()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", default="table1_synthetic", help="a path or a shipped config name")
     parser.add_argument("--out", help="append the tables to this Markdown file")
@@ -80,12 +83,15 @@ def main(argv: list[str] | None = None) -> None:
     config = load_config(Table1Config, args.config, args.overrides)
     out = Path(config.out_dir)
     check_out_dir(config, out)
-    started = time.perf_counter()
+    started, store = time.perf_counter(), out / "episodes.jsonl"
+    clock = runner.Phases()  # this run's phases, written to run_times.json where it ran episodes
+    # From the process's start where this is the command line (Python and the imports too), else from here.
+    clock.seconds[STARTUP] = (argv is None and report.process_age()) or started - main_began
     timing_file = out / "timing.json"
     timing = json.loads(timing_file.read_text()) if timing_file.exists() else None
     if args.tables_only:
         dataset = data.dataset_config(config)
-        records = data.stored_records(config, out / "episodes.jsonl")
+        records = data.stored_records(config, store)
     else:
         if args.distributed and config.scene_source is SceneSource.dataset:  # missing scenes rendered once
             if runner.process_share()[0] == 0:
@@ -94,23 +100,36 @@ def main(argv: list[str] | None = None) -> None:
         dataset, scene_set = data.open_scenes(config)
         if runner.process_share()[0] == 0:
             save_config(config, out / "config.yaml")
-        records = runner.run_episodes(config, scene_set, dataset, out / "episodes.jsonl")
+        records = runner.run_episodes(config, scene_set, dataset, store, clock=clock)
     if args.distributed:  # every process's episodes stored; process 0 writes the tables
-        multihost_utils.sync_global_devices("table1: every process's episodes stored")
+        with clock("waiting for the other processes"):
+            multihost_utils.sync_global_devices("table1: every process's episodes stored")
         if runner.process_share()[0]:
+            finish_run_times(clock, store, started)
             return
-        records = data.stored_records(config, out / "episodes.jsonl")
+        with clock("tables and figure"):
+            records = data.stored_records(config, store)
     if timing is None and config.timing_moves and not args.tables_only:
         timing = runner.time_modules(config, scene_set, dataset)
         io.write_json(timing_file, timing)
-    classes = len(object_set_from_config(dataset.objects).classes)
-    markdown, csv_rows, curves = tables.tables(config, records, classes, timing, argv)
-    io.write_text(out / "table.md", markdown)
-    io.write_text(out / "table.csv", tables.csv_text(csv_rows))
-    if curves:
-        figure.figure4(curves, out / "figure4.png")
+    with clock("tables and figure"):
+        classes = len(object_set_from_config(dataset.objects).classes)
+        markdown, csv_rows, curves = tables.tables(config, records, classes, timing, argv)
+        io.write_text(out / "table.md", markdown)
+        io.write_text(out / "table.csv", tables.csv_text(csv_rows))
+        if curves:
+            figure.figure4(curves, out / "figure4.png")
+    finish_run_times(clock, store, started)
     print(f"{len(records)} episodes in {out} ({time.perf_counter() - started:.0f} s this run)", file=sys.stderr)
     report.publish(markdown, args.out)
+
+
+def finish_run_times(clock: runner.Phases, store: Path, started: float) -> None:
+    """This process's phases, from its start (Python, imports) to now, appended to its ``run_times.json``
+    (``runner.run_times_file``) where it ran episodes."""
+    if clock.episodes:
+        runner.write_run_times(runner.run_times_file(store, runner.process_share()), clock,
+                               clock.seconds.get(STARTUP, 0.0) + time.perf_counter() - started)
 
 
 if __name__ == "__main__":

@@ -60,6 +60,17 @@ def timed(fn: Callable[[], object], repeats: int) -> tuple[float, float, object]
     return first, statistics.median(times), out
 
 
+def process_age() -> float | None:
+    """Seconds since this process started (Linux's /proc; None elsewhere): what Python and the imports took
+    before a script's first line of work."""
+    try:
+        start_ticks = int(Path("/proc/self/stat").read_text().rsplit(")", 1)[1].split()[19])
+        uptime = float(Path("/proc/uptime").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+    return max(0.0, uptime - start_ticks / os.sysconf("SC_CLK_TCK"))
+
+
 def cpu_name() -> str:
     """This machine's CPU as the tables name it: ``CPU (x86_64, 2 cores)``."""
     return f"CPU ({platform.processor() or platform.machine()}, {os.cpu_count()} cores)"

@@ -90,6 +90,11 @@ def test_interrupted_experiment_resumes_and_the_same_seed_gives_the_same_numbers
     assert records[:2] == first  # nothing redone
     table1.main(argv)  # a complete run: nothing to do, nothing added
     assert io.read_jsonl(store) == records
+    times = json.loads((tmp_path / "a" / "run_times.json").read_text())  # the run that ran episodes, phase by phase
+    assert [t["episodes"] for t in times] == [4]
+    phases = times[0]["phases_s"]
+    assert {table1.STARTUP, "start-up (classifiers, stored episodes)", "tables and figure"} <= set(phases)
+    assert 0 < sum(phases.values()) <= times[0]["total_s"] + 0.2  # (disjoint phases, each rounded)
 
     # The same scenes drawn from the dataset config and rendered where the episodes run (the scene bank; MuJoCo's
     # C caster on a CPU), none read from the files, from scratch (the last run's programs were freed), one

@@ -126,6 +126,7 @@ class Chunk:
 def _render(dataset: DatasetConfig, indices: tuple[int, ...], backend: Backend) -> Chunk:
     """Scenes ``indices`` of ``dataset`` drawn with its seeds, rendered from the bank, through its sensor with
     each scene's key (``jaxcls dataset``'s draw); the frames stay where they were rendered."""
+    import jax
     import jax.numpy as jnp
 
     from jaxcls.world import scenes
@@ -137,8 +138,10 @@ def _render(dataset: DatasetConfig, indices: tuple[int, ...], backend: Backend) 
     drawn = [scenes.sample_scene(object_set, dataset.scene, seeds[i], dataset.objects) for i in indices]
     T_true = np.stack([make_world(dataset.world_config(), scene=s, object_set=object_set).viewpoints for s in drawn])
     frames = bank.render(drawn, T_true, backend, batch=1024)
-    measured = [measure(scene_key(dataset.seed, i), frames.depth[n], T_true[n], bank.intrinsics, dataset.sensor)
-                for n, i in enumerate(indices)]
+    with jax.default_device(jax.local_devices(backend="cpu")[0]):  # keys on the host: nothing waits for a GPU
+        keys = [scene_key(dataset.seed, i) for i in indices]
+    measured = [measure(keys[n], frames.depth[n], T_true[n], bank.intrinsics, dataset.sensor)
+                for n in range(len(indices))]
     return Chunk(scenes=drawn, depth=jnp.stack([d for d, _ in measured]), T_wc=np.stack([T for _, T in measured]),
                  intrinsics=bank.intrinsics)
 

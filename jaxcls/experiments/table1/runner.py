@@ -35,10 +35,12 @@ CPU_PROGRAMS_PER_PASS = 12
 
 
 class Phases:
-    """Wall seconds spent in each phase of a run (``clock(name)``: a context that adds to ``seconds[name]``)."""
+    """Wall seconds spent in each phase of a run (``clock(name)``: a context that adds to ``seconds[name]``)
+    and the episodes it ran (``episodes``)."""
 
     def __init__(self) -> None:
         self.seconds: dict[str, float] = {}
+        self.episodes = 0
 
     @contextlib.contextmanager
     def __call__(self, name: str):
@@ -49,14 +51,20 @@ class Phases:
             self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - t0
 
 
-def write_run_times(path: Path, clock: Phases, total: float, episodes: int) -> None:
-    """Append this run's phases (wall s) to ``path`` (a JSON list, one entry a run) and print them."""
+def write_run_times(path: Path, clock: Phases, total: float) -> None:
+    """Append this run's phases (wall s) to ``path`` (a JSON list, one entry a run) and print them; ``total``:
+    the wall seconds they are part of (what no phase names is the rest)."""
     runs = json.loads(path.read_text()) if path.exists() else []
-    entry = {"device": report.device_name(), "devices": len(jax.local_devices()), "episodes": episodes,
+    entry = {"device": report.device_name(), "devices": len(jax.local_devices()), "episodes": clock.episodes,
              "total_s": round(total, 1), "phases_s": {k: round(v, 1) for k, v in clock.seconds.items()}}
     io.write_json(path, [*runs, entry])
-    print(f"run times ({entry['device']}, {episodes} episodes): {entry['total_s']} s; "
+    print(f"run times ({entry['device']}, {clock.episodes} episodes): {entry['total_s']} s; "
           + ", ".join(f"{k} {v} s" for k, v in entry["phases_s"].items()), file=sys.stderr)
+
+
+def run_times_file(store: Path, process: tuple[int, int]) -> Path:
+    """Where a process's phases go (``write_run_times``): ``run_times.json`` beside the store, one a process."""
+    return process_store(store.parent / "run_times.json", process)
 
 
 def record_key(r: dict[str, Any]) -> tuple[str, str, int, int]:
@@ -84,7 +92,8 @@ def process_share() -> tuple[int, int]:
 
 
 def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig, store: Path,
-                 show_progress: bool = True, process: tuple[int, int] | None = None) -> list[dict[str, Any]]:
+                 show_progress: bool = True, process: tuple[int, int] | None = None,
+                 clock: Phases | None = None) -> list[dict[str, Any]]:
     """Every (classifier, row, scene, run) episode not yet stored, appended to ``store`` (JSONL) as each batch
     of a row finishes; returns all stored records of this config's rows and scenes. The single-view and policy
     rows run batched over scenes and runs (``run_batched``); PointNetFull and the oracle scene by scene.
@@ -92,25 +101,31 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
     Several processes (``process``: (index, count), default ``process_share()``; hosts of a ``jax.distributed``
     run) split the scenes: process i runs the scenes s with s % count == i on its local devices and appends to
     its own store (``data.process_store``); what is done is read from every process's store, so a run resumes
-    under another process count too."""
+    under another process count too.
+
+    ``clock``: where the phases' wall seconds go (the caller writes them); without one, the phases of a run
+    that ran episodes are written to ``run_times.json`` beside the store (``run_times.<i>.json``)."""
     index, count = process or process_share()
-    object_set = object_set_from_config(dataset.objects)
-    classifiers = {name: setup.load_classifier(path, object_set, f"classifiers.{name}")
-                   for name, path in config.classifiers.items()}
+    owner, began = clock is None, time.perf_counter()
+    clock = clock or Phases()
+    with clock("start-up (classifiers, stored episodes)"):
+        object_set = object_set_from_config(dataset.objects)
+        classifiers = {name: setup.load_classifier(path, object_set, f"classifiers.{name}")
+                       for name, path in config.classifiers.items()}
+        stored = read_stores(store)
     rows = {name: protocol.row(name) for name in config.rows}
-    done = {record_key(r) for r in read_stores(store)}
+    done = {record_key(r) for r in stored}
     every = [(c, name, s, run) for s in range(scene_set.count) for c in classifiers for name, row in rows.items()
              if row.kind is not protocol.Kind.ORACLE or s < config.oracle_scenes
              for run in range(runs_of(row, config.runs))]
     wanted = [k for k in every if k[2] % count == index]
     todo = [k for k in wanted if k not in done]
     mine = process_store(store, (index, count))  # where this process appends
-    clock, began = Phases(), time.perf_counter()
     with tqdm(total=len(wanted), initial=len(wanted) - len(todo), desc="episodes", unit="episode",
               disable=not show_progress) as bar:
         batched_todo = [k for k in todo if rows[k[1]].kind in BATCHED]
         if batched_todo:
-            run_batched(config, scene_set, dataset, classifiers, object_set, batched_todo, mine, bar, clock)
+            stored += run_batched(config, scene_set, dataset, classifiers, object_set, batched_todo, mine, bar, clock)
         todo = [k for k in todo if rows[k[1]].kind not in BATCHED]
         programs = [(c, name) for c in classifiers for name in rows if any(k[:2] == (c, name) for k in todo)]
         for group in passes(programs, jax.default_backend()):
@@ -135,14 +150,16 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
                     bar.set_postfix(scene=s, classifier=c, row=name)
                     with clock("scene by scene (PointNetFull, the oracle)"):
                         records = row_records(config, row, episodes[c, name], views, truth, starts, keys, missing)
-                    io.append_jsonl(mine, [{"classifier": c, "row": name, "scene": s, **r} for r in records])
+                    records = [{"classifier": c, "row": name, "scene": s, **r} for r in records]
+                    io.append_jsonl(mine, records)
+                    stored += records
                     bar.update(len(records))
             jax.clear_caches()  # the pass's compiled programs (and their memory maps) go
-    if todo or batched_todo:
-        write_run_times(process_store(store.parent / "run_times.json", (index, count)), clock,
-                        time.perf_counter() - began, len(batched_todo) + len(todo))
+    clock.episodes += len(batched_todo) + len(todo)
+    if owner and clock.episodes:
+        write_run_times(run_times_file(store, (index, count)), clock, time.perf_counter() - began)
     keep = set(every)
-    return [r for r in read_stores(store) if record_key(r) in keep]
+    return [r for r in stored if record_key(r) in keep]  # (what was read at the start, and what this run added)
 
 
 def program_row(row: protocol.Row) -> protocol.Row:
@@ -156,7 +173,7 @@ def program_row(row: protocol.Row) -> protocol.Row:
 
 def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                 classifiers: dict[str, pointnet.Classifier], object_set, todo: list[tuple[str, str, int, int]],
-                store: Path, bar: tqdm, clock: Phases | None = None) -> None:
+                store: Path, bar: tqdm, clock: Phases | None = None) -> list[dict[str, Any]]:
     """The single-view and policy rows' episodes ``todo`` batched over scenes and runs and sharded over the
     local devices (``episode.batched``): the frames of ``scene_chunk`` of ``todo``'s scenes at a time (rounded up
     to a multiple of the devices), split by scene over the devices (each holds 1/n of them and runs their
@@ -164,12 +181,13 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     at most ``batch_episodes`` episodes a call (whole scenes, as many on every device: at least one scene's runs
     a device, n x runs episodes, whatever ``batch_episodes`` says). Rows that share a program row
     (PointNetSingle and VisOcclHist with the same GR) share its episodes. A call's records are built and appended
-    while the next call runs on the devices."""
+    while the next call runs on the devices. Returns the records appended."""
     clock = clock or Phases()
     device_mesh = batched.mesh()
     policies = tuple(dict.fromkeys(program_row(protocol.ROWS[k[1]]).policy for k in todo))
     switched: dict[tuple[str, str], active.Episode] = {}
     pending: list = []  # the call in flight: (its episodes' keys by row, traces, truths, starts, scene positions)
+    made: list[dict[str, Any]] = []  # the records appended
 
     def episodes_clock():
         """Dispatching a call (the first one compiles) and waiting for one: the devices' share of the run."""
@@ -189,6 +207,7 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                     [{"classifier": c, "row": name, "scene": k[2], "run": k[3], "start": int(start[i])}
                      for i, k in keys])
                 io.append_jsonl(store, records)
+                made.extend(records)
                 bar.update(len(records))
 
     scenes = sorted({k[2] for k in todo})  # (a process of several: its share)
@@ -250,6 +269,7 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                     pending.append((calls, traces, truths, start, at))
     if pending:
         finish()
+    return made
 
 
 def chunk_layout(chunk_scenes: list[int], devices: int, per: int) -> list[int]:

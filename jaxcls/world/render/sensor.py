@@ -228,11 +228,15 @@ def measure(key: jax.Array, depth: jax.Array, T_true: np.ndarray, intrinsics: In
     """What a sensor delivers for rendered frames: (depth [K, H, W] f32 m through ``apply_sensor``, T_wc [K, 4,
     4] the poses the pipeline is told: ``T_true`` (float64, exact) or, with ``pose_noise``, perturbed). One key
     for the frames of a scene, split into the depth's and the poses' (``World.measure``, ``SceneBank`` scenes:
-    the same frames from the same key)."""
-    key_depth, key_pose = jax.random.split(key)
-    measured = apply_sensor(key_depth, depth, intrinsics, config)
-    T_believed = np.asarray(T_true, np.float64)  # a pass through jax would round exact poses to float32
-    if config.pose_noise:
-        T_believed = np.asarray(perturb_poses(key_pose, T_true, config), dtype=np.float64)
-    return measured, T_believed
+    the same frames from the same key). The key is split and the poses drawn on the host's CPU device, so that
+    nothing here waits for work queued on an accelerator (a key made there is waited for once, to move it);
+    the depth is measured where it lies, asynchronously."""
+    host = jax.local_devices(backend="cpu")[0]
+    with jax.default_device(host):
+        key_depth, key_pose = jax.random.split(jax.device_put(key, host))
+        T_believed = np.asarray(T_true, np.float64)  # a pass through jax would round exact poses to float32
+        if config.pose_noise:
+            T_believed = np.asarray(perturb_poses(key_pose, T_true, config), dtype=np.float64)
+    where = next(iter(depth.devices())) if isinstance(depth, jax.Array) else jax.devices()[0]
+    return apply_sensor(jax.device_put(key_depth, where), depth, intrinsics, config), T_believed
 
