@@ -106,6 +106,7 @@ def main(argv: list[str] | None = None) -> None:
             multihost_utils.sync_global_devices("table1: every process's episodes stored")
         if runner.process_share()[0]:
             finish_run_times(clock, store, started)
+            jax.distributed.shutdown()  # (waits for process 0's tables: no process outlives the coordinator)
             return
         with clock("tables and figure"):
             records = data.stored_records(config, store)
@@ -122,6 +123,8 @@ def main(argv: list[str] | None = None) -> None:
     finish_run_times(clock, store, started)
     print(f"{len(records)} episodes in {out} ({time.perf_counter() - started:.0f} s this run)", file=sys.stderr)
     report.publish(markdown, args.out)
+    if args.distributed:
+        jax.distributed.shutdown()
 
 
 def finish_run_times(clock: runner.Phases, store: Path, started: float) -> None:
