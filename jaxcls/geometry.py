@@ -269,11 +269,12 @@ def opencv_to_mujoco_rotation(R_wc: np.ndarray) -> np.ndarray:
 def rotation_to_quat(R: np.ndarray) -> np.ndarray:
     """[..., 4] float64 unit quaternions (w, x, y, z), MuJoCo's order, w >= 0, of rotations ``R: [..., 3, 3]``.
 
-    Host side: ``jaxlie.SO3.from_matrix`` evaluated in float64 (a local x64 scope), so float64 poses keep
-    float64 accuracy in MuJoCo bodies.
+    Host side: ``jaxlie.SO3.from_matrix`` evaluated in float64 (a local x64 scope) on the host's CPU device (on
+    a GPU machine it would wait for the work queued there), so float64 poses keep float64 accuracy in MuJoCo
+    bodies.
     """
     R = np.asarray(R, np.float64)
-    with jax.enable_x64(True):
+    with jax.enable_x64(True), jax.default_device(jax.local_devices(backend="cpu")[0]):
         q = np.asarray(jaxlie.SO3.from_matrix(jnp.asarray(R)).wxyz, np.float64)
     return q * np.where(q[..., :1] < 0, -1.0, 1.0)
 

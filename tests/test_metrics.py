@@ -238,14 +238,17 @@ def test_scene_pooling_and_confusions_equal_the_plain_loops():
     from jaxcls.episode import protocol
 
     rng = np.random.default_rng(4)
-    records = []
+    mixed, uniform = [], []  # targets and moves varying by record (a move at a time), or not (one conversion)
     for s in rng.permutation(7):
         for run in range(3):
             K, T = int(rng.integers(1, 5)), int(rng.choice([1, 4]))
-            records.append({"scene": int(s), "run": run, "true": rng.integers(0, 5, K).tolist(),
-                            "refined": rng.integers(-1, 5, (T, K)).tolist()})
-    rng.shuffle(records)
-    for move in (1, 3, 4):
+            mixed.append({"scene": int(s), "run": run, "true": rng.integers(0, 5, K).tolist(),
+                          "refined": rng.integers(-1, 5, (T, K)).tolist()})
+            uniform.append({"scene": int(s), "run": run, "true": rng.integers(0, 5, 3).tolist(),
+                            "refined": rng.integers(-1, 5, (4, 3)).tolist()})
+    rng.shuffle(mixed)
+    rng.shuffle(uniform)
+    for records, move in [(records, move) for records in (mixed, uniform) for move in (1, 3, 4)]:
         pooled = protocol.per_scene(records, move)
         want = []
         for s in sorted({r["scene"] for r in records}):
@@ -262,6 +265,11 @@ def test_scene_pooling_and_confusions_equal_the_plain_loops():
         metrics._scene_confusions([(np.array([0, 1]), np.array([0, 5]))], 5)
     with pytest.raises(ValueError, match="differ in length"):
         protocol.per_scene([{"scene": 0, "true": [1, 2], "refined": [[1]]}], 1)
+    with pytest.raises(ValueError, match="differ in length"):  # a later move's labels short, every record alike
+        protocol.per_scene([{"scene": s, "true": [1, 2], "refined": [[1, 2], [1]]} for s in (0, 1)], 1)
+    with pytest.raises(ValueError, match="differ in length"):
+        protocol.per_scene([{"scene": 0, "true": [1, 2], "refined": [[1, 2], [1]]},
+                            {"scene": 1, "true": [1], "refined": [[1]]}], 1)
 
 
 def _segments_near(rng, objects, sets, n):

@@ -25,3 +25,16 @@ def test_section_is_a_markdown_table_with_its_command(monkeypatch):
                           notes=["skipped y"])
     assert text == ("### Title\n\n`python experiments/x.py --n 3`\n\nIntro.\n\n| a | b |\n| --- | --- |\n"
                     "| 1 | x |\n| all | 2.5 |\n\n- skipped y\n")
+
+
+def test_process_age_counts_from_the_process_start():
+    """``report.process_age``: a process that slept 1.5 s before asking is at least that old (Linux's /proc;
+    None elsewhere)."""
+    import subprocess
+
+    code = "import time; time.sleep(1.5); from jaxcls import report; print(report.process_age())"
+    age = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    if not sys.platform.startswith("linux"):
+        assert age == "None"
+        return
+    assert 1.5 <= float(age) < 30

@@ -342,6 +342,17 @@ def test_records_of_a_batch_are_each_episodes_own():
 
 
 def test_a_chunk_is_dealt_round_robin_over_the_devices_and_padded_per_device():
+    cases = [(250, 1, 100, 0, 10), (1000, 4, 100, 0, 10), (7, 3, 4, 0, 2), (250, 1, 100, 400, 10),
+             (1000, 2, 400, 3000, 10), (1, 4, 8, 0, 10), (13, 2, 100, 30, 5)]
+    for scenes, devices, scene_chunk, batch, runs in cases:  # (scenes, devices, scene_chunk, batch_episodes, runs)
+        per, per_call = runner.chunk_sizes(scenes, devices, scene_chunk, batch, runs)
+        chunks, calls = -(-scenes // (devices * per)), -(-per // per_call)
+        assert devices * per <= -(-scene_chunk // devices) * devices  # a chunk within scene_chunk (rounded up)
+        assert not batch or per_call * devices * runs <= max(batch, devices * runs)  # a call within batch_episodes
+        assert chunks * devices * per - scenes < chunks * devices  # padded by less than a scene a device a chunk
+        assert calls * per_call - per < calls  # and a call by less than a scene a device
+    assert runner.chunk_sizes(250, 1, 100, 0, 10) == (84, 84) and runner.chunk_sizes(1000, 4, 100, 0, 10) == (25, 25)
+    assert runner.chunk_sizes(250, 1, 100, 400, 10) == (84, 28)  # 3 calls of 28 scenes, not 40, 40 and 4
     assert runner.chunk_layout([10, 11, 12, 13, 14, 15, 16], 3, 3) == [10, 13, 16, 11, 14, 11, 12, 15, 12]
     assert runner.chunk_layout([4, 5], 1, 3) == [4, 5, 4]  # one device: the chunk, its last slots padded
     assert runner.chunk_layout([7], 2, 1) == [7, 7]  # a device with no scene repeats the chunk's first

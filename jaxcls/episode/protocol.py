@@ -280,27 +280,63 @@ def episode_records(traces: active.Trace, truths: Sequence[scoring.Truth], keys:
     return records
 
 
-def per_scene(records: Sequence[dict[str, Any]], move: int, label: str = "refined"
-              ) -> list[tuple[np.ndarray, np.ndarray]]:
-    """[(true [n_s], predicted [n_s])] per scene (sorted by scene), pooling a row's runs of each scene, with
-    the labels after ``move`` (1-based; an episode of fewer moves, PointNetSingle or PointNetFull, counts
-    with its last)."""
+@dataclasses.dataclass(frozen=True)
+class SceneLabels:
+    """A row's target labels scene by scene, after every move at once (``scene_labels``): ``true [n]`` and
+    ``predicted [T, n]`` (an episode of fewer moves repeats its last), the records' scenes ascending, each
+    scene's runs in the records' order; ``cuts``: where each scene's labels begin (after the first)."""
+
+    true: np.ndarray
+    predicted: np.ndarray
+    cuts: np.ndarray
+
+    def at(self, move: int) -> list[tuple[np.ndarray, np.ndarray]]:
+        """[(true [n_s], predicted [n_s])] per scene after ``move`` (1-based; past an episode's end, its last)."""
+        if not len(self.predicted):
+            return []
+        predicted = self.predicted[min(move, len(self.predicted)) - 1]
+        return list(zip(np.split(self.true, self.cuts), np.split(predicted, self.cuts), strict=True))
+
+
+def scene_labels(records: Sequence[dict[str, Any]], label: str = "refined") -> SceneLabels:
+    """The ``label`` labels of ``records`` (one row's) per scene, pooling each scene's runs, for every move
+    (``SceneLabels.at(move)``: ``per_scene``'s answer). Where every record has as many moves and targets, one
+    NumPy conversion of all; else a move at a time."""
     if not records:
-        return []
+        return SceneLabels(np.zeros(0, np.int64), np.zeros((0, 0), np.int64), np.zeros(0, np.int64))
     scene = np.array([int(r["scene"]) for r in records], np.int64)
     order = np.argsort(scene, kind="stable")  # scenes ascending, each scene's runs in the records' order
     ordered = [records[i] for i in order]
     true = [r["true"] for r in ordered]
-    predicted = [r[label][min(move, len(r[label])) - 1] for r in ordered]
     sizes = np.array([len(t) for t in true], np.int64)
-    if not np.array_equal(sizes, [len(p) for p in predicted]):
-        raise ValueError(f"per_scene: a record's {label!r} labels and its true labels differ in length")
-    true = np.fromiter(itertools.chain.from_iterable(true), np.int64, int(sizes.sum()))
-    predicted = np.fromiter(itertools.chain.from_iterable(predicted), np.int64, len(true))
-    scene = scene[order]
-    starts = np.flatnonzero(np.diff(scene)) + 1  # the records where a new scene begins
-    cuts = np.cumsum(sizes)[starts - 1]  # ... and where its labels begin
-    return list(zip(np.split(true, cuts), np.split(predicted, cuts), strict=True))
+    moves = np.array([len(r[label]) for r in ordered], np.int64)
+    bad = ValueError(f"per_scene: a record's {label!r} labels and its true labels differ in length")
+    T, n = int(moves.max()), int(sizes.sum())
+    if (moves == moves[0]).all() and (sizes == sizes[0]).all():
+        try:
+            labels = np.asarray([r[label] for r in ordered], np.int64)  # [E, T, K]
+        except ValueError:  # (ragged: some move's labels are not K long)
+            raise bad from None
+        if labels.shape != (len(ordered), T, sizes[0]):
+            raise bad
+        predicted = labels.transpose(1, 0, 2).reshape(T, n)
+    else:
+        if any(len(labels) != k for r, k in zip(ordered, sizes, strict=True) for labels in r[label]):
+            raise bad
+        predicted = np.stack([np.fromiter(itertools.chain.from_iterable(r[label][min(t, len(r[label]) - 1)]
+                                                                        for r in ordered), np.int64, n)
+                              for t in range(T)])
+    starts = np.flatnonzero(np.diff(scene[order])) + 1  # the records where a new scene begins
+    return SceneLabels(true=np.fromiter(itertools.chain.from_iterable(true), np.int64, n), predicted=predicted,
+                       cuts=np.cumsum(sizes)[starts - 1])
+
+
+def per_scene(records: Sequence[dict[str, Any]], move: int, label: str = "refined"
+              ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """[(true [n_s], predicted [n_s])] per scene (sorted by scene), pooling a row's runs of each scene, with
+    the labels after ``move`` (1-based; an episode of fewer moves, PointNetSingle or PointNetFull, counts
+    with its last). For several moves of one row, ``scene_labels`` once."""
+    return scene_labels(records, label).at(move)
 
 
 def moves_to_correct(records: Sequence[dict[str, Any]], label: str = "refined") -> tuple[float, float]:
@@ -319,5 +355,6 @@ def moves_to_correct(records: Sequence[dict[str, Any]], label: str = "refined") 
     return (float(np.mean(moves)) if moves else float("nan")), (right / total if total else 0.0)
 
 
-__all__ = ["PAPER_ROWS", "ROWS", "Kind", "Row", "all_views", "episode_record", "episode_records", "moves_to_correct",
-           "oracle_rollouts", "per_scene", "rollouts", "row", "run_keys", "start_views"]
+__all__ = ["PAPER_ROWS", "ROWS", "Kind", "Row", "SceneLabels", "all_views", "episode_record", "episode_records",
+           "moves_to_correct", "oracle_rollouts", "per_scene", "rollouts", "row", "run_keys", "scene_labels",
+           "start_views"]

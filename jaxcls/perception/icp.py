@@ -173,8 +173,8 @@ def model_target(model: ObjectModel, config: ICPConfig = ICPConfig(), samples: i
     centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     def lookups() -> dict[str, np.ndarray]:
         tree = cKDTree(points)
-        return {"index": tree.query(centres, k=min(config.candidates, count))[1].astype(np.int16),
-                "neighbours": tree.query(points, k=min(config.neighbours + 1, count))[1].astype(np.int16)}
+        return {"index": tree.query(centres, k=min(config.candidates, count), workers=-1)[1].astype(np.int16),
+                "neighbours": tree.query(points, k=min(config.neighbours + 1, count), workers=-1)[1].astype(np.int16)}
 
     key = b"".join([points.tobytes(), np.asarray([G, config.candidates, config.neighbours, count]).tobytes(),
                     low.tobytes(), high.tobytes()])

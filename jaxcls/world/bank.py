@@ -93,10 +93,15 @@ class SceneBank:
         pos = np.tile(self.model.body_pos[bodies], (len(scene_list), 1, 1))
         quat = np.tile(self.model.body_quat[bodies], (len(scene_list), 1, 1))
         slot_mocap = self.model.body_mocapid[self._slot_bodies()]
+        where, poses = [], []  # (scene, mocap) and the pose of every object of every scene
         for s, scene in enumerate(scene_list):
             for slot, T in zip(self.slots(scene), scene.object_poses(), strict=True):
-                pos[s, slot_mocap[slot]] = T[:3, 3]
-                quat[s, slot_mocap[slot]] = geometry.rotation_to_quat(T[:3, :3])
+                where.append((s, slot_mocap[slot]))
+                poses.append(T)
+        if poses:
+            at, poses = tuple(np.array(where).T), np.stack(poses)
+            pos[at] = poses[:, :3, 3]
+            quat[at] = geometry.rotation_to_quat(poses[:, :3, :3])  # (one call for all: ~1 ms a call)
         return pos, quat
 
     def posed(self, scene: scenes.Scene) -> mujoco.MjModel:

@@ -215,9 +215,8 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     # The frames split by scene over the devices, ``per`` scenes each (a chunk round-robin, so that a call of
     # consecutive scenes keeps every device busy); a call takes ``per_call`` scenes of each device. One shape for
     # every call: a last, shorter chunk and call padded (copies, dropped), so that nothing compiles again (~20 s
-    # a shape on an H200).
-    per = -(-min(config.scene_chunk, len(scenes)) // n)  # (a chunk: scene_chunk rounded up to the devices)
-    per_call = max(1, min(per, config.batch_episodes // (n * config.runs))) if config.batch_episodes else per
+    # a shape on an H200); the sizes balanced so that little is padded.
+    per, per_call = chunk_sizes(len(scenes), n, config.scene_chunk, config.batch_episodes, config.runs)
     size = per_call * n * config.runs
     for first in range(0, len(scenes), n * per):
         chunk_scenes = scenes[first:first + n * per]
@@ -237,7 +236,8 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
         truths = [scoring.Truth.from_scene(chunk.scenes[i], object_set) for i in laid]  # by slot
         V = chunk.T_wc.shape[1]
         starts = {s: protocol.start_views(config.seed, s, config.runs, V) for s in chunk_scenes}
-        keys = {s: np.asarray(protocol.run_keys(config.seed, s, config.runs)) for s in chunk_scenes}
+        with jax.default_device(jax.local_devices(backend="cpu")[0]):  # (on a GPU they would wait for its queue)
+            keys = {s: np.asarray(protocol.run_keys(config.seed, s, config.runs)) for s in chunk_scenes}
         for c in classifiers:
             programs: dict[tuple, tuple[protocol.Row, list[str]]] = {}  # (policy, GR, library) -> the rows it gives
             for name in dict.fromkeys(k[1] for k in chunk_todo if k[0] == c):
@@ -270,6 +270,20 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     if pending:
         finish()
     return made
+
+
+def chunk_sizes(scenes: int, devices: int, scene_chunk: int, batch_episodes: int, runs: int) -> tuple[int, int]:
+    """(scenes a device holds in a chunk, scenes a device runs in a call) for ``scenes`` scenes over ``devices``:
+    chunks of at most ``scene_chunk`` scenes rounded up to the devices, calls of at most ``batch_episodes``
+    episodes (0: a chunk a call; at least one scene a device), both evened out over the chunks and calls they
+    need, so that the last is padded by less than one scene a device (250 scenes in chunks of at most 100 on
+    one device: 3 chunks of 84, not 100, 100 and 50 padded to 100)."""
+    per = -(-min(scene_chunk, scenes) // devices)  # (the largest chunk's share of a device)
+    chunks = -(-scenes // (devices * per))
+    per = -(-scenes // (chunks * devices))
+    per_call = max(1, min(per, batch_episodes // (devices * runs))) if batch_episodes else per
+    calls = -(-per // per_call)
+    return per, -(-per // calls)
 
 
 def chunk_layout(chunk_scenes: list[int], devices: int, per: int) -> list[int]:

@@ -14,9 +14,11 @@ from jaxcls.experiments.table1.config import Table1Config
 STATISTICS = ("accuracy", "precision", "recall", "f1")
 
 
-def row_scores(records: list[dict[str, Any]], classes: int, move: int, resamples: int) -> dict[str, Any]:
-    """A row's scores after ``move``: each statistic pooled over scenes, F1's 95% scene-bootstrap interval."""
-    per_scene = protocol.per_scene(records, move)
+def row_scores(records: list[dict[str, Any]], classes: int, move: int, resamples: int,
+               labels: protocol.SceneLabels | None = None) -> dict[str, Any]:
+    """A row's scores after ``move``: each statistic pooled over scenes, F1's 95% scene-bootstrap interval;
+    ``labels``: ``protocol.scene_labels(records)`` where the caller scores several moves."""
+    per_scene = (labels or protocol.scene_labels(records)).at(move)
     pooled = metrics.classification_scores(np.concatenate([t for t, _ in per_scene]),
                                            np.concatenate([p for _, p in per_scene]), classes)
     _, low, high = metrics.scene_interval(per_scene, classes, "f1", resamples=resamples)
@@ -24,14 +26,26 @@ def row_scores(records: list[dict[str, Any]], classes: int, move: int, resamples
             "scenes": len(per_scene), "episodes": len(records)}
 
 
-def differences(config: Table1Config, by: dict, c: str, classes: int) -> list[str]:
+def differences(config: Table1Config, by: dict, c: str, classes: int,
+                labels: dict[str, protocol.SceneLabels] | None = None) -> list[str]:
     """Paired scene-bootstrap differences of F1 at T: GR against none per pair; every policy against
     PointNetSingle; VisOcclHist(GR) against Random(GR); every policy against VisOcclHistGR; the oracle
-    against the best policy. ``by``: (classifier, row) -> that row's records."""
+    against the best policy. ``by``: (classifier, row) -> that row's records; ``labels``: row -> its
+    ``protocol.scene_labels`` where the caller has them."""
     T, notes = config.moves, []
+    prepared: dict[tuple[str, frozenset | None], protocol.SceneLabels] = {
+        (name, None): lab for name, lab in (labels or {}).items()}
+    scene_sets: dict[str, set] = {}
 
     def scenes_of(name, move, keep=None):
-        return protocol.per_scene([r for r in by.get((c, name), []) if keep is None or r["scene"] in keep], move)
+        """The row's labels per scene after ``move``, on the scenes ``keep`` only (all if None)."""
+        if name not in scene_sets:
+            scene_sets[name] = {r["scene"] for r in by.get((c, name), [])}
+        key = (name, None if keep is None or keep >= scene_sets[name] else frozenset(keep))
+        if key not in prepared:
+            prepared[key] = protocol.scene_labels([r for r in by.get((c, name), [])
+                                                   if key[1] is None or r["scene"] in key[1]])
+        return prepared[key].at(move)
 
     def diff(a, b, move_a=T, move_b=T):
         # Paired on the scenes both rows have (the oracle runs on fewer; an interrupted run may have more).

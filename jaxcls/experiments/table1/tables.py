@@ -27,7 +27,7 @@ def tables(config: Table1Config, records: list[dict[str, Any]], classes: int, ti
         by.setdefault((r["classifier"], r["row"]), []).append(r)
     sections, csv_rows, curves = [], [], {}
     for c in config.classifiers:
-        table_rows, notes = [], []
+        table_rows, notes, labels = [], [], {}
         curves[c] = {}
         for name in config.rows:
             recs = by.get((c, name), [])
@@ -35,7 +35,8 @@ def tables(config: Table1Config, records: list[dict[str, Any]], classes: int, ti
                 continue
             row = protocol.ROWS[name]
             moves = T if row.kind in (protocol.Kind.POLICY, protocol.Kind.ORACLE) else 1
-            per_move = [row_scores(recs, classes, t, config.resamples) for t in range(1, moves + 1)]
+            labels[name] = protocol.scene_labels(recs)
+            per_move = [row_scores(recs, classes, t, config.resamples, labels[name]) for t in range(1, moves + 1)]
             for t, sc in enumerate(per_move, 1):
                 csv_rows.append({"classifier": c, "row": name, "label": row.label, "move": t, **sc})
             curves[c][row.label] = per_move
@@ -45,7 +46,7 @@ def tables(config: Table1Config, records: list[dict[str, Any]], classes: int, ti
             table_rows.append((row.label, *(f"{last[k]:.3f}" for k in STATISTICS),
                                f"[{last['f1_low']:.3f}, {last['f1_high']:.3f}]", f"{mid:.3f}",
                                f"{steps:.2f}" if moves > 1 else "-", f"{right:.2f}", last["scenes"], last["episodes"]))
-        notes += differences(config, by, c, classes)
+        notes += differences(config, by, c, classes, labels)
         sections.append(report.table(
             ("method", "accuracy", "precision", "recall", "F1", "F1 95% CI (scenes)", f"F1 after {half} moves",
              "moves to correct", "share right at the end", "scenes", "episodes"), table_rows))
