@@ -92,6 +92,19 @@ def direct_share(traces, truths) -> float:
     return 1 - len(slow) / traces.done.size
 
 
+def interleaved(contenders: dict, repeats: int) -> tuple[dict[str, list[float]], dict]:
+    """Each contender (name: a function of nothing) run ``repeats`` rounds, interleaved: (its seconds a round,
+    its last result)."""
+    times: dict[str, list[float]] = {name: [] for name in contenders}
+    results = {}
+    for _ in range(repeats):
+        for name, run in contenders.items():
+            t0 = time.perf_counter()
+            results[name] = run()
+            times[name].append(time.perf_counter() - t0)
+    return times, results
+
+
 ROWS = ("single", "single_gr", "random", "random_gr", "vis_no_occl", "vis_no_occl_gr", "vis_occl", "vis_occl_gr",
         "vis_occl_hist", "vis_occl_hist_gr")
 
@@ -127,13 +140,7 @@ def tables_benchmark(args: argparse.Namespace, argv: list[str] | None) -> None:
 
     contenders = {"protocol.scene_labels, once a row for every move": prepared_once,
                   "protocol.per_scene, a row's records pooled again each move": a_move_at_a_time}
-    times = {name: [] for name in contenders}
-    results = {}
-    for _ in range(args.repeats):
-        for name, fn in contenders.items():
-            t0 = time.perf_counter()
-            results[name] = fn()
-            times[name].append(time.perf_counter() - t0)
+    times, results = interleaved(contenders, args.repeats)
     ours, theirs = results.values()
     same = all(np.array_equal(a, c) and np.array_equal(b, d)
                for x, y in zip(ours, theirs, strict=True) for (a, b), (c, d) in zip(x, y, strict=True))
@@ -177,13 +184,7 @@ def main(argv: list[str] | None = None) -> None:
                   lambda: protocol.episode_records(traces, truths, keys),
                   "every move matched on its own (SciPy a move)": lambda: records_one_at_a_time(traces, truths, keys)}
     contenders[next(iter(contenders))]()  # the hand-eye logs' program compiles
-    times = {name: [] for name in contenders}
-    results = {}
-    for _ in range(args.repeats):
-        for name, run in contenders.items():
-            t0 = time.perf_counter()
-            results[name] = run()
-            times[name].append(time.perf_counter() - t0)
+    times, results = interleaved(contenders, args.repeats)
     same = len({repr(r) for r in results.values()}) == 1
     share = direct_share(traces, truths)
     E = len(truths)
