@@ -29,6 +29,7 @@ import jaxlie
 import numpy as np
 from flax import struct
 
+from jaxcls import devices
 from jaxcls.config import bounded, check_bounds
 
 # MuJoCo cameras look along their -z with y up; OpenCV cameras look along +z with y down. The same
@@ -274,7 +275,7 @@ def rotation_to_quat(R: np.ndarray) -> np.ndarray:
     bodies.
     """
     R = np.asarray(R, np.float64)
-    with jax.enable_x64(True), jax.default_device(jax.local_devices(backend="cpu")[0]):
+    with jax.enable_x64(True), jax.default_device(devices.host_cpu()):
         q = np.asarray(jaxlie.SO3.from_matrix(jnp.asarray(R)).wxyz, np.float64)
     return q * np.where(q[..., :1] < 0, -1.0, 1.0)
 

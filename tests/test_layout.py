@@ -29,7 +29,7 @@ FORBIDDEN = {
     # The shared helpers at the top sit below every layer.
     **{f"jaxcls.{m}": ("jaxcls.world", "jaxcls.perception", "jaxcls.learn", "jaxcls.experiments", "jaxcls.commands",
                        "jaxcls.cli")
-       for m in ("allocator", "compile_cache", "geometry", "math", "config", "io", "report", "viz")},
+       for m in ("allocator", "compile_cache", "devices", "geometry", "math", "config", "io", "report", "viz")},
 }
 
 

@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import jaxlie
 import numpy as np
 
-from jaxcls import metrics
+from jaxcls import devices, metrics
 from jaxcls.episode import active, scoring, setup
 from jaxcls.episode.setup import ActiveConfig
 from jaxcls.geometry import Intrinsics
@@ -246,11 +246,7 @@ def episode_records(traces: active.Trace, truths: Sequence[scoring.Truth], keys:
     if not (len(truths) == len(keys) == E):
         raise ValueError(f"episode_records: {E} episodes, {len(truths)} truths and {len(keys)} key sets")
     # On the host's CPU where JAX has one (never queued behind the batch an accelerator is running).
-    on_host = np.asarray(traces.hand_eye, np.float32)
-    try:
-        on_host = jax.device_put(on_host, jax.local_devices(backend="cpu")[0])
-    except RuntimeError:  # no CPU backend loaded (JAX_PLATFORMS=cuda): the default device
-        pass
+    on_host = jax.device_put(np.asarray(traces.hand_eye, np.float32), devices.host_cpu())
     hand_eye = np.round(np.asarray(_se3_log(on_host), np.float64), 6)  # [E, T, 6]
     names = {s.value: s.name.lower() for s in tracking.Status}
     # Each scene's episodes matched to its objects together (one truth, every move at once); a move after the

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from jaxcls import io
+from jaxcls import devices, io
 from jaxcls.config import ConfigError, load_config, resolve_config
 from jaxcls.episode import protocol, sources
 from jaxcls.experiments.table1.config import SceneSource, Table1Config
@@ -138,7 +138,7 @@ def _render(dataset: DatasetConfig, indices: tuple[int, ...], backend: Backend) 
     drawn = [scenes.sample_scene(object_set, dataset.scene, seeds[i], dataset.objects) for i in indices]
     T_true = np.stack([make_world(dataset.world_config(), scene=s, object_set=object_set).viewpoints for s in drawn])
     frames = bank.render(drawn, T_true, backend, batch=1024)
-    with jax.default_device(jax.local_devices(backend="cpu")[0]):  # keys on the host: nothing waits for a GPU
+    with jax.default_device(devices.host_cpu()):  # keys on the host: nothing waits for a GPU
         keys = [scene_key(dataset.seed, i) for i in indices]
     measured = [measure(keys[n], frames.depth[n], T_true[n], bank.intrinsics, dataset.sensor)
                 for n in range(len(indices))]

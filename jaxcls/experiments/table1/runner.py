@@ -17,7 +17,7 @@ import jax
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaxcls import io, report
+from jaxcls import devices, io, report
 from jaxcls.episode import active, batched, protocol, runner, scoring, setup, sources
 from jaxcls.experiments.table1.config import Table1Config
 from jaxcls.experiments.table1.data import Scenes, process_store, read_stores
@@ -236,7 +236,7 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
         truths = [scoring.Truth.from_scene(chunk.scenes[i], object_set) for i in laid]  # by slot
         V = chunk.T_wc.shape[1]
         starts = {s: protocol.start_views(config.seed, s, config.runs, V) for s in chunk_scenes}
-        with jax.default_device(jax.local_devices(backend="cpu")[0]):  # (on a GPU they would wait for its queue)
+        with jax.default_device(devices.host_cpu()):  # (on a GPU they would wait for its queue)
             keys = {s: np.asarray(protocol.run_keys(config.seed, s, config.runs)) for s in chunk_scenes}
         for c in classifiers:
             programs: dict[tuple, tuple[protocol.Row, list[str]]] = {}  # (policy, GR, library) -> the rows it gives

@@ -24,6 +24,7 @@ import jaxlie
 import numpy as np
 from flax import struct
 
+from jaxcls import devices
 from jaxcls.config import Bounds, check_bounds
 from jaxcls.geometry import Intrinsics, pixel_rays
 from jaxcls.math import safe_div, safe_norm
@@ -231,12 +232,13 @@ def measure(key: jax.Array, depth: jax.Array, T_true: np.ndarray, intrinsics: In
     the same frames from the same key). The key is split and the poses drawn on the host's CPU device, so that
     nothing here waits for work queued on an accelerator (a key made there is waited for once, to move it);
     the depth is measured where it lies, asynchronously."""
-    host = jax.local_devices(backend="cpu")[0]
+    host = devices.host_cpu()
     with jax.default_device(host):
         key_depth, key_pose = jax.random.split(jax.device_put(key, host))
         T_believed = np.asarray(T_true, np.float64)  # a pass through jax would round exact poses to float32
         if config.pose_noise:
             T_believed = np.asarray(perturb_poses(key_pose, T_true, config), dtype=np.float64)
-    where = next(iter(depth.devices())) if isinstance(depth, jax.Array) else jax.devices()[0]
-    return apply_sensor(jax.device_put(key_depth, where), depth, intrinsics, config), T_believed
+    if not isinstance(depth, jax.Array):
+        depth = jnp.asarray(depth, jnp.float32)  # (onto the default device, or jax.default_device's)
+    return apply_sensor(jax.device_put(key_depth, next(iter(depth.devices()))), depth, intrinsics, config), T_believed
 
