@@ -164,7 +164,6 @@ def tables_benchmark(args: argparse.Namespace, argv: list[str] | None) -> None:
         raise SystemExit("the two poolings differ")
 
 
-
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tables", action="store_true", help="time the tables of a whole run instead (above)")
@@ -175,9 +174,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", help="append the table to this Markdown file")
     args = parser.parse_args(argv)
     if args.tables:
-        args.scenes = args.scenes or 1000
+        args.scenes = 1000 if args.scenes is None else args.scenes
         return tables_benchmark(args, argv)
-    args.scenes = args.scenes or 100
+    args.scenes = 100 if args.scenes is None else args.scenes
     traces, truths = synthetic_call(args.scenes, args.runs, args.moves)
     keys = [{"scene": e // args.runs, "run": e % args.runs} for e in range(len(truths))]
     contenders = {"protocol.episode_records (a scene's moves at once)":

@@ -56,9 +56,12 @@ from jaxcls.experiments.table1.config import SceneSource, Table1Config, check_ou
 from jaxcls.world.objects import object_set_from_config
 
 STARTUP = "start-up (Python, imports, config)"
+SHUTDOWN_WAIT_SECONDS = 6 * 3600  # how long the other processes of a --distributed run wait for process 0 at exit
 
 
-def main(argv: list[str] | None = None) -> None:
+def main(argv: list[str] | None = None, command_line: bool = False) -> None:
+    """The experiment (``argv``: its arguments, default the process's); ``command_line``: this process runs it
+    alone (its start-up phase then counts from the process's start: Python and the imports)."""
     main_began = time.perf_counter()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", default="table1_synthetic", help="a path or a shipped config name")
@@ -74,7 +77,9 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_intermixed_args(argv)
     if args.distributed:
         jax.config.update("jax_cpu_collectives_implementation", "gloo")  # (the barrier, where processes are CPUs)
-        jax.distributed.initialize(args.coordinator, args.processes, args.process_id)
+        # The other processes wait at shutdown while process 0 makes the tables (JAX's default wait is 5 min).
+        jax.distributed.initialize(args.coordinator, args.processes, args.process_id,
+                                   shutdown_timeout_seconds=SHUTDOWN_WAIT_SECONDS)
     elif args.coordinator or args.processes is not None or args.process_id is not None:
         parser.error("--coordinator, --processes and --process-id need --distributed")
     # No allocator.retain_freed_memory() here: batched episodes gain little from it.
@@ -86,7 +91,7 @@ def main(argv: list[str] | None = None) -> None:
     started, store = time.perf_counter(), out / "episodes.jsonl"
     clock = runner.Phases()  # this run's phases, written to run_times.json where it ran episodes
     # From the process's start where this is the command line (Python and the imports too), else from here.
-    clock.seconds[STARTUP] = (argv is None and report.process_age()) or started - main_began
+    clock.seconds[STARTUP] = (command_line and report.process_age()) or started - main_began
     timing_file = out / "timing.json"
     timing = json.loads(timing_file.read_text()) if timing_file.exists() else None
     if args.tables_only:
@@ -106,7 +111,7 @@ def main(argv: list[str] | None = None) -> None:
             multihost_utils.sync_global_devices("table1: every process's episodes stored")
         if runner.process_share()[0]:
             finish_run_times(clock, store, started)
-            jax.distributed.shutdown()  # (waits for process 0's tables: no process outlives the coordinator)
+            jax.distributed.shutdown()  # (waits for process 0's tables, SHUTDOWN_WAIT_SECONDS at most)
             return
         with clock("tables and figure"):
             records = data.stored_records(config, store)
@@ -136,4 +141,4 @@ def finish_run_times(clock: runner.Phases, store: Path, started: float) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    main(command_line=True)

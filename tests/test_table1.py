@@ -119,10 +119,11 @@ def test_interrupted_experiment_resumes_and_the_same_seed_gives_the_same_numbers
     split_argv = _small(tmp_path, "s", "scene_source=device", "rows=[vis_occl_hist_gr]")
     split = load_config(Table1Config, split_argv[1], split_argv[2:])
     dataset, scene_set = data.open_scenes(split)
-    for index in (0, 1):
-        runner.run_episodes(split, scene_set, dataset, tmp_path / "s" / "episodes.jsonl", show_progress=False,
-                            process=(index, 2))
+    returned = [runner.run_episodes(split, scene_set, dataset, tmp_path / "s" / "episodes.jsonl",
+                                    show_progress=False, process=(index, 2)) for index in (0, 1)]
     shares = [io.read_jsonl(tmp_path / "s" / f"episodes.{index}.jsonl") for index in (0, 1)]
+    # Each returns what was stored when it began and what it added: process 1 began after process 0 ended.
+    assert returned == [shares[0], shares[0] + shares[1]]
     assert [{r["scene"] for r in share} for share in shares] == [{0}, {1}]
     assert not (tmp_path / "s" / "episodes.jsonl").exists()
     assert (sorted(shares[0] + shares[1], key=lambda r: (r["scene"], r["run"]))

@@ -276,7 +276,7 @@ def episode_records(traces: active.Trace, truths: Sequence[scoring.Truth], keys:
     return records
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, eq=False)
 class SceneLabels:
     """A row's target labels scene by scene, after every move at once (``scene_labels``): ``true [n]`` and
     ``predicted [T, n]`` (an episode of fewer moves repeats its last), the records' scenes ascending, each
@@ -306,7 +306,7 @@ def scene_labels(records: Sequence[dict[str, Any]], label: str = "refined") -> S
     true = [r["true"] for r in ordered]
     sizes = np.array([len(t) for t in true], np.int64)
     moves = np.array([len(r[label]) for r in ordered], np.int64)
-    bad = ValueError(f"per_scene: a record's {label!r} labels and its true labels differ in length")
+    bad = ValueError(f"scene_labels: a record's {label!r} labels and its true labels differ in length")
     T, n = int(moves.max()), int(sizes.sum())
     if (moves == moves[0]).all() and (sizes == sizes[0]).all():
         try:

@@ -95,7 +95,8 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
                  show_progress: bool = True, process: tuple[int, int] | None = None,
                  clock: Phases | None = None) -> list[dict[str, Any]]:
     """Every (classifier, row, scene, run) episode not yet stored, appended to ``store`` (JSONL) as each batch
-    of a row finishes; returns all stored records of this config's rows and scenes. The single-view and policy
+    of a row finishes; returns the records of this config's rows and scenes stored when it began (every
+    process's) and those it added (with one process: all of them). The single-view and policy
     rows run batched over scenes and runs (``run_batched``); PointNetFull and the oracle scene by scene.
 
     Several processes (``process``: (index, count), default ``process_share()``; hosts of a ``jax.distributed``
@@ -125,7 +126,9 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
               disable=not show_progress) as bar:
         batched_todo = [k for k in todo if rows[k[1]].kind in BATCHED]
         if batched_todo:
-            stored += run_batched(config, scene_set, dataset, classifiers, object_set, batched_todo, mine, bar, clock)
+            share = len({k[2] for k in wanted if rows[k[1]].kind in BATCHED})  # (a resumed run: the same shapes)
+            stored += run_batched(config, scene_set, dataset, classifiers, object_set, batched_todo, mine, bar, clock,
+                                  share)
         todo = [k for k in todo if rows[k[1]].kind not in BATCHED]
         programs = [(c, name) for c in classifiers for name in rows if any(k[:2] == (c, name) for k in todo)]
         for group in passes(programs, jax.default_backend()):
@@ -173,7 +176,8 @@ def program_row(row: protocol.Row) -> protocol.Row:
 
 def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                 classifiers: dict[str, pointnet.Classifier], object_set, todo: list[tuple[str, str, int, int]],
-                store: Path, bar: tqdm, clock: Phases | None = None) -> list[dict[str, Any]]:
+                store: Path, bar: tqdm, clock: Phases | None = None, planned: int | None = None
+                ) -> list[dict[str, Any]]:
     """The single-view and policy rows' episodes ``todo`` batched over scenes and runs and sharded over the
     local devices (``episode.batched``): the frames of ``scene_chunk`` of ``todo``'s scenes at a time (rounded up
     to a multiple of the devices), split by scene over the devices (each holds 1/n of them and runs their
@@ -181,7 +185,9 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     at most ``batch_episodes`` episodes a call (whole scenes, as many on every device: at least one scene's runs
     a device, n x runs episodes, whatever ``batch_episodes`` says). Rows that share a program row
     (PointNetSingle and VisOcclHist with the same GR) share its episodes. A call's records are built and appended
-    while the next call runs on the devices. Returns the records appended."""
+    while the next call runs on the devices. Returns the records appended. The chunks' and calls' sizes follow
+    from ``planned`` scenes (the whole run's share, so that a resumed run has the first one's shapes and
+    compiles nothing; default: ``todo``'s)."""
     clock = clock or Phases()
     device_mesh = batched.mesh()
     policies = tuple(dict.fromkeys(program_row(protocol.ROWS[k[1]]).policy for k in todo))
@@ -216,7 +222,8 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     # consecutive scenes keeps every device busy); a call takes ``per_call`` scenes of each device. One shape for
     # every call: a last, shorter chunk and call padded (copies, dropped), so that nothing compiles again (~20 s
     # a shape on an H200); the sizes balanced so that little is padded.
-    per, per_call = chunk_sizes(len(scenes), n, config.scene_chunk, config.batch_episodes, config.runs)
+    per, per_call = chunk_sizes(max(planned or 0, len(scenes)), n, config.scene_chunk, config.batch_episodes,
+                                config.runs)
     size = per_call * n * config.runs
     for first in range(0, len(scenes), n * per):
         chunk_scenes = scenes[first:first + n * per]
