@@ -218,16 +218,12 @@ def main(argv: list[str] | None = None) -> None:
 def interleaved(runs: dict, repeats: int) -> tuple[dict, dict, dict]:
     """Each of ``runs`` (name -> a call returning a ``Trace``) once (its first call: compiling) then ``repeats``
     times round-robin: ({name: first call s}, {name: median s}, {name: its traces on the host})."""
-    first, times, traces = {}, {name: [] for name in runs}, {}
+    first, traces = {}, {}
     for name, run in runs.items():
         t0 = time.perf_counter()
         traces[name] = jax.device_get(run())
         first[name] = time.perf_counter() - t0
-    for _ in range(repeats):
-        for name, run in runs.items():
-            t0 = time.perf_counter()
-            jax.block_until_ready(run())
-            times[name].append(time.perf_counter() - t0)
+    times, _ = report.interleaved(runs, repeats)
     return first, {name: float(np.median(t)) for name, t in times.items()}, traces
 
 

@@ -28,7 +28,7 @@ import numpy as np
 
 from jaxcls import metrics, report
 from jaxcls.episode import protocol, scoring
-from jaxcls.experiments.table1 import tables
+from jaxcls.experiments.table1 import runner, tables
 from jaxcls.experiments.table1.config import Table1Config
 from jaxcls.perception import tracking
 
@@ -92,21 +92,7 @@ def direct_share(traces, truths) -> float:
     return 1 - len(slow) / traces.done.size
 
 
-def interleaved(contenders: dict, repeats: int) -> tuple[dict[str, list[float]], dict]:
-    """Each contender (name: a function of nothing) run ``repeats`` rounds, interleaved: (its seconds a round,
-    its last result)."""
-    times: dict[str, list[float]] = {name: [] for name in contenders}
-    results = {}
-    for _ in range(repeats):
-        for name, run in contenders.items():
-            t0 = time.perf_counter()
-            results[name] = run()
-            times[name].append(time.perf_counter() - t0)
-    return times, results
-
-
-ROWS = ("single", "single_gr", "random", "random_gr", "vis_no_occl", "vis_no_occl_gr", "vis_occl", "vis_occl_gr",
-        "vis_occl_hist", "vis_occl_hist_gr")
+ROWS = tuple(n for n in protocol.PAPER_ROWS if protocol.ROWS[n].kind in runner.BATCHED)  # Table 1's batched rows
 
 
 def run_records(scenes: int, runs: int, moves: int) -> list[dict]:
@@ -140,7 +126,7 @@ def tables_benchmark(args: argparse.Namespace, argv: list[str] | None) -> None:
 
     contenders = {"protocol.scene_labels, once a row for every move": prepared_once,
                   "protocol.per_scene, a row's records pooled again each move": a_move_at_a_time}
-    times, results = interleaved(contenders, args.repeats)
+    times, results = report.interleaved(contenders, args.repeats)
     ours, theirs = results.values()
     same = all(np.array_equal(a, c) and np.array_equal(b, d)
                for x, y in zip(ours, theirs, strict=True) for (a, b), (c, d) in zip(x, y, strict=True))
@@ -183,7 +169,7 @@ def main(argv: list[str] | None = None) -> None:
                   lambda: protocol.episode_records(traces, truths, keys),
                   "every move matched on its own (SciPy a move)": lambda: records_one_at_a_time(traces, truths, keys)}
     contenders[next(iter(contenders))]()  # the hand-eye logs' program compiles
-    times, results = interleaved(contenders, args.repeats)
+    times, results = report.interleaved(contenders, args.repeats)
     same = len({repr(r) for r in results.values()}) == 1
     share = direct_share(traces, truths)
     E = len(truths)

@@ -60,6 +60,21 @@ def timed(fn: Callable[[], object], repeats: int) -> tuple[float, float, object]
     return first, statistics.median(times), out
 
 
+def interleaved(contenders: dict[str, Callable[[], object]], repeats: int) -> tuple[dict[str, list[float]], dict]:
+    """Each contender (name: a call of nothing) run ``repeats`` rounds, round-robin, waiting for JAX's asynchronous
+    results: ({name: its seconds a round}, {name: its last result}). A/B comparisons in one process."""
+    import jax
+
+    times: dict[str, list[float]] = {name: [] for name in contenders}
+    results = {}
+    for _ in range(repeats):
+        for name, run in contenders.items():
+            start = time.perf_counter()
+            results[name] = jax.block_until_ready(run())
+            times[name].append(time.perf_counter() - start)
+    return times, results
+
+
 def process_age() -> float | None:
     """Seconds since this process started (Linux's /proc; None elsewhere): what Python and the imports took
     before a script's first line of work."""

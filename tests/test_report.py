@@ -38,3 +38,11 @@ def test_process_age_counts_from_the_process_start():
         assert age == "None"
         return
     assert 1.5 <= float(age) < 30
+
+
+def test_interleaved_runs_the_contenders_round_robin():
+    calls = []
+    contenders = {"a": lambda: calls.append("a") or len(calls), "b": lambda: calls.append("b") or len(calls)}
+    times, results = report.interleaved(contenders, 3)
+    assert calls == ["a", "b"] * 3 and results == {"a": 5, "b": 6}
+    assert [len(t) for t in times.values()] == [3, 3] and all(x >= 0 for t in times.values() for x in t)
