@@ -94,6 +94,7 @@ def main(argv: list[str] | None = None, command_line: bool = False) -> None:
     clock.seconds[STARTUP] = (command_line and report.process_age()) or started - main_began
     timing_file = out / "timing.json"
     timing = json.loads(timing_file.read_text()) if timing_file.exists() else None
+    others = None  # process 0 of several: the other processes' episodes, read while they run
     if args.tables_only:
         dataset = data.dataset_config(config)
         records = data.stored_records(config, store)
@@ -105,6 +106,8 @@ def main(argv: list[str] | None = None, command_line: bool = False) -> None:
         dataset, scene_set = data.open_scenes(config)
         if runner.process_share()[0] == 0:
             save_config(config, out / "config.yaml")
+        if args.distributed and runner.process_share()[0] == 0:  # (it makes the tables)
+            others = data.follow_other_stores(store, runner.process_share())
         records = runner.run_episodes(config, scene_set, dataset, store, clock=clock)
     if args.distributed:  # every process's episodes stored; process 0 writes the tables
         with clock("waiting for the other processes"):
@@ -114,7 +117,8 @@ def main(argv: list[str] | None = None, command_line: bool = False) -> None:
             jax.distributed.shutdown()  # (waits for process 0's tables, SHUTDOWN_WAIT_SECONDS at most)
             return
         with clock("tables and figure"):
-            records = data.stored_records(config, store)
+            records = (data.stored_records(config, store) if others is None
+                       else data.of_config(config, records + others.finish()))
     if timing is None and config.timing_moves and not args.tables_only:
         timing = runner.time_modules(config, scene_set, dataset)
         io.write_json(timing_file, timing)

@@ -11,6 +11,7 @@ import json
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import jax
@@ -61,6 +62,36 @@ def test_jsonl_log_drops_a_torn_line_and_appends_cleanly(tmp_path):
     path.write_text('{"a": 1}\nnot json\n{"a": 2}\n')
     with pytest.raises(ValueError, match="line 2"):
         io.read_jsonl(path)
+    # A torn line far from the end of a long log (the cut looks back past one block).
+    io.write_text(path, "".join(f'{{"n": {i}}}\n' for i in range(20_000)) + '{"n": "torn' + " " * 70_000)
+    io.append_jsonl(path, [{"n": "next"}])
+    assert [r["n"] for r in io.read_jsonl(path)][-2:] == [19_999, "next"]
+
+
+def test_a_follower_reads_logs_as_other_processes_append_to_them(tmp_path):
+    """The records process 0 reads while the others append (``io.JsonlFollower``): each log's records, once,
+    in order, a torn last line left out; a file that appears later is read too; then ``of_config`` keeps a
+    config's episodes once each."""
+    a, b = tmp_path / "episodes.1.jsonl", tmp_path / "episodes.2.jsonl"
+    follower = io.JsonlFollower(lambda: sorted(tmp_path.glob("episodes.*.jsonl")), interval=0.01)
+    for i in range(30):
+        io.append_jsonl(a, [{"i": i}])
+        if i % 3 == 0:
+            io.append_jsonl(b, [{"i": -i}, {"i": -i - 1}])
+        with open(a, "a") as f:  # (half an append: the next append cuts it off)
+            f.write('{"i": ')
+        time.sleep(0.002)
+    records = follower.finish()
+    assert records == io.read_jsonl(a) + io.read_jsonl(b)
+    assert [r["i"] for r in records[:30]] == list(range(30)) and len(records) == 30 + 20
+
+    config = Table1Config(rows=("random_gr", "oracle_gr"), classifiers={"shipped": ""}, scenes=2, oracle_scenes=1)
+    record = {"classifier": "shipped", "row": "random_gr", "scene": 0, "run": 0}
+    kept = data.of_config(config, [record, {**record, "start": 3}, {**record, "run": 1},
+                                   {**record, "scene": 2}, {**record, "classifier": "paper"},
+                                   {**record, "row": "random"}, {**record, "row": "oracle_gr", "scene": 1},
+                                   {**record, "row": "oracle_gr"}])
+    assert kept == [record, {**record, "run": 1}, {**record, "row": "oracle_gr"}]
 
 
 def test_interrupted_experiment_resumes_and_the_same_seed_gives_the_same_numbers(table1, tmp_path, monkeypatch):

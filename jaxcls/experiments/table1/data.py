@@ -37,16 +37,38 @@ def process_store(store: Path, process: tuple[int, int] = (0, 1)) -> Path:
 def read_stores(store: Path) -> list[dict[str, Any]]:
     """The records of ``store`` and of every process's store beside it (``process_store``): a run's episodes
     whichever processes (and however many) stored them."""
-    shares = sorted(store.parent.glob(f"{store.stem}.*{store.suffix}"))
-    return [r for path in [store, *shares] for r in io.read_jsonl(path)]
+    return [r for path in store_paths(store) for r in io.read_jsonl(path)]
+
+
+def store_paths(store: Path) -> list[Path]:
+    """``store`` and every process's store beside it (``process_store``), whether they exist or not yet."""
+    return [store, *sorted(store.parent.glob(f"{store.stem}.*{store.suffix}"))]
 
 
 def stored_records(config: Table1Config, store: Path) -> list[dict[str, Any]]:
-    """The stored episodes (every process's, ``read_stores``) of this config's classifiers, rows and first
-    ``scenes`` scenes (all if 0), the oracle's on its first ``oracle_scenes`` (``runner.run_episodes``' rule)."""
-    return [r for r in read_stores(store) if r["classifier"] in config.classifiers and r["row"] in config.rows
-            and (not config.scenes or int(r["scene"]) < config.scenes)
-            and (protocol.ROWS[r["row"]].kind is not protocol.Kind.ORACLE or int(r["scene"]) < config.oracle_scenes)]
+    """The stored episodes (every process's, ``read_stores``) of this config (``of_config``)."""
+    return of_config(config, read_stores(store))
+
+
+def of_config(config: Table1Config, records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The episodes of ``records`` of this config's classifiers, rows and first ``scenes`` scenes (all if 0),
+    the oracle's on its first ``oracle_scenes`` (``runner.run_episodes``' rule), each (classifier, row, scene,
+    run) once (its first)."""
+    kept: dict[tuple, dict[str, Any]] = {}
+    for r in records:
+        if (r["classifier"] in config.classifiers and r["row"] in config.rows
+                and (not config.scenes or int(r["scene"]) < config.scenes)
+                and (protocol.ROWS[r["row"]].kind is not protocol.Kind.ORACLE
+                     or int(r["scene"]) < config.oracle_scenes)):
+            kept.setdefault((r["classifier"], r["row"], int(r["scene"]), int(r["run"])), r)
+    return list(kept.values())
+
+
+def follow_other_stores(store: Path, process: tuple[int, int]) -> io.JsonlFollower:
+    """The records the other processes of a run append to their stores (and the one-process store), read while
+    they run (``io.JsonlFollower``): process 0 has them for the tables when the last process ends."""
+    mine = process_store(store, process)
+    return io.JsonlFollower(lambda: [path for path in store_paths(store) if path != mine])
 
 
 def open_dataset(config: Table1Config) -> tuple[DatasetConfig, list[Path]]:
