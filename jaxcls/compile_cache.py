@@ -12,17 +12,24 @@ so a stale entry is never used for another one. The ``jaxcls`` commands and ``ex
 Host-side work that is as deterministic as a compiled program is kept beside it once ``enable`` ran
 (``cached_arrays``: e.g. the ICP targets' closest-sample grids, ``perception.icp.model_target``, ~5 s of a
 warm ``jaxcls demo`` on a 2-core CPU), in ``<folder>/../host/<kind>``, keyed by a hash of every input.
+
+JAX's cache keys a program by its lowered form, so a later process still traces and lowers it before the
+lookup: for Table 1's episode program most of a warm first call (~5 of 6.6 s on the 2-core CPU). ``exported``
+keeps a program's lowered form itself (StableHLO, ``jax.export``) in ``<folder>/../exported/<kind>``, keyed by
+what tracing reads, and a later process compiles that (from JAX's cache) without tracing.
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
+import pickle
 import warnings
 import zipfile
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     import numpy as np
@@ -32,6 +39,9 @@ OFF = ("off", "none", "0", "false", "")
 # Programs that compile faster than this are not written (they cost more to load than to build again).
 MIN_COMPILE_SECONDS = 0.1
 _host: Path | None = None  # where ``cached_arrays`` keeps its entries (set by ``enable``)
+_exported: dict[str, Callable] = {}  # ``exported``'s programs in this process, by key
+# JAX settings that say where and whether programs are cached, not what they compute: not in ``exported``'s key.
+_NOT_IN_KEY = ("compilation_cache", "persistent_cache", "log_compiles", "explain_cache_misses")
 
 
 def cache_folder() -> Path | None:
@@ -91,4 +101,93 @@ def cached_arrays(kind: str, key: bytes, build: Callable[[], dict[str, np.ndarra
     return arrays
 
 
-__all__ = ["ENV", "MIN_COMPILE_SECONDS", "cache_folder", "cached_arrays", "enable"]
+@functools.cache
+def _code_digest() -> str:
+    """A hash of every jaxcls source file (what a traced program is made of)."""
+    root = Path(__file__).parent
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        digest.update(str(path.relative_to(root)).encode() + b"\0" + path.read_bytes() + b"\0")
+    return digest.hexdigest()
+
+
+def exported_key(args: tuple) -> str:
+    """What tracing a jaxcls program over ``args`` reads: jaxcls's source, the versions of JAX, jaxlib, flax
+    and NumPy, JAX's settings (those that do not just say where to cache), the arguments' tree (static
+    settings included) and each leaf's shape, dtype, weak type and sharding; hashed."""
+    import flax
+    import jax
+    import jaxlib
+    import numpy as np
+
+    leaves, tree = jax.tree.flatten(args)
+    for x in leaves:
+        if not isinstance(x, jax.Array):
+            raise TypeError(f"exported: arguments must be JAX arrays on their devices, got {type(x).__name__}")
+    settings = sorted((k, repr(v)) for k, v in jax.config.values.items() if not any(w in k for w in _NOT_IN_KEY))
+    parts = [_code_digest(), jax.__version__, jaxlib.__version__, flax.__version__, np.__version__,
+             repr(settings), str(tree), *(f"{x.shape}|{x.dtype}|{x.weak_type}|{x.sharding!r}" for x in leaves)]
+    return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:40]
+
+
+def exported(jitted: Callable, args: tuple, kind: str) -> Callable:
+    """``jitted`` for calls of ``args``' signature (JAX arrays on their devices: every later call's shapes,
+    dtypes, shardings and static settings). Once ``enable`` ran, its traced and lowered program (StableHLO,
+    ``jax.export``) is kept in ``<folder>/../exported/<kind>`` by ``exported_key``, and a later process reads it
+    and only compiles it (JAX's persistent cache: loads it) instead of tracing it again. Without ``enable``:
+    ``jitted`` itself. An entry that cannot be read is made again, a program that cannot be exported runs as
+    ``jitted`` (a warning says why). Only for programs whose every input is in ``args`` (no closed-over
+    arrays: the key cannot see them)."""
+    if _host is None:
+        return jitted
+    key = exported_key(args)
+    if key not in _exported:
+        try:
+            _exported[key] = _exported_program(jitted, args, kind, key)
+        except Exception as e:  # (a program JAX cannot export still runs)
+            warnings.warn(f"compilation cache: {kind} not exported ({type(e).__name__}: {e}); it is traced in every "
+                          "process", stacklevel=2)
+            _exported[key] = jitted
+    return _exported[key]
+
+
+def _exported_program(jitted: Callable, args: tuple, kind: str, key: str) -> Callable:
+    import jax
+    from jax import export
+
+    from jaxcls import io
+
+    path = _host.parent / "exported" / kind / f"{key}.bin"  # type: ignore[union-attr]
+    entry: dict[str, Any] | None = None
+    try:
+        entry = pickle.loads(path.read_bytes())
+        program = export.deserialize(entry["module"])
+    except FileNotFoundError:
+        entry = None
+    except Exception as e:  # (a damaged or foreign entry: made again)
+        warnings.warn(f"compilation cache: cannot read {path} ({type(e).__name__}: {e}); tracing again", stacklevel=3)
+        entry = None
+    if entry is None:
+        leaves, tree = jax.tree.flatten(args)
+        made: dict[str, Any] = {}
+
+        def flat(*xs):
+            made["out_tree"] = jax.tree.structure(out := jitted(*jax.tree.unflatten(tree, xs)))
+            return jax.tree.leaves(out)
+
+        abstract = [jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=x.sharding, weak_type=x.weak_type) for x in leaves]
+        program = export.export(jax.jit(flat, in_shardings=[x.sharding for x in leaves]))(*abstract)
+        entry = {"module": program.serialize(), "out_tree": made["out_tree"]}
+        try:
+            io.write_bytes(path, pickle.dumps(entry))
+        except OSError as e:
+            warnings.warn(f"compilation cache: cannot keep {kind} in {path.parent}: {e}", stacklevel=3)
+    call, out_tree = jax.jit(program.call), entry["out_tree"]
+
+    def run(*call_args):
+        return jax.tree.unflatten(out_tree, call(*jax.tree.leaves(call_args)))
+
+    return run
+
+
+__all__ = ["ENV", "MIN_COMPILE_SECONDS", "cache_folder", "cached_arrays", "enable", "exported", "exported_key"]

@@ -8,7 +8,9 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
+from flax import struct
 
 from jaxcls import compile_cache
 
@@ -43,6 +45,98 @@ def test_a_second_process_loads_what_the_first_compiled(tmp_path):
     assert any(folder.iterdir())
     second = _run({compile_cache.ENV: str(folder)})
     assert int(second["hits"]) >= 1 and int(second["misses"]) == 0, second
+
+
+# A sharded program over a pytree with a static setting, through ``compile_cache.exported`` on two CPU devices:
+# prints how many programs it traced besides the cached one's wrapper, and its result.
+EXPORTED = """
+import warnings
+import jax, jax.numpy as jnp
+import numpy as np
+from flax import struct
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from jaxcls import compile_cache
+
+@struct.dataclass
+class Settings:
+    scale: jax.Array
+    power: int = struct.field(pytree_node=False)
+
+traced = []
+jax.monitoring.register_event_duration_secs_listener(
+    lambda name, secs, fun_name=None, **kw: traced.append(fun_name) if name.endswith("jaxpr_trace_duration") else None)
+compile_cache.enable(min_compile_seconds=0.0)
+mesh = Mesh(np.asarray(jax.devices()), ("e",))
+split, every = NamedSharding(mesh, PartitionSpec("e")), NamedSharding(mesh, PartitionSpec())
+
+def heavy(settings, x):
+    return Settings(scale=jnp.sin(x) ** settings.power * settings.scale, power=settings.power)
+
+args = (jax.device_put(Settings(jnp.float32(2.0), 3), every), jax.device_put(jnp.arange(8.0), split))
+before = len(traced)
+with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter("always")
+    out = compile_cache.exported(jax.jit(heavy), args, "test")(*args)
+assert isinstance(out, Settings) and out.power == 3 and out.scale.sharding.is_equivalent_to(split, 1)
+# (JAX traces the program read from the cache as one call: its wrapper, "call")
+print("traced", len([name for name in traced[before:] if name != "call"]),
+      "warned", int(any("cannot read" in str(w.message) for w in caught)),
+      "result", ",".join(f"{v:.6f}" for v in np.asarray(out.scale)))
+"""
+
+
+def test_a_program_kept_exported_is_compiled_without_tracing(tmp_path):
+    env = {**os.environ, "JAX_PLATFORMS": "cpu", "XLA_FLAGS": "--xla_force_host_platform_device_count=2",
+           compile_cache.ENV: str(tmp_path / "xla")}
+
+    def run() -> dict[str, str]:
+        done = subprocess.run([sys.executable, "-c", EXPORTED], capture_output=True, text=True, cwd=ROOT, env=env,
+                              timeout=300)
+        assert done.returncode == 0, done.stderr[-3000:]
+        words = done.stdout.split()
+        return dict(zip(words[::2], words[1::2], strict=True))
+
+    first, second = run(), run()
+    assert first["traced"] == "1" and second["traced"] == "0", (first, second)
+    want = np.sin(np.arange(8.0)) ** 3 * 2.0
+    np.testing.assert_allclose([float(v) for v in first["result"].split(",")], want, atol=1e-6)
+    assert second["result"] == first["result"]
+    (entry,) = (tmp_path / "exported" / "test").iterdir()
+    entry.write_bytes(b"damaged")  # read again: traced and kept anew, with a warning
+    third = run()
+    assert third["traced"] == "1" and third["warned"] == "1" and third["result"] == first["result"]
+    assert run()["traced"] == "0"
+
+
+@struct.dataclass
+class Settings:
+    """A pytree with a static setting (as an episode's config)."""
+
+    x: object
+    moves: int = struct.field(pytree_node=False)
+
+
+def test_the_key_of_an_exported_program_is_what_tracing_reads(monkeypatch):
+    """Shape, dtype, placement and static settings each change the key; values do not; without the cache a
+    program is its jitted self."""
+    import jax
+    import jax.numpy as jnp
+    from jax.sharding import NamedSharding, PartitionSpec
+
+    mesh = jax.sharding.Mesh(jax.devices()[:1], ("e",))
+    split = NamedSharding(mesh, PartitionSpec("e"))
+    x = jax.device_put(jnp.ones((4, 3)), split)
+    key = compile_cache.exported_key
+    assert key((x,)) == key((x + 1,))
+    assert key((x,)) != key((jax.device_put(jnp.ones((4, 2)), split),))
+    assert key((x,)) != key((jax.device_put(jnp.ones((4, 3), jnp.int32), split),))
+    assert key((x,)) != key((jax.device_put(jnp.ones((4, 3)), NamedSharding(mesh, PartitionSpec())),))
+    assert key((Settings(x, 10),)) == key((Settings(x, 10),)) != key((Settings(x, 11),))
+    with pytest.raises(TypeError, match="JAX arrays"):
+        key((np.ones(3),))
+    monkeypatch.setattr(compile_cache, "_host", None)
+    program = jax.jit(lambda a: a * 2)
+    assert compile_cache.exported(program, (x,), "test") is program
 
 
 def test_off_and_unwritable_folders(tmp_path, monkeypatch):

@@ -38,6 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from jaxcls import compile_cache
 from jaxcls.episode import active
 
 AXIS = "episodes"
@@ -181,10 +182,12 @@ def dispatch(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, scene: 
             keys = jnp.concatenate([keys, jnp.repeat(keys[:1], pad, axis=0)])
     split = NamedSharding(device_mesh, PartitionSpec(AXIS))
     frames = split if split_scenes else NamedSharding(device_mesh, PartitionSpec())
-    traces = _program(device_mesh, split_scenes)(
-        jax.device_put(episode, NamedSharding(device_mesh, PartitionSpec())),
-        jax.device_put(jnp.asarray(depth, jnp.float32), frames), jax.device_put(jnp.asarray(T_wc, jnp.float32), frames),
-        jax.device_put(scene, split), jax.device_put(start, split), jax.device_put(keys, split))
+    args = (jax.device_put(episode, NamedSharding(device_mesh, PartitionSpec())),
+            jax.device_put(jnp.asarray(depth, jnp.float32), frames),
+            jax.device_put(jnp.asarray(T_wc, jnp.float32), frames),
+            jax.device_put(scene, split), jax.device_put(start, split), jax.device_put(keys, split))
+    # (with the compilation cache on, a later process compiles the program kept on disk instead of tracing it)
+    traces = compile_cache.exported(_program(device_mesh, split_scenes), args, "batched_episodes")(*args)
     return traces if order is None else _reordered(traces, order)
 
 

@@ -1,0 +1,110 @@
+"""Table 1's warm start: the first batched call of a run whose compilation cache is warm, with JAX's cache alone
+against JAX's cache plus the traced programs kept on disk (``compile_cache.exported``).
+
+    python benchmarks/first_call.py [--rounds 3] [--config CONFIG] [--out BENCHMARKS.md] [overrides ...]
+
+Each setting gets its own cache folder, filled by one cold run; then the warm runs of the two settings
+alternate, each a fresh process of ``experiments/table1.py`` (its own ``out_dir``). Reported per setting: the
+median of the process's wall time and of its run's phases (``run_times.json``): the first call (tracing,
+lowering, compiling or loading the episode program) and the whole run; and whether every run's records are
+the same. JAX's cache alone still traces and lowers the program before its lookup; the exported program skips
+both. Default config: 2 scenes of the synthetic set at 320x240, 2 runs of 2 moves of three batched rows (the
+program is the full switched one whatever the size).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from jaxcls import compile_cache, report
+
+ROOT = Path(__file__).resolve().parents[1]
+FIRST_CALL = "batched episodes, first call (compiles)"
+
+# experiments/table1.py in a child process; "jax" keeps JAX's cache only (no exported programs).
+CHILD = """
+import runpy, sys
+from jaxcls import compile_cache
+if sys.argv[1] == "jax":
+    compile_cache.exported = lambda jitted, args, kind: jitted
+sys.argv = ["experiments/table1.py", *sys.argv[2:]]
+runpy.run_path("experiments/table1.py", run_name="__main__")
+"""
+
+SMALL = """dataset: synthetic
+scene_source: device
+runs: 2
+moves: 2
+timing_moves: 0
+scene_chunk: 2
+resamples: 100
+rows: [single_gr, random_gr, vis_occl_hist_gr]
+classifiers: {{shipped: ''}}
+dataset_overrides: [num_scenes=2, viewpoints.count=12, backend=mujoco, camera.width=320, camera.height=240,
+                    camera.fx=262.5, camera.fy=262.5, camera.cx=159.5, camera.cy=119.5, out_dir={data}]
+"""
+
+
+def _run(setting: str, cache: Path, config: str, out: Path, overrides: list[str]) -> dict:
+    start = time.perf_counter()
+    done = subprocess.run([sys.executable, "-c", CHILD, setting, "--config", config, f"out_dir={out}", *overrides],
+                          capture_output=True, text=True, cwd=ROOT, env={**os.environ, compile_cache.ENV: str(cache)})
+    wall = time.perf_counter() - start
+    if done.returncode != 0:
+        raise RuntimeError(f"experiments/table1.py failed ({done.returncode}): {done.stderr[-2000:]}")
+    phases = json.loads((out / "run_times.json").read_text())[-1]
+    records = sorted((json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()),
+                     key=lambda r: (r["classifier"], r["row"], r["scene"], r["run"]))
+    return {"wall": wall, "first": phases["phases_s"].get(FIRST_CALL, 0.0), "run": phases["total_s"],
+            "records": records}
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--config", help="a Table 1 config (default: a 2-scene synthetic one)")
+    parser.add_argument("--out", help="append the section to this Markdown file")
+    parser.add_argument("overrides", nargs="*", help="experiments/table1.py overrides (key=value)")
+    args = parser.parse_args(argv)
+    settings = {"jax": "JAX's cache", "exported": "JAX's cache + the exported program"}
+    runs: dict[str, list[dict]] = {s: [] for s in settings}
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        config = args.config
+        if config is None:
+            config = str(tmp / "table1.yaml")
+            Path(config).write_text(SMALL.format(data=tmp / "data"))
+        cold = {s: _run(s, tmp / s / "xla", config, tmp / f"{s}_cold", args.overrides) for s in settings}
+        print("cold", {s: (round(r["wall"], 1), r["first"]) for s, r in cold.items()}, file=sys.stderr)
+        for r in range(args.rounds):
+            for s in settings if r % 2 == 0 else reversed(settings):
+                runs[s].append(_run(s, tmp / s / "xla", config, tmp / f"{s}_{r}", args.overrides))
+                print(s, r, {k: round(v, 1) for k, v in runs[s][-1].items() if k != "records"}, file=sys.stderr)
+    reference = cold["jax"]["records"]
+    same = all(run["records"] == reference for rs in [*runs.values(), list(cold.values())] for run in rs)
+    rows = []
+    for s, name in settings.items():
+        rs = runs[s]
+        med = {k: statistics.median(run[k] for run in rs) for k in ("wall", "first", "run")}
+        spread = f"{min(run['first'] for run in rs):.1f}-{max(run['first'] for run in rs):.1f}"
+        rows.append((name, report.device_name(), f"{cold[s]['first']:.1f}", f"{med['first']:.1f}", spread,
+                     f"{med['run']:.1f}", f"{med['wall']:.1f}"))
+    report.publish(report.section(
+        "Table 1's warm start: JAX's cache alone against the exported program", argv,
+        ("cache", "device", "cold first call s", "warm first call s (median)", "range", "warm run s (median)",
+         "warm process wall s (median)"), rows,
+        intro=f"{args.rounds} warm runs a setting, alternating, each a fresh process after one cold run a setting "
+              f"in its own cache folder; config {args.config or 'a 2-scene synthetic one'}.",
+        notes=[f"every run's records are {'the same' if same else 'NOT the same'}"]), args.out)
+
+
+if __name__ == "__main__":
+    main()
