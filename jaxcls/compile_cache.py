@@ -113,8 +113,9 @@ def _code_digest() -> str:
 
 def exported_key(args: tuple) -> str:
     """What tracing a jaxcls program over ``args`` reads: jaxcls's source, the versions of JAX, jaxlib, flax
-    and NumPy, JAX's settings (those that do not just say where to cache), the arguments' tree (static
-    settings included) and each leaf's shape, dtype, weak type and sharding; hashed."""
+    and NumPy, JAX's settings (those that do not just say where to cache), the devices' platform and kind (a
+    program is lowered for one), the arguments' tree (static settings included) and each leaf's shape, dtype,
+    weak type and sharding; hashed."""
     import flax
     import jax
     import jaxlib
@@ -125,8 +126,10 @@ def exported_key(args: tuple) -> str:
         if not isinstance(x, jax.Array):
             raise TypeError(f"exported: arguments must be JAX arrays on their devices, got {type(x).__name__}")
     settings = sorted((k, repr(v)) for k, v in jax.config.values.items() if not any(w in k for w in _NOT_IN_KEY))
+    platforms = sorted({(d.platform, d.device_kind) for x in leaves for d in x.sharding.device_set})
     parts = [_code_digest(), jax.__version__, jaxlib.__version__, flax.__version__, np.__version__,
-             repr(settings), str(tree), *(f"{x.shape}|{x.dtype}|{x.weak_type}|{x.sharding!r}" for x in leaves)]
+             repr(settings), repr(platforms), str(tree),
+             *(f"{x.shape}|{x.dtype}|{x.weak_type}|{x.sharding!r}" for x in leaves)]
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:40]
 
 
