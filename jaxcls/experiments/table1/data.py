@@ -50,6 +50,11 @@ def stored_records(config: Table1Config, store: Path) -> list[dict[str, Any]]:
     return of_config(config, read_stores(store))
 
 
+def record_key(r: dict[str, Any]) -> tuple[str, str, int, int]:
+    """An episode's identity in the store: (classifier, row, scene, run)."""
+    return r["classifier"], r["row"], int(r["scene"]), int(r["run"])
+
+
 def of_config(config: Table1Config, records: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """The episodes of ``records`` of this config's classifiers, rows and first ``scenes`` scenes (all if 0),
     the oracle's on its first ``oracle_scenes`` (``runner.run_episodes``' rule), each (classifier, row, scene,
@@ -60,7 +65,7 @@ def of_config(config: Table1Config, records: list[dict[str, Any]]) -> list[dict[
                 and (not config.scenes or int(r["scene"]) < config.scenes)
                 and (protocol.ROWS[r["row"]].kind is not protocol.Kind.ORACLE
                      or int(r["scene"]) < config.oracle_scenes)):
-            kept.setdefault((r["classifier"], r["row"], int(r["scene"]), int(r["run"])), r)
+            kept.setdefault(record_key(r), r)
     return list(kept.values())
 
 

@@ -20,7 +20,7 @@ from tqdm.auto import tqdm
 from jaxcls import devices, io, report
 from jaxcls.episode import active, batched, protocol, runner, scoring, setup, sources
 from jaxcls.experiments.table1.config import Table1Config
-from jaxcls.experiments.table1.data import Scenes, process_store, read_stores
+from jaxcls.experiments.table1.data import Scenes, process_store, read_stores, record_key
 from jaxcls.geometry import Intrinsics
 from jaxcls.perception import pointnet
 from jaxcls.planning import nbv
@@ -65,11 +65,6 @@ def write_run_times(path: Path, clock: Phases, total: float) -> None:
 def run_times_file(store: Path, process: tuple[int, int]) -> Path:
     """Where a process's phases go (``write_run_times``): ``run_times.json`` beside the store, one a process."""
     return process_store(store.parent / "run_times.json", process)
-
-
-def record_key(r: dict[str, Any]) -> tuple[str, str, int, int]:
-    """An episode's identity in the store: (classifier, row, scene, run)."""
-    return r["classifier"], r["row"], int(r["scene"]), int(r["run"])
 
 
 def runs_of(row: protocol.Row, runs: int) -> int:
