@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import functools
+import hashlib
 import itertools
 import json
 import time
@@ -71,6 +72,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--devices", type=int, nargs="*", default=[],
                         help="device counts: each batch of --batch runs as Table 1's program (episode.batched) sharded "
                              "over the first N local devices, the counts interleaved, instead of plain vmap")
+    parser.add_argument("--kernels", nargs="+", default=["fixed"], choices=[k.value for k in batched.Kernels],
+                        help="with --devices: how XLA picks the GPU kernels of Table 1's program (batched.Kernels; "
+                             "several: compared, interleaved)")
     parser.add_argument("--render", action="store_true",
                         help="each batch also renders its frames as it moves (episode.batched.rendered: the scene's "
                              "renderer, warp on a GPU, MJX's ray caster on a CPU, and the world's sensor inside the "
@@ -153,12 +157,17 @@ def main(argv: list[str] | None = None) -> None:
     if args.devices:
         report.publish(report.section(
             f"Batched episodes sharded over devices ({args.moves} moves, 640x480, one scene)", argv,
-            ("episodes", "devices", "variant", "device", "first call s (compile)", "median ms per batch", "moves/s",
-             "speed-up over the first count", f"same path and labels as {args.devices[0]} device(s)"),
-            sharded_rows(episodes, depth, T_wc, args.batch, args.devices, args.repeats, args.moves),
+            ("episodes", "devices", "variant", "kernels", "device", "first call s (compile)", "median ms per batch",
+             "moves/s", "speed-up over the first", "same path and labels as the first",
+             "same path and labels as its own first call"),
+            sharded_rows(episodes, depth, T_wc, args.batch, args.devices, args.kernels, args.repeats,
+                         args.moves, traces),
             intro="Table 1's program (`episode.batched`: reset and rollout per episode, traces out) over B episodes of "
                   "one scene, split over a 1-D mesh of the first N local devices (B / N episodes each, no "
-                  "communication); the device counts' repeats interleaved; frames in device memory."), args.out)
+                  "communication), its GPU kernels picked as `batched.Kernels` says (autotuned: "
+                  "XLA's default; fixed: without timing them; deterministic: fixed, scatters in order); the "
+                  "programs' repeats interleaved, then each called once more and "
+                  "compared with its first call; frames in device memory."), args.out)
     if args.render:
         report.publish(report.section(
             f"Batched episodes rendering their frames as they move ({args.moves} moves, 640x480, one scene)", argv,
@@ -215,16 +224,18 @@ def main(argv: list[str] | None = None) -> None:
                   "first."), args.out)
 
 
-def interleaved(runs: dict, repeats: int) -> tuple[dict, dict, dict]:
-    """Each of ``runs`` (name -> a call returning a ``Trace``) once (its first call: compiling) then ``repeats``
-    times round-robin: ({name: first call s}, {name: median s}, {name: its traces on the host})."""
+def interleaved(runs: dict, repeats: int) -> tuple[dict, dict, dict, dict]:
+    """Each of ``runs`` (name -> a call returning a ``Trace``) once (its first call: compiling), ``repeats`` times
+    round-robin, then once more: ({name: first call s}, {name: median s}, {name: its first traces on the host},
+    {name: the share of episodes whose path and labels in the last call equal the first call's})."""
     first, traces = {}, {}
     for name, run in runs.items():
         t0 = time.perf_counter()
         traces[name] = jax.device_get(run())
         first[name] = time.perf_counter() - t0
     times, _ = report.interleaved(runs, repeats)
-    return first, {name: float(np.median(t)) for name, t in times.items()}, traces
+    again = {name: same_paths(jax.device_get(run()), traces[name]) for name, run in runs.items()}
+    return first, {name: float(np.median(t)) for name, t in times.items()}, traces, again
 
 
 def same_paths(traces: active.Trace, base: active.Trace) -> float:
@@ -260,23 +271,33 @@ def rendered_rows(episodes: dict[str, active.Episode], depth: jax.Array, T_wc: j
     return rows
 
 
-def compared(runs: dict, base, repeats: int, moves: int) -> dict:
+def compared(runs: dict, base, repeats: int, moves: int, kept: list | None = None) -> dict:
     """``interleaved`` ``runs`` of ``moves`` moves each, as table cells per run: (device, first call s, median ms,
-    moves/s, speed-up over ``base``'s run, share of paths and labels equal to ``base``'s); each printed."""
-    first, times, traces = interleaved(runs, repeats)
+    moves/s, speed-up over ``base``'s run, share of paths and labels equal to ``base``'s[, and to its own first
+    call's where ``kept`` is given]); each printed. ``kept``: each run's every episode (name, path, final refined
+    labels) appended, to compare with another process (``--trace``)."""
+    first, times, traces, again = interleaved(runs, repeats)
     cells = {}
     for name, t in times.items():
         cells[name] = (report.device_name(), f"{first[name]:.1f}", f"{t * 1e3:.0f}", f"{moves / t:.0f}",
-                       f"{times[base] / t:.2f}", f"{same_paths(traces[name], traces[base]):.2f}")
+                       f"{times[base] / t:.2f}", f"{same_paths(traces[name], traces[base]):.2f}",
+                       *([f"{again[name]:.2f}"] if kept is not None else []))
         print(name, cells[name], flush=True)
+        if kept is not None:
+            leaves = [np.asarray(x) for x in jax.tree.leaves(traces[name])]
+            kept += [{"run": str(name), "path": np.asarray(traces[name].view[b]).tolist(),
+                      "refined": np.asarray(traces[name].refinement.refined[b, -1]).tolist(),
+                      "bits": hashlib.sha256(b"".join(x[b].tobytes() for x in leaves)).hexdigest()[:16]}
+                     for b in range(traces[name].view.shape[0])]
     return cells
 
 
 def sharded_rows(episodes: dict[str, active.Episode], depth: jax.Array, T_wc: jax.Array, batches: list[int],
-                 device_counts: list[int], repeats: int, moves: int) -> list[tuple]:
-    """Per batch size B and variant, B episodes through ``episode.batched`` over each count of local devices,
-    the counts' repeats interleaved: the table's rows (moves/s, speed-up over the first count, and the share of
-    episodes whose path and final labels equal the first count's)."""
+                 device_counts: list[int], kernels: list[str], repeats: int, moves: int, kept: list) -> list[tuple]:
+    """Per batch size B and variant, B episodes through ``episode.batched`` over each count of local devices and
+    each choice of kernels (``kernels``: ``batched.Kernels`` values), their repeats interleaved:
+    the table's rows (moves/s, speed-up over the first, the share of episodes whose path and final labels equal
+    the first's, and the same against the program's own first call). Every episode appended to ``kept``."""
     meshes = {n: batched.mesh(jax.local_devices()[:n]) for n in device_counts}
     rows = []
     for B, (mode, episode) in itertools.product(batches, episodes.items()):
@@ -284,10 +305,14 @@ def sharded_rows(episodes: dict[str, active.Episode], depth: jax.Array, T_wc: ja
         starts = np.random.default_rng(B).integers(0, T_wc.shape[0], B).astype(np.int32)
         keys = jax.random.split(jax.random.PRNGKey(B), B)
         frames = {n: (batched.replicate(depth[None], m), batched.replicate(T_wc[None], m)) for n, m in meshes.items()}
-        runs = {n: functools.partial(batched.dispatch, episode, *frames[n], scene, starts, keys, m)
-                for n, m in meshes.items()}
-        cells = compared(runs, device_counts[0], repeats, B * moves)
-        rows += [(B, n, mode, *cells[n]) for n in meshes]
+        runs = {(n, k): functools.partial(batched.dispatch, episode, *frames[n], scene, starts, keys, m,
+                                          kernels=batched.Kernels(k))
+                for (n, m), k in itertools.product(meshes.items(), kernels)}
+        episodes_kept: list = []
+        cells = compared(runs, next(iter(runs)), repeats, B * moves, episodes_kept)
+        for (n, k), c in cells.items():
+            rows.append((B, n, mode, k, *c))
+        kept += [dict(e, batch=B, variant=mode) for e in episodes_kept]
         del frames
     return rows
 

@@ -39,7 +39,7 @@ OFF = ("off", "none", "0", "false", "")
 # Programs that compile faster than this are not written (they cost more to load than to build again).
 MIN_COMPILE_SECONDS = 0.1
 _host: Path | None = None  # where ``cached_arrays`` keeps its entries (set by ``enable``)
-_exported: dict[str, Callable] = {}  # ``exported``'s programs in this process, by key
+_exported: dict[tuple, Callable] = {}  # ``exported``'s programs in this process, by key and compiler options
 # JAX settings that say where and whether programs are cached, not what they compute: not in ``exported``'s key.
 _NOT_IN_KEY = ("compilation_cache", "persistent_cache", "log_compiles", "explain_cache_misses")
 
@@ -133,28 +133,51 @@ def exported_key(args: tuple) -> str:
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:40]
 
 
-def exported(jitted: Callable, args: tuple, kind: str) -> Callable:
-    """``jitted`` for calls of ``args``' signature (JAX arrays on their devices: every later call's shapes,
-    dtypes, shardings and static settings). Once ``enable`` ran, its traced and lowered program (StableHLO,
-    ``jax.export``) is kept in ``<folder>/../exported/<kind>`` by ``exported_key``, and a later process reads it
-    and only compiles it (JAX's persistent cache: loads it) instead of tracing it again. Without ``enable``:
-    ``jitted`` itself. An entry that cannot be read is made again, a program that cannot be exported runs as
-    ``jitted`` (a warning says why). Only for programs whose every input is in ``args`` (no closed-over
-    arrays: the key cannot see them)."""
+def options_key(compiler_options: dict | None) -> tuple:
+    """XLA's ``compiler_options`` as a hashable key (sorted items; () for none)."""
+    return tuple(sorted((compiler_options or {}).items()))
+
+
+@functools.lru_cache(maxsize=32)
+def _with_options(program: Callable, options: tuple) -> Callable:
+    import jax
+
+    return jax.jit(program, compiler_options=dict(options)) if options else program
+
+
+def jitted(program: Callable, compiler_options: dict | None = None) -> Callable:
+    """``program`` (a function or a ``jax.jit`` made without options) jitted with XLA's ``compiler_options``
+    (``program`` itself where there are none), one object per program and options in a process, so that it
+    compiles once. XLA takes options only at the top of a program, so a traced program that is exported or
+    called inside another one stays without them (``exported`` compiles it with them)."""
+    return _with_options(program, options_key(compiler_options))
+
+
+def exported(jitted_program: Callable, args: tuple, kind: str, compiler_options: dict | None = None) -> Callable:
+    """``jitted_program`` (a ``jax.jit`` made without options) compiled with XLA's ``compiler_options``, for calls
+    of ``args``' signature (JAX arrays on their devices: every later call's shapes, dtypes, shardings and static
+    settings). Once ``enable`` ran, its traced and lowered program (StableHLO, ``jax.export``) is kept in
+    ``<folder>/../exported/<kind>`` by ``exported_key``, and a later process reads it and only compiles it (JAX's
+    persistent cache: loads it) instead of tracing it again. Without ``enable``, or for a program that cannot be
+    exported (a warning says why): ``jitted(jitted_program, compiler_options)``. An entry that cannot be read is
+    made again. Only for programs whose every input is in ``args`` (no closed-over arrays: the key cannot see
+    them). The options are not part of the traced program, so not of its key on disk."""
     if _host is None:
-        return jitted
+        return jitted(jitted_program, compiler_options)
     key = exported_key(args)
-    if key not in _exported:
+    options = options_key(compiler_options)
+    if (key, options) not in _exported:
         try:
-            _exported[key] = _exported_program(jitted, args, kind, key)
+            _exported[key, options] = _exported_program(jitted_program, args, kind, key, compiler_options)
         except Exception as e:  # (a program JAX cannot export still runs)
             warnings.warn(f"compilation cache: {kind} not exported ({type(e).__name__}: {e}); it is traced in every "
                           "process", stacklevel=2)
-            _exported[key] = jitted
-    return _exported[key]
+            _exported[key, options] = jitted(jitted_program, compiler_options)
+    return _exported[key, options]
 
 
-def _exported_program(jitted: Callable, args: tuple, kind: str, key: str) -> Callable:
+def _exported_program(jitted_program: Callable, args: tuple, kind: str, key: str, compiler_options: dict | None
+                      ) -> Callable:
     import jax
     from jax import export
 
@@ -175,7 +198,7 @@ def _exported_program(jitted: Callable, args: tuple, kind: str, key: str) -> Cal
         made: dict[str, Any] = {}
 
         def flat(*xs):
-            made["out_tree"] = jax.tree.structure(out := jitted(*jax.tree.unflatten(tree, xs)))
+            made["out_tree"] = jax.tree.structure(out := jitted_program(*jax.tree.unflatten(tree, xs)))
             return jax.tree.leaves(out)
 
         abstract = [jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=x.sharding, weak_type=x.weak_type) for x in leaves]
@@ -185,7 +208,7 @@ def _exported_program(jitted: Callable, args: tuple, kind: str, key: str) -> Cal
             io.write_bytes(path, pickle.dumps(entry))
         except OSError as e:
             warnings.warn(f"compilation cache: cannot keep {kind} in {path.parent}: {e}", stacklevel=3)
-    call, out_tree = jax.jit(program.call), entry["out_tree"]
+    call, out_tree = jax.jit(program.call, compiler_options=compiler_options), entry["out_tree"]
 
     def run(*call_args):
         return jax.tree.unflatten(out_tree, call(*jax.tree.leaves(call_args)))
@@ -193,4 +216,5 @@ def _exported_program(jitted: Callable, args: tuple, kind: str, key: str) -> Cal
     return run
 
 
-__all__ = ["ENV", "MIN_COMPILE_SECONDS", "cache_folder", "cached_arrays", "enable", "exported", "exported_key"]
+__all__ = ["ENV", "MIN_COMPILE_SECONDS", "cache_folder", "cached_arrays", "enable", "exported", "exported_key",
+           "jitted", "options_key"]

@@ -76,11 +76,13 @@ args = (jax.device_put(Settings(jnp.float32(2.0), 3), every), jax.device_put(jnp
 before = len(traced)
 with warnings.catch_warnings(record=True) as caught:
     warnings.simplefilter("always")
-    out = compile_cache.exported(jax.jit(heavy), args, "test")(*args)
+    # (with XLA options, as Table 1's program: they go to the compilation, not into the exported program)
+    out = compile_cache.exported(jax.jit(heavy), args, "test", {"xla_gpu_autotune_level": 0})(*args)
 assert isinstance(out, Settings) and out.power == 3 and out.scale.sharding.is_equivalent_to(split, 1)
 # (JAX traces the program read from the cache as one call: its wrapper, "call")
 print("traced", len([name for name in traced[before:] if name != "call"]),
       "warned", int(any("cannot read" in str(w.message) for w in caught)),
+      "unexported", int(any("not exported" in str(w.message) for w in caught)),
       "result", ",".join(f"{v:.6f}" for v in np.asarray(out.scale)))
 """
 
@@ -98,6 +100,7 @@ def test_a_program_kept_exported_is_compiled_without_tracing(tmp_path):
 
     first, second = run(), run()
     assert first["traced"] == "1" and second["traced"] == "0", (first, second)
+    assert first["unexported"] == second["unexported"] == "0"
     want = np.sin(np.arange(8.0)) ** 3 * 2.0
     np.testing.assert_allclose([float(v) for v in first["result"].split(",")], want, atol=1e-6)
     assert second["result"] == first["result"]
@@ -137,6 +140,10 @@ def test_the_key_of_an_exported_program_is_what_tracing_reads(monkeypatch):
     monkeypatch.setattr(compile_cache, "_host", None)
     program = jax.jit(lambda a: a * 2)
     assert compile_cache.exported(program, (x,), "test") is program
+    options = {"xla_gpu_autotune_level": 0}  # with XLA options: one jitted program per program and options
+    optioned = compile_cache.exported(program, (x,), "test", options)
+    assert optioned is compile_cache.jitted(program, dict(options)) is not program
+    np.testing.assert_array_equal(optioned(x), program(x))
 
 
 def test_off_and_unwritable_folders(tmp_path, monkeypatch):

@@ -30,6 +30,7 @@ each writes are merged by their keys (classifier, row, scene, run).
 
 from __future__ import annotations
 
+import enum
 import functools
 from collections.abc import Sequence
 
@@ -42,6 +43,26 @@ from jaxcls import compile_cache
 from jaxcls.episode import active
 
 AXIS = "episodes"
+
+
+class Kernels(enum.StrEnum):
+    """How XLA picks the kernels of a GPU program (a CPU ignores it). ``autotuned`` (XLA's default): timed on
+    the device while compiling, the fastest kept, so two compilations of one program may pick differently and
+    give results that differ in the last bits (and then, through a near tie, in a path); ``fixed``: by XLA's
+    rules without timing (autotuning off), the same kernels on every compilation; ``deterministic``: fixed, and
+    float scatters in a fixed order instead of atomics (the same bits from run to run too)."""
+
+    autotuned = "autotuned"
+    fixed = "fixed"
+    deterministic = "deterministic"
+
+
+# XLA's options for each choice of kernels (``jax.jit``'s compiler_options).
+KERNEL_OPTIONS: dict[Kernels, dict | None] = {
+    Kernels.autotuned: None,
+    Kernels.fixed: {"xla_gpu_autotune_level": 0},
+    Kernels.deterministic: {"xla_gpu_autotune_level": 0, "xla_gpu_deterministic_ops": True},
+}
 
 
 def mesh(devices: Sequence[jax.Device] | None = None) -> Mesh:
@@ -57,14 +78,20 @@ def _one(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, scene: jax.
 
 
 @functools.lru_cache(maxsize=8)
-def _program(device_mesh: Mesh, split_scenes: bool):
-    """The jitted, sharded batch for one mesh and frame layout: compiled once per episode settings and shapes."""
+def _traced(device_mesh: Mesh, split_scenes: bool):
+    """The sharded batch for one mesh and frame layout, jitted without XLA options (what is exported)."""
     replicated, split = PartitionSpec(), PartitionSpec(AXIS)
     frames = split if split_scenes else replicated
     local = jax.vmap(_one, in_axes=(None, None, None, 0, 0, 0))
     sharded = jax.shard_map(local, mesh=device_mesh, in_specs=(replicated, frames, frames, split, split, split),
                             out_specs=split, check_vma=False)
     return jax.jit(sharded)
+
+
+def _program(device_mesh: Mesh, split_scenes: bool, kernels: Kernels = Kernels.fixed):
+    """The jitted, sharded batch for one mesh, frame layout and choice of kernels: compiled once per episode
+    settings and shapes."""
+    return compile_cache.jitted(_traced(device_mesh, split_scenes), KERNEL_OPTIONS[kernels])
 
 
 @jax.jit
@@ -143,7 +170,7 @@ def _padded(x: np.ndarray | jax.Array, rows: int | None) -> np.ndarray | jax.Arr
 
 def dispatch(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, scene: np.ndarray, start: np.ndarray,
              keys: jax.Array, device_mesh: Mesh | None = None, size: int | None = None,
-             split_scenes: bool = False) -> active.Trace:
+             split_scenes: bool = False, kernels: Kernels = Kernels.fixed) -> active.Trace:
     """E episodes over the frames of S scenes, started on the devices and returned at once (JAX dispatches
     asynchronously; ``fetch`` waits for them): depth [S, V, H, W] m (0 = no return), T_wc [S, V, 4, 4] every
     viewpoint's frame; scene [E] i32 each episode's scene, start [E] i32 its start view, keys [E] its key. A
@@ -153,7 +180,8 @@ def dispatch(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, scene: 
     (default: all local devices). Frames already on the device stay there. ``split_scenes``: the frames are
     split by scene over the devices (``split_frames``; S a multiple of the devices), each episode runs on the
     device that holds its scene (every device's share padded to the largest), and the first E rows of the
-    result are the episodes in the order given."""
+    result are the episodes in the order given. ``kernels``: how XLA picks the program's GPU kernels
+    (``Kernels``; ``fixed``: the same records from every compilation of the program)."""
     device_mesh = device_mesh or mesh()
     scene, start = np.asarray(scene, np.int32), np.asarray(start, np.int32)
     E, S, V = len(scene), depth.shape[0], depth.shape[1]
@@ -187,7 +215,8 @@ def dispatch(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, scene: 
             jax.device_put(jnp.asarray(T_wc, jnp.float32), frames),
             jax.device_put(scene, split), jax.device_put(start, split), jax.device_put(keys, split))
     # (with the compilation cache on, a later process compiles the program kept on disk instead of tracing it)
-    traces = compile_cache.exported(_program(device_mesh, split_scenes), args, "batched_episodes")(*args)
+    traces = compile_cache.exported(_traced(device_mesh, split_scenes), args, "batched_episodes",
+                                    KERNEL_OPTIONS[kernels])(*args)
     return traces if order is None else _reordered(traces, order)
 
 
@@ -217,10 +246,12 @@ def fetch(traces: active.Trace, episodes: int) -> active.Trace:
 
 
 def rollouts(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, scene: np.ndarray, start: np.ndarray,
-             keys: jax.Array, device_mesh: Mesh | None = None, split_scenes: bool = False) -> active.Trace:
+             keys: jax.Array, device_mesh: Mesh | None = None, split_scenes: bool = False,
+             kernels: Kernels = Kernels.fixed) -> active.Trace:
     """``dispatch`` then ``fetch``: a ``Trace`` with [E, T, ...] NumPy leaves."""
-    return fetch(dispatch(episode, depth, T_wc, scene, start, keys, device_mesh, split_scenes=split_scenes),
-                 len(scene))
+    return fetch(dispatch(episode, depth, T_wc, scene, start, keys, device_mesh, split_scenes=split_scenes,
+                          kernels=kernels), len(scene))
 
 
-__all__ = ["AXIS", "dispatch", "fetch", "mesh", "rendered", "replicate", "rollouts", "split_frames"]
+__all__ = ["AXIS", "KERNEL_OPTIONS", "Kernels", "dispatch", "fetch", "mesh", "rendered", "replicate", "rollouts",
+           "split_frames"]

@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxcls.config import bounded, check_bounds, load_config
-from jaxcls.episode import active, protocol, setup
+from jaxcls.episode import active, batched, protocol, setup
 from jaxcls.perception.refine import RefineConfig
 from jaxcls.perception.settings import PerceptionConfig
 from jaxcls.planning.nbv import NBVConfig
@@ -48,6 +48,11 @@ class Table1Config:
     # least devices x runs episodes). To keep a device's share as on one device, scale both with the devices.
     scene_chunk: int = bounded(8, ge=1)
     batch_episodes: int = bounded(0, ge=0)
+    # How XLA picks the GPU kernels of that program (``batched.Kernels``): ``fixed`` compiles to the same kernels
+    # every time, so a rerun, a resumed run and a run over more devices or processes give the same records;
+    # ``autotuned`` (XLA's default) times candidates while compiling: as fast here, twice the compile time, and
+    # two compilations may differ in the last bits, which near-ties carry into paths (BENCHMARKS.md).
+    kernels: batched.Kernels = batched.Kernels.fixed
     # name: weights (a .msgpack path or a shipped name, "" = the shipped weights); no default, so that a
     # config's own list is the whole list (OmegaConf merges mappings into the defaults).
     classifiers: dict[str, str] = dataclasses.field(default_factory=dict)
@@ -69,7 +74,7 @@ class Table1Config:
         """What the stored episodes depend on (a rerun with another of these must use another out_dir)."""
         return {k: v for k, v in dataclasses.asdict(self).items()
                 if k not in ("out_dir", "rows", "oracle_scenes", "oracle_runs_per_call", "timing_moves", "resamples",
-                             "scenes", "scene_chunk", "batch_episodes")}
+                             "scenes", "scene_chunk", "batch_episodes", "kernels")}
 
 
 def check_out_dir(config: Table1Config, out: Path) -> None:

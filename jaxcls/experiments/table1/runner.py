@@ -263,7 +263,7 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                                     rows="+".join(names))
                     with episodes_clock():
                         traces = batched.dispatch(chosen, depth, T_wc, scene, start, key, device_mesh, size,
-                                                  split_scenes=True)
+                                                  split_scenes=True, kernels=config.kernels)
                     if pending:
                         finish()  # the last call's records, while this one runs
                     calls = {(c, name): [(index[k[2:]], k) for k in chunk_todo
