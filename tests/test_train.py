@@ -21,6 +21,7 @@ from scipy.spatial import cKDTree
 from jaxcls.cli import main as cli_main
 from jaxcls.config import load_config
 from jaxcls.learn import clouds
+from jaxcls.learn.logs import read_scalars
 from jaxcls.learn.train import Mix, TrainConfig, train
 from jaxcls.perception.settings import PerceptionConfig
 from jaxcls.world.objects import ObjectSetConfig, builtin_object_set
@@ -110,6 +111,11 @@ def test_short_run_learns_and_writes_its_outputs(straight_run):
     assert np.sum(metrics["final"]["full"]["confusion"]) == 8 * 2  # 8 held-out instances x 2 yaws
     for name in ("curve.png", "confusion.png", "pointnet.msgpack", "pointnet.json", "config.yaml"):
         assert (straight_run / name).stat().st_size > 0
+    # The same history as TensorBoard reads it from the run's event files (float32 there)
+    logged = read_scalars(straight_run / "tensorboard")
+    for name in ("loss", "train_accuracy", "test_accuracy/full", "test_accuracy/view", "learning_rate"):
+        want = {h["epoch"]: (h[name.split("/")[0]][name.split("/")[1]] if "/" in name else h[name]) for h in history}
+        assert logged[name] == pytest.approx(want, rel=1e-6), name
 
 
 def test_same_seed_same_weights_and_resume_matches(workspace, straight_run):
@@ -120,6 +126,7 @@ def test_same_seed_same_weights_and_resume_matches(workspace, straight_run):
     train(_tiny_config(workspace, out_dir=str(resumed), epochs=2), show_progress=False)
     train(_tiny_config(workspace, out_dir=str(resumed)), show_progress=False)
     assert [h["loss"] for h in _history(resumed)] == [h["loss"] for h in _history(straight_run)]
+    assert read_scalars(resumed / "tensorboard")["loss"] == read_scalars(straight_run / "tensorboard")["loss"]
     assert (resumed / "pointnet.msgpack").read_bytes() == (straight_run / "pointnet.msgpack").read_bytes()
 
 

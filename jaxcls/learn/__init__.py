@@ -1,4 +1,5 @@
-"""Learning the classifier: labelled training clouds (``clouds``) and the training loop (``train``).
+"""Learning the classifier: labelled training clouds (``clouds``), the training loop (``train``) and its
+TensorBoard log (``logs``).
 
 Learning imports the world (to render clouds) and perception (the network, the move's settings); no
 perception or world module imports it.
@@ -6,7 +7,7 @@ perception or world module imports it.
 
 import importlib
 
-__all__ = ["clouds", "train"]
+__all__ = ["clouds", "logs", "train"]
 
 
 def __getattr__(name: str):

@@ -3,9 +3,9 @@
 PureJaxRL-style: the training clouds live on the device, and one epoch (sampling, augmentation, forward,
 backward, Adam) is a single jitted ``lax.scan``. With several devices the batch is split over them
 (``jax.sharding``, data parallel, parameters replicated). After each epoch the held-out instances are
-evaluated, an orbax checkpoint is written and ``metrics.json`` updated, so an interrupted run resumes from
-its last epoch with the same result. The run folder ends with ``pointnet.msgpack`` (+ ``.json``), the
-training curve and the confusion matrices.
+evaluated, an orbax checkpoint is written and ``metrics.json`` updated (and the epoch's scalars logged for
+TensorBoard in ``tensorboard/``), so an interrupted run resumes from its last epoch with the same result. The
+run folder ends with ``pointnet.msgpack`` (+ ``.json``), the training curve and the confusion matrices.
 
 The paper's recipe (Sec. 4): complete-surface clouds of 2500 points, zero mean, unit sphere, random yaw,
 Adam at 1e-3 halved every 20 epochs, 250 epochs (``schedule: halving``); ``mix`` adds the partial-view sources
@@ -40,6 +40,7 @@ from tqdm.auto import tqdm
 from jaxcls import geometry, io, viz
 from jaxcls.config import bounded, check_bounds, load_config, save_config
 from jaxcls.learn.clouds import SOURCES, CloudConfig, CloudSet, load_clouds, sample_batch
+from jaxcls.learn.logs import ScalarLog
 from jaxcls.perception import pointnet
 from jaxcls.perception.settings import PerceptionConfig
 from jaxcls.world.objects import ObjectSetConfig, object_set_from_config
@@ -94,6 +95,7 @@ class TrainConfig:
     eval_rotations: int = bounded(8, ge=1)  # each held-out complete cloud is evaluated at this many yaws
     eval_batch: int = bounded(256, ge=1)
     keep_checkpoints: int = bounded(2, ge=1)
+    tensorboard: bool = True  # each epoch's scalars also to out_dir/tensorboard (``jaxcls.learn.logs``)
 
     def __post_init__(self) -> None:
         check_bounds(self, "")
@@ -353,6 +355,7 @@ def train(config: TrainConfig, show_progress: bool = True) -> Path:
 
     bar = tqdm(range(start, config.epochs), desc=config.name, disable=not show_progress, initial=start,
                total=config.epochs)
+    log = ScalarLog(run_dir / "tensorboard", resumed_at=start) if config.tensorboard else None
     for epoch in bar:
         began = time.perf_counter()
         state, per_step = train_epoch(state, bank, jax.random.fold_in(key, epoch))
@@ -367,10 +370,14 @@ def train(config: TrainConfig, show_progress: bool = True) -> Path:
                         "train_seconds": seconds, "clouds_per_second": steps * config.batch_size / seconds})
         io.write_json(metrics_path, {"classes": list(classes), "evaluated_on": EVALUATED_ON[evaluated_on],
                                      "history": history})
+        if log is not None:
+            log.write(epoch + 1, {k: v for k, v in history[-1].items() if k != "epoch"})
         manager.save(epoch + 1, args=ocp.args.StandardSave(_saved(state)))
         bar.set_postfix(loss=f"{loss:.3f}", acc=f"{accuracy:.3f}",
                         **{f"test_{s}": f"{v:.3f}" for s, v in scores.items()})
     manager.wait_until_finished()
+    if log is not None:
+        log.close()
     return finish(run_dir, config, classes, state, evals, history, orders, evaluated_on)
 
 
