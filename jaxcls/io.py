@@ -94,6 +94,20 @@ def write_json(path: str | os.PathLike, data: Any, indent: int | None = 1) -> Pa
     return write_text(path, json.dumps(data, indent=indent, allow_nan=False) + "\n")
 
 
+def read_json_object(path: str | os.PathLike, error: type[Exception] = ValueError) -> dict[str, Any]:
+    """The JSON object in ``path``; ``error`` naming the file when it is missing, not JSON or not an object."""
+    path = Path(path)
+    if not path.is_file():
+        raise error(f"{path}: missing")
+    try:
+        data = json.loads(path.read_text())
+    except ValueError as e:
+        raise error(f"{path}: invalid JSON ({e})") from e
+    if not isinstance(data, dict):
+        raise error(f"{path}: expected a JSON object, got {type(data).__name__}")
+    return data
+
+
 @contextlib.contextmanager
 def atomic_folder(folder: str | os.PathLike) -> Iterator[Path]:
     """Yield an empty temporary sibling of ``folder`` to fill; on success it replaces ``folder``.

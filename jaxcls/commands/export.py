@@ -1,25 +1,47 @@
-"""``jaxcls export``: one rendered scene of a dataset as a recorded sequence (the real sensor's format)."""
+"""``jaxcls export``: a dataset's rendered scenes in another layout: one scene as a recorded sequence (the real
+sensor's format), or every scene in the BOP benchmark's layout."""
 
 from __future__ import annotations
 
 import argparse
+import enum
 
 from jaxcls.commands import Argument, Command
 
 
+class ExportFormat(enum.StrEnum):
+    """What ``jaxcls export`` writes: ``recording`` (one scene_XXX.npz as a ``jaxcls.world.recording`` folder)
+    or ``bop`` (a dataset folder, or one scene file, in BOP's layout: ``jaxcls.world.bop``)."""
+
+    recording = "recording"
+    bop = "bop"
+
+
 def _run(config: None, args: argparse.Namespace) -> str:
     from jaxcls import io
-    from jaxcls.world.dataset import export_recording
 
     io.check_out_dir(args.folder, key="folder", whole=True)  # a file, or a place that cannot be written
-    return f"recording in {export_recording(args.scene_views, args.folder, overwrite=args.overwrite)}"
+    if ExportFormat(args.format) is ExportFormat.bop:
+        from jaxcls.world.bop import export_bop
+
+        out = export_bop(args.source, args.folder, split=args.split, overwrite=args.overwrite)
+        return f"BOP dataset in {out} (models/, camera.json, classes.json, {args.split}/NNNNNN per scene)"
+    from jaxcls.world.dataset import export_recording
+
+    return f"recording in {export_recording(args.source, args.folder, overwrite=args.overwrite)}"
 
 
 COMMAND = Command(
-    description="Convert a dataset's scene_XXX.npz into the recorded-sequence folder format (16-bit PNG depth "
-                "in mm, intrinsics, poses): see jaxcls.world.recording.",
+    description="Convert a dataset's rendered scenes: one scene_XXX.npz into the recorded-sequence folder format "
+                "(16-bit PNG depth in mm, intrinsics, poses: jaxcls.world.recording), or with --format bop a "
+                "dataset folder (or one scene file) into the BOP benchmark's layout (jaxcls.world.bop).",
     schema=None, run=_run,
-    arguments=(Argument(("scene_views",), {"help": "a scene_XXX.npz of a dataset"}),
-               Argument(("folder",), {"help": "the recording folder to write"}),
-               Argument(("--overwrite",), {"action": "store_true", "help": "replace an existing recording"})),
+    arguments=(Argument(("source",), {"help": "a scene_XXX.npz of a dataset (--format bop: or the dataset's "
+                                              "folder)"}),
+               Argument(("folder",), {"help": "the folder to write"}),
+               Argument(("--format",), {"choices": [f.value for f in ExportFormat], "default": "recording",
+                                        "help": "recording (default) or bop"}),
+               Argument(("--split",), {"default": "test", "help": "--format bop: the split folder's name"}),
+               Argument(("--overwrite",), {"action": "store_true",
+                                           "help": "replace an earlier export of the same format"})),
 )

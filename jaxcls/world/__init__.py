@@ -5,14 +5,15 @@
 - ``scenes``: cluttered tables: sampling, the MuJoCo model, JSON;
 - ``render``: depth and object ids on three backends; the Kinect-v1 sensor model;
 - ``setup``: one world set-up (``WorldConfig`` -> ``make_world`` -> ``World``);
-- ``dataset``: scenes x viewpoints on disk, resumable; ``recording``: a real sensor's recorded sequence.
+- ``dataset``: scenes x viewpoints on disk, resumable; ``recording``: a real sensor's recorded sequence;
+  ``bop``: a dataset's scenes in the BOP benchmark's layout, written and read back.
 
 The world never imports perception, training, the episode or the commands.
 """
 
 import importlib
 
-__all__ = ["World", "WorldConfig", "dataset", "make_world", "objects", "recording", "render", "scenes", "setup"]
+__all__ = ["World", "WorldConfig", "bop", "dataset", "make_world", "objects", "recording", "render", "scenes", "setup"]
 
 
 def __getattr__(name: str):

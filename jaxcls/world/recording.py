@@ -256,15 +256,7 @@ def write_recording(folder: str | Path, recording: Recording, overwrite: bool = 
 # ---------------------------------------------------------------------------------------------- read
 
 def _load_json(path: Path) -> dict:
-    if not path.is_file():
-        raise RecordingError(f"{path}: missing")
-    try:
-        data = json.loads(path.read_text())
-    except ValueError as e:
-        raise RecordingError(f"{path}: invalid JSON ({e})") from e
-    if not isinstance(data, dict):
-        raise RecordingError(f"{path}: expected a JSON object, got {type(data).__name__}")
-    return data
+    return io.read_json_object(path, RecordingError)
 
 
 def _number(path: Path, data: dict, key: str, integer: bool = False) -> float | int:

@@ -47,6 +47,7 @@ from jaxcls.world.objects.loaders import (
     load_bop,
     load_folder,
     load_object_set,
+    models_info,
     object_set_from_config,
 )
 from jaxcls.world.objects.loaders import _check_models_info as _check_models_info
@@ -76,6 +77,7 @@ __all__ = [
     "load_bop",
     "load_folder",
     "load_object_set",
+    "models_info",
     "normalise_mesh",
     "object_set_from_config",
 ]

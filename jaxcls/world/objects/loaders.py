@@ -157,6 +157,15 @@ def _max_distance(vertices: np.ndarray) -> float:
     return float(pdist(points).max()) if len(points) > 1 else 0.0
 
 
+def models_info(vertices: np.ndarray) -> dict[str, float]:
+    """BOP's ``models_info.json`` entry of a model with ``vertices`` [V, 3] (in the file's units, mm in BOP):
+    ``min_x/y/z``, ``size_x/y/z`` and ``diameter`` (the largest distance between two vertices)."""
+    vertices = np.asarray(vertices, dtype=np.float64)
+    lo, size = vertices.min(axis=0), np.ptp(vertices, axis=0)
+    info = {f"{kind}_{a}": float(v[i]) for kind, v in (("min", lo), ("size", size)) for i, a in enumerate("xyz")}
+    return {**info, "diameter": _max_distance(vertices)}
+
+
 def _check_models_info(mesh: trimesh.Trimesh, info: Mapping, file: Path, info_path: Path, key: str) -> None:
     """Sizes, minima and diameter in mm must agree with the mesh within max(1 mm, 1 %)."""
     if not isinstance(info, Mapping):
@@ -174,14 +183,13 @@ def _check_models_info(mesh: trimesh.Trimesh, info: Mapping, file: Path, info_pa
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     if not np.isfinite(vertices).all():
         return
-    lo, size = vertices.min(axis=0), np.ptp(vertices, axis=0)
-    measured = {f"{kind}_{a}": float(v[i]) for kind, v in (("min", lo), ("size", size))
-                for i, a in enumerate("xyz")}
+    measured = models_info(vertices)
     tolerance = {f"{kind}_{a}": max(1.0, 0.01 * abs(values[f"size_{a}"]))
                  for kind in ("min", "size") for a in "xyz"}
     if "diameter" in values:
-        measured["diameter"] = _max_distance(vertices)
         tolerance["diameter"] = max(1.0, 0.01 * abs(values["diameter"]))
+    else:
+        del measured["diameter"]
     for field, value in measured.items():
         if abs(value - values[field]) > tolerance[field]:
             raise ValueError(f"inconsistent models_info: {info_path} key {key!r} has {field} = "
