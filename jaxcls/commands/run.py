@@ -3,7 +3,8 @@ a report folder; ``jaxcls demo`` is the same on the embedded default (``configs/
 
 Sources (``source``): "" draws scene ``seed`` of the config's world and renders it on demand; a
 ``scene_NNN.npz`` of ``jaxcls dataset`` (or a dataset folder with ``scene_index``); a recording folder
-(``world.recording``'s format: the real-robot path). The report folder (written whole at the end, never
+(``world.recording``'s format: the real-robot path); a ROS bag (``world.rosbag``: topics and frames in
+``bag.*``). The report folder (written whole at the end, never
 half; an existing one is kept and the run goes beside it, see ``show.free_folder``)::
 
     <out_dir>/
@@ -27,6 +28,7 @@ import numpy as np
 from jaxcls.commands import Argument, Command
 from jaxcls.config import bounded, check_bounds
 from jaxcls.episode.setup import ActiveConfig
+from jaxcls.world.rosbag import BagConfig, is_bag
 from jaxcls.world.setup import WorldConfig
 
 
@@ -35,7 +37,8 @@ class RunConfig(ActiveConfig, WorldConfig):
     """``jaxcls run`` / ``jaxcls demo``: the world (a scene drawn and rendered on demand) or a ``source`` file,
     the episode's blocks (``ActiveConfig``), where it starts and where the report goes."""
 
-    source: str = ""  # "": render scene `seed`; a dataset scene .npz or folder; a recording folder
+    source: str = ""  # "": render scene `seed`; a dataset scene .npz or folder; a recording folder; a ROS bag
+    bag: BagConfig = dataclasses.field(default_factory=BagConfig)  # a ROS bag source's topics and frames
     scene_index: int = bounded(0, ge=0)  # the scene of a dataset folder
     seed: int = bounded(0, ge=0, lt=2**32)  # the scene drawn (source "") and the episode's key: 32-bit unsigned
     start: int = bounded(0, ge=0)  # the first viewpoint
@@ -58,14 +61,16 @@ def open_source(config: RunConfig, object_set):
         world = make_world(config.world_config(), config.seed, object_set=object_set)
         return sources.Rendered(world, jax.random.PRNGKey(config.seed))
     path = Path(config.source)
+    if is_bag(path):
+        return sources.bag_source(path, config.bag)
     if path.is_file():
         return sources.dataset_source(path, config.objects, config.camera.intrinsics())
     if (path / "meta.json").is_file() or (path / "depth").is_dir():
         return sources.recording_source(path, config.objects)
     if (path / "config.yaml").is_file():
         return sources.dataset_source(scene_file(path, config.scene_index), config.objects, config.camera.intrinsics())
-    raise ValueError(f"source: {config.source} is neither a scene file (.npz), a dataset folder (config.yaml) nor "
-                     "a recording folder (meta.json)")
+    raise ValueError(f"source: {config.source} is neither a scene file (.npz), a dataset folder (config.yaml), a "
+                     "recording folder (meta.json) nor a ROS bag (a folder with metadata.yaml, or a .bag file)")
 
 
 def _object_table(log) -> list[tuple]:

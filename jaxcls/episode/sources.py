@@ -4,7 +4,7 @@ the frame of any one of them.
 - ``Preloaded``: every viewpoint's frame in memory. ``dataset_source`` reads a scene file written by
   ``jaxcls dataset`` (the paper's fixed 100 viewpoints: the loop only indexes them); ``recording_source``
   reads a recorded sequence (``world.recording``: the real-robot path, a fixed set of viewpoints with
-  poses from the arm).
+  poses from the arm); ``bag_source`` a ROS bag (``world.rosbag``: depth images and poses from TF).
 - ``Rendered``: a ``World`` asked on demand, through its sensor model (any backend); ``frame_at`` renders
   any pose, for views off the fixed set.
 
@@ -29,6 +29,7 @@ from jaxcls.geometry import Intrinsics
 from jaxcls.world import recording as recordings
 from jaxcls.world.dataset import SceneViews, check_views
 from jaxcls.world.objects import ObjectSetConfig
+from jaxcls.world.rosbag import BagConfig, read_bag
 from jaxcls.world.scenes import Scene
 from jaxcls.world.setup import World
 
@@ -108,6 +109,14 @@ def recording_source(folder: str | Path, objects: ObjectSetConfig | None = None)
                              f"the run's objects are {objects}")
     return Preloaded(depth=rec.depth, T_wc=rec.T_wc, intrinsics=rec.intrinsics, table_height=rec.table_height,
                      scene=scene, name=str(folder))
+
+
+def bag_source(path: str | Path, config: BagConfig | None = None) -> Preloaded:
+    """A ROS bag (``world.rosbag``: depth images, CameraInfo, poses from TF or a PoseStamped topic, as
+    ``config`` names them): its frames in time order are the viewpoints; no scene (nothing to score)."""
+    rec = read_bag(path, config)
+    return Preloaded(depth=rec.depth, T_wc=rec.T_wc, intrinsics=rec.intrinsics, table_height=rec.table_height,
+                     scene=None, name=str(path))
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
