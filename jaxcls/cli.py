@@ -66,6 +66,12 @@ def _export() -> Command:
     return export.COMMAND
 
 
+def _view() -> Command:
+    from jaxcls.commands import view
+
+    return view.COMMAND
+
+
 def _run_command() -> Command:
     from jaxcls.commands import run
 
@@ -93,7 +99,8 @@ COMMANDS: dict[str, Entry] = {
     "show": Entry("save a PNG of a scene: depth of a few views and the view hemisphere", _show),
     "dataset": Entry("render scenes x all viewpoints to disk (resumable)", _dataset, resumable=True),
     "train": Entry("train the PointNet classifier (resumes an interrupted run)", _train, resumable=True),
-    "export": Entry("write one rendered scene as a recorded sequence", _export),
+    "export": Entry("write one rendered scene as a recorded sequence (or a dataset in BOP's layout)", _export),
+    "view": Entry("open an episode's 3-D recording (episode.rrd) in rerun's viewer, or its web viewer", _view),
 }
 
 

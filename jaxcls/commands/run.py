@@ -13,6 +13,7 @@ half; an existing one is kept and the run goes beside it, see ``show.free_folder
       report.md       "N of M objects right", the final per-object table against the truth, the per-move table
       curves.png      F1 and accuracy over moves, prior and refined (with a scene to score against)
       moves/move_NN.png   with ``pictures``: depth, segments by refined class, aligned cuboids, the views
+      episode.rrd     with ``rerun``: every move in 3-D for rerun's viewer (``jaxcls view``; ``episode.viewer``)
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ class RunConfig(ActiveConfig, WorldConfig):
     start: int = bounded(0, ge=0)  # the first viewpoint
     out_dir: str = "runs/run"
     pictures: bool = False  # a picture per move in <out_dir>/moves
+    rerun: bool = False  # the episode in 3-D for rerun's viewer: <out_dir>/episode.rrd (jaxcls view <out_dir>)
 
     def __post_init__(self) -> None:
         check_bounds(self)
@@ -157,11 +159,19 @@ def run_command(config: RunConfig, overwrite: bool = False, echo=print) -> tuple
                                  classifier, config.scene.split)
     truth = scoring.Truth.from_scene(source.scene, object_set) if source.scene is not None else None
     figures = []
+    viewer = None
+    if config.rerun:
+        from jaxcls.episode.viewer import EpisodeRecording
+
+        viewer = EpisodeRecording(episode, source.viewpoints, episode.spec.classifier.classes, source.scene,
+                                  object_set, name=source.name)
 
     def on_move(record, state, depth, T_wc):
         echo(runner.describe(record))
         if config.pictures:
             figures.append((record, runner.picture_data(episode, state, depth, T_wc)))
+        if viewer is not None:
+            viewer.move(record, state, depth, T_wc)
 
     echo(f"episode: {source.name}, policy {config.episode.policy}, GR {'on' if config.episode.refinement else 'off'}, "
          f"start view {config.start}, up to {config.episode.moves} moves (the first move compiles)")
@@ -174,6 +184,8 @@ def run_command(config: RunConfig, overwrite: bool = False, echo=print) -> tuple
         save_config(dataclasses.replace(config, refine=episode.refine_config), tmp / "config.yaml")  # what ran
         io.write_json(tmp / "episode.json", {**log.to_dict(), "summary": summary})
         io.write_text(tmp / "report.md", report_markdown(source.name, log, summary))
+        if viewer is not None:
+            viewer.write(tmp / "episode.rrd")
         if truth is not None:
             viz.save(viz.episode_curves({"F1 refined": log.curve("refined"), "F1 prior": log.curve("prior"),
                                          "accuracy refined": log.curve("refined", "accuracy"),

@@ -370,6 +370,24 @@ def belief(episode: Episode, state: EpisodeState) -> nbv.Belief:
                       volume=state.observation.volume)
 
 
+def planned_views(state: EpisodeState) -> nbv.Views:
+    """The viewpoints as the planner scores them: the reported ones corrected by tracking's hand-eye estimate."""
+    return state.views.replace(T_wc=state.observation.tracking.hand_eye.predict(state.views.T_wc))
+
+
+def candidate_utilities(episode: Episode, state: EpisodeState) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """What the move's planning weighed (for viewers and reports; the step does not keep it): (index [K] i32 of
+    the candidate viewpoints, ok [K] those within the radius, U [K] each one's utility by the episode's policy,
+    Eq. 7 or the policy's own; NaN for a policy that scores no candidates, as Random)."""
+    views = planned_views(state)
+    index, ok = nbv.candidates(views, episode.nbv_config)
+    policy = episode.policy
+    if not hasattr(policy, "utilities"):
+        return index, ok, jnp.full(index.shape, jnp.nan, jnp.float32)
+    U = policy.utilities(views, belief(episode, state), index, episode.spec.intrinsics, episode.nbv_config)
+    return index, ok, U
+
+
 def planning(episode: Episode, state: EpisodeState, depth: jax.Array | None = None,
              T_wc: jax.Array | None = None) -> EpisodeState:
     """Stage 5, next-best-view: the policy's next view (Eq. 5-8), and whether the episode is done. The
@@ -377,7 +395,7 @@ def planning(episode: Episode, state: EpisodeState, depth: jax.Array | None = No
     viewpoints corrected by tracking's hand-eye estimate (``HandEye.predict``; unchanged with tracking off)."""
     key, sub = jax.random.split(state.key)
     hand_eye = state.observation.tracking.hand_eye
-    views = state.views.replace(T_wc=hand_eye.predict(state.views.T_wc))
+    views = planned_views(state)
     if episode.config.off_grid:  # the continuous policy's own view; its nearest viewpoint keeps the books
         model_pose, _, _ = nbv.continuous_view(episode.policy, views, belief(episode, state),
                                                episode.spec.intrinsics, episode.nbv_config)
@@ -529,10 +547,12 @@ __all__ = [
     "StopConfig",
     "Trace",
     "belief",
+    "candidate_utilities",
     "centroids",
     "check_frame",
     "empty_refinement",
     "gather_evidence",
+    "planned_views",
     "reset",
     "rollout",
     "rollout_jit",
