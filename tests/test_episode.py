@@ -272,14 +272,74 @@ def test_an_episode_recorded_for_rerun(tmp_path, episode, world, frames):
     assert rows["/truth/objects"] == 1
 
 
-def test_demo_runs_reduced(tmp_path, capsys):
-    out = tmp_path / "demo"
-    assert cli.main(["demo", *SMALL, "episode.moves=2", f"out_dir={out}"]) == 0
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory):
+    """``jaxcls demo`` reduced (2 moves): its folder and what it printed."""
+    import contextlib
+    import io
+
+    out, printed = tmp_path_factory.mktemp("demo") / "demo", io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        assert cli.main(["demo", *SMALL, "episode.moves=2", f"out_dir={out}"]) == 0
+    return out, printed.getvalue()
+
+
+def test_demo_runs_reduced(demo_run):
+    out, printed = demo_run
     assert sorted(p.name for p in (out / "moves").iterdir()) == ["move_01.png", "move_02.png"]
     assert rrd_rows(out / "episode.rrd")["/world/camera/depth"] == 2  # the demo records for rerun by default
     report = (out / "report.md").read_text()
     assert "## Objects after the last move" in report and "vis_occl_hist" in report
-    assert "segment" in capsys.readouterr().out
+    assert "segment" in printed
+
+
+def browser_screenshot(url: str, path, timeout: float = 90.0) -> np.ndarray:
+    """``url`` loaded in headless Chromium (Debian's, through Playwright) until the page has drawn and holds
+    still: its screenshot [H, W, 3] (also written to ``path``)."""
+    import shutil
+    import time
+
+    from PIL import Image
+
+    chromium = next((shutil.which(n) for n in ("chromium", "chromium-browser", "google-chrome") if shutil.which(n)),
+                    None)
+    if chromium is None:
+        pytest.skip("no Chromium installed (Debian: apt-get install chromium): the web viewer is not opened")
+    sync_api = pytest.importorskip("playwright.sync_api", reason="Playwright (pip install playwright) drives Chromium")
+    with sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=chromium, args=[
+            "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"])
+        page = browser.new_page(viewport={"width": 1400, "height": 900})
+        page.goto(url)
+        before, deadline = None, time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            time.sleep(2.0)
+            page.screenshot(path=str(path))
+            shot = np.asarray(Image.open(path).convert("RGB")).astype(np.int16)
+            drawn = len(np.unique(shot.reshape(-1, 3), axis=0)) > 1000
+            if drawn and before is not None and np.mean(np.abs(shot - before) > 8) < 0.002:
+                break
+            before = shot
+        browser.close()
+    return shot
+
+
+def test_the_demo_in_a_browser(demo_run, tmp_path):
+    """The demo's recording served by ``jaxcls view --web``'s server and opened in headless Chromium: the web
+    viewer draws the episode (its 3-D scene, depth frame and curves: a screenshot of many colours, most of the
+    page not the empty background). ``JAXCLS_SCREENSHOT=docs/viewer_move.png`` keeps the screenshot (README)."""
+    from jaxcls.commands.view import free_ports, serve_web
+
+    out, _ = demo_run
+    with serve_web(out / "episode.rrd", free_ports()) as url:
+        shot = browser_screenshot(url, tmp_path / "viewer.png")
+    colours, counts = np.unique(shot.reshape(-1, 3), axis=0, return_counts=True)
+    assert len(colours) > 1000, "the viewer drew next to nothing"
+    assert counts.max() < 0.8 * counts.sum(), "the page is mostly one colour: the episode was not drawn"
+    if os.environ.get("JAXCLS_SCREENSHOT"):
+        import shutil
+
+        shutil.copy(tmp_path / "viewer.png", os.environ["JAXCLS_SCREENSHOT"])
 
 
 # --- bad inputs: clear errors naming the file or key, nothing written -----------------------------------------

@@ -3,24 +3,15 @@ localhost (the page and the recording's data server answer)."""
 
 from __future__ import annotations
 
-import os
 import socket
-import subprocess
 import sys
-import time
 import urllib.request
 
 import numpy as np
 import pytest
 
 from jaxcls.cli import main
-from jaxcls.commands.view import recording_file, viewer_command, web_url
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from jaxcls.commands.view import free_ports, recording_file, serve_web
 
 
 @pytest.fixture
@@ -52,28 +43,11 @@ def test_the_recording_is_found_and_bad_ones_refused(run_folder, tmp_path, monke
 
 
 def test_the_web_viewer_is_served_on_localhost(run_folder):
-    port = _free_port()
-    while True:  # (the data server takes the next port)
-        try:
-            with socket.socket() as s:
-                s.bind(("127.0.0.1", port + 1))
-            break
-        except OSError:
-            port = _free_port()
-    server = subprocess.Popen(viewer_command(recording_file(run_folder), True, port), stdout=subprocess.PIPE,
-                              stderr=subprocess.STDOUT, env={**os.environ, "RERUN_ANALYTICS": "0"})
-    try:
-        page = None
-        for _ in range(100):
-            try:
-                with urllib.request.urlopen(web_url(port, port + 1), timeout=2) as response:
-                    page = response.read().decode(errors="replace")
-                break
-            except OSError:
-                time.sleep(0.2)
-        assert page is not None and "<html" in page.lower(), "the web viewer did not answer"
+    with serve_web(run_folder, free_ports()) as url:
+        with urllib.request.urlopen(url, timeout=5) as response:
+            assert "<html" in response.read().decode(errors="replace").lower()
+        port = int(url.split(":")[2].split("/")[0])
         with socket.create_connection(("127.0.0.1", port + 1), timeout=5):
             pass  # the recording's data server listens where the URL points the viewer
-    finally:
-        server.terminate()
-        server.wait(timeout=20)
+    with pytest.raises(OSError):  # stopped after the block
+        urllib.request.urlopen(url, timeout=2)

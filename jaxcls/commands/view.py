@@ -5,9 +5,13 @@ open the printed URL in a browser, through an SSH tunnel from another machine)."
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
+import signal
 import subprocess
 import sys
+import time
+from collections.abc import Iterator
 from pathlib import Path
 
 from jaxcls.commands import Argument, Command
@@ -31,6 +35,19 @@ def web_url(web_port: int, grpc_port: int) -> str:
     return f"http://127.0.0.1:{web_port}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{grpc_port}%2Fproxy"
 
 
+def free_ports() -> int:
+    """A free port P whose next one is free too (the web viewer and its data server)."""
+    import socket
+
+    while True:
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        with contextlib.suppress(OSError), socket.socket() as s:
+            s.bind(("127.0.0.1", port + 1))
+            return port
+
+
 def viewer_command(file: Path, web: bool, port: int) -> list[str]:
     """The rerun command line that shows ``file`` (web: its web viewer on ``port``, gRPC on ``port`` + 1)."""
     command = [sys.executable, "-m", "rerun", str(file)]
@@ -39,14 +56,42 @@ def viewer_command(file: Path, web: bool, port: int) -> list[str]:
     return command
 
 
+@contextlib.contextmanager
+def serve_web(file: str | Path, port: int, timeout: float = 30.0) -> Iterator[str]:
+    """rerun's web viewer for ``file`` on localhost (``port``, its data on ``port`` + 1) while the block runs:
+    yields the page's URL once it answers (RuntimeError naming the port if it does not within ``timeout``);
+    stops the server (and the viewer binary ``python -m rerun`` starts) after."""
+    import urllib.request
+
+    url = web_url(port, port + 1)
+    server = subprocess.Popen(viewer_command(recording_file(file), True, port), stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                with urllib.request.urlopen(url, timeout=2):
+                    break
+            except OSError:
+                if server.poll() is not None or time.monotonic() > deadline:
+                    raise RuntimeError(f"rerun's web viewer did not start on port {port} (in use?)") from None
+                time.sleep(0.2)
+        yield url
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(server.pid, signal.SIGTERM)
+        server.wait(timeout=20)
+
+
 def _run(config: None, args: argparse.Namespace) -> str:
     file = recording_file(args.run)
     if not args.web and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") or sys.platform in
                              ("darwin", "win32")):
         raise ValueError("no display here (DISPLAY is not set): jaxcls view --web serves the web viewer instead")
+    port = args.port or free_ports()
     if args.web:
-        print(f"rerun's web viewer for {file}: {web_url(args.port, args.port + 1)}  (Ctrl-C stops it)", flush=True)
-    done = subprocess.run(viewer_command(file, args.web, args.port), check=False)
+        print(f"rerun's web viewer for {file}: {web_url(port, port + 1)}  (Ctrl-C stops it)", flush=True)
+    done = subprocess.run(viewer_command(file, args.web, port), check=False)
     return f"viewer closed ({file}, exit status {done.returncode})"
 
 
@@ -57,5 +102,6 @@ COMMAND = Command(
     arguments=(Argument(("run",), {"help": "a run folder holding episode.rrd, or an .rrd file"}),
                Argument(("--web",), {"action": "store_true", "help": "serve the web viewer (headless machines)"}),
                Argument(("--port",), {"type": int, "default": 9090,
-                                      "help": "--web: the web viewer's port (its data server uses the next one)"})),
+                                      "help": "--web: the web viewer's port (its data server uses the next one; 0: "
+                                              "any free pair)"})),
 )

@@ -51,6 +51,18 @@ def _boxes(corners: np.ndarray, poses: np.ndarray) -> dict[str, np.ndarray]:
             "quaternions": Rotation.from_matrix(poses[:, :3, :3]).as_quat()}
 
 
+def layout():
+    """The viewer's opening layout: the 3-D scene (world and truth) large, the depth frame beside it, the class
+    probabilities and rho below."""
+    import rerun.blueprint as rrb
+
+    return rrb.Blueprint(rrb.Horizontal(
+        rrb.Spatial3DView(origin="/", contents=["/world/**", "/truth/**", "- /world/camera/depth"], name="scene"),
+        rrb.Vertical(rrb.Spatial2DView(origin="/world/camera", contents="/world/camera/**", name="depth frame"),
+                     rrb.TimeSeriesView(origin="/objects", name="class probabilities and rho"), row_shares=[1, 1]),
+        column_shares=[2, 1]), collapse_panels=True)
+
+
 class EpisodeRecording:
     """Collects an episode's moves for rerun's viewer. ``classes``: the classifier's classes (class ids);
     ``viewpoints`` [V, 4, 4] the source's; ``scene`` and ``object_set``: the truth layer (optional)."""
@@ -69,6 +81,7 @@ class EpisodeRecording:
         self.stream.log("world", rr.AnnotationContext([rr.AnnotationInfo(id=i, label=c, color=colours[i])
                                                         for i, c in enumerate(self.classes)]), static=True)
         self.stream.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        self.stream.send_blueprint(layout())
         if scene is not None and object_set is not None:
             self._truth(scene, object_set)
 
