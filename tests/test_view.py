@@ -35,6 +35,10 @@ def test_the_recording_is_found_and_bad_ones_refused(run_folder, tmp_path, monke
     (tmp_path / "fake.rrd").write_text("not a recording")
     with pytest.raises(ValueError, match="not a rerun recording"):
         recording_file(tmp_path / "fake.rrd")
+    whole = (run_folder / "episode.rrd").read_bytes()
+    (tmp_path / "cut.rrd").write_bytes(whole[:len(whole) // 2])  # a copy cut short
+    with pytest.raises(ValueError, match=r"cut\.rrd: a damaged rerun recording"):
+        recording_file(tmp_path / "cut.rrd")
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     if sys.platform not in ("darwin", "win32"):

@@ -27,6 +27,11 @@ def recording_file(run: str | Path) -> Path:
     with open(file, "rb") as f:
         if f.read(4) != b"RRF2":
             raise ValueError(f"{file}: not a rerun recording (.rrd)")
+    done = subprocess.run([sys.executable, "-m", "rerun", "rrd", "verify", str(file)], capture_output=True,
+                          text=True, check=False)
+    if done.returncode:
+        reason = (done.stderr.strip().splitlines() or ["rerun rrd verify failed"])[-1]
+        raise ValueError(f"{file}: a damaged rerun recording ({reason})")
     return file
 
 
