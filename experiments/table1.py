@@ -68,6 +68,9 @@ def main(argv: list[str] | None = None, command_line: bool = False) -> None:
     parser.add_argument("--out", help="append the tables to this Markdown file")
     parser.add_argument("--tables-only", action="store_true",
                         help="only the tables of the episodes stored in out_dir (none run, no scene file read)")
+    parser.add_argument("--record", nargs="+", default=[], metavar="[CLASSIFIER:]ROW:SCENE:RUN",
+                        help="also replay these episodes move by move and record each for rerun's 3-D viewer: "
+                             "out_dir/recordings/*.rrd (jaxcls view FILE)")
     parser.add_argument("--distributed", action="store_true",
                         help="one process of several (hosts): jax.distributed.initialize, the scenes split by process")
     parser.add_argument("--coordinator", help="with --distributed: host:port of process 0 (else detected)")
@@ -86,6 +89,7 @@ def main(argv: list[str] | None = None, command_line: bool = False) -> None:
     precision.full_float32_matmuls()  # no TF32 on a GPU (jaxcls.precision)
     compile_cache.enable()  # the row programs kept on disk for the next run (jaxcls.compile_cache)
     config = load_config(Table1Config, args.config, args.overrides)
+    runner.chosen_episodes(config, args.record)  # (a bad --record refused before anything runs)
     out = Path(config.out_dir)
     check_out_dir(config, out)
     started, store = time.perf_counter(), out / "episodes.jsonl"
@@ -119,6 +123,11 @@ def main(argv: list[str] | None = None, command_line: bool = False) -> None:
         with clock("tables and figure"):
             records = (data.stored_records(config, store) if others is None
                        else data.of_config(config, records + others.finish()))
+    if args.record:
+        if args.tables_only:
+            dataset, scene_set = data.open_scenes(config)
+        for path in runner.record_episodes(config, scene_set, dataset, args.record, out / "recordings"):
+            print(f"recorded {path} (jaxcls view {path})", file=sys.stderr)
     if timing is None and config.timing_moves and not args.tables_only:
         timing = runner.time_modules(config, scene_set, dataset)
         io.write_json(timing_file, timing)

@@ -232,26 +232,10 @@ def test_run_accepts_a_recorded_sequence_and_scores_it(tmp_path, world, frames, 
     assert "yaw_source: learned" in (out / "config.yaml").read_text()  # what ran: refine.yaw_source=auto resolved
 
 
-def rrd_rows(path) -> dict[str, int]:
-    """{entity path: rows logged} of an .rrd as rerun's own reader lists it (``rerun rrd verify`` first)."""
-    import re
-    import subprocess
-    import sys
-
-    for check in (["verify"], ["print", "-v"]):
-        done = subprocess.run([sys.executable, "-m", "rerun", "rrd", *check, str(path)], capture_output=True,
-                              text=True, timeout=120, env={**os.environ, "RERUN_ANALYTICS": "0"})
-        assert done.returncode == 0, done.stderr[-2000:]
-    rows: dict[str, int] = {}
-    for n, entity in re.findall(r"with (\d+) rows \([^)]*\) - (/\S+) - data columns", done.stdout):
-        rows[entity] = rows.get(entity, 0) + int(n)
-    return rows
-
-
 def test_an_episode_recorded_for_rerun(tmp_path, episode, world, frames):
     """Each move's candidates and utilities as the planner weighed them (its choice is their best within the
     radius), and the .rrd as rerun reads it: every entity once a move, the truth once."""
-    from jaxcls.episode.viewer import EpisodeRecording
+    from jaxcls.episode.viewer import EpisodeRecording, entity_rows
 
     recorder = EpisodeRecording(episode, frames.T_wc, episode.spec.classifier.classes, world.scene, world.object_set)
     chosen = []
@@ -264,7 +248,7 @@ def test_an_episode_recorded_for_rerun(tmp_path, episode, world, frames):
 
     log = runner.run(episode, frames, 5, jax.random.PRNGKey(3), on_move=on_move)
     assert [a for a, _ in chosen] == [b for _, b in chosen] == [m["next_view"] for m in log.moves]
-    rows = rrd_rows(recorder.write(tmp_path / "episode.rrd"))
+    rows = entity_rows(recorder.write(tmp_path / "episode.rrd"))
     per_move = ["/world/camera/depth", "/world/path", "/world/candidates", "/world/next_view",
                 "/world/segments/by_class", "/world/segments/by_segment", "/world/models", "/objects/segment_0/rho"]
     assert {e: rows.get(e) for e in per_move} == dict.fromkeys(per_move, MOVES)
@@ -287,7 +271,9 @@ def demo_run(tmp_path_factory):
 def test_demo_runs_reduced(demo_run):
     out, printed = demo_run
     assert sorted(p.name for p in (out / "moves").iterdir()) == ["move_01.png", "move_02.png"]
-    assert rrd_rows(out / "episode.rrd")["/world/camera/depth"] == 2  # the demo records for rerun by default
+    from jaxcls.episode.viewer import entity_rows
+
+    assert entity_rows(out / "episode.rrd")["/world/camera/depth"] == 2  # the demo records for rerun by default
     report = (out / "report.md").read_text()
     assert "## Objects after the last move" in report and "vis_occl_hist" in report
     assert "segment" in printed

@@ -154,7 +154,25 @@ class EpisodeRecording:
         return io.write_bytes(path, self.memory.drain_as_bytes())
 
 
+def entity_rows(path: str | Path) -> dict[str, int]:
+    """{entity path: rows logged} of an ``.rrd`` as rerun's own reader lists it (``rerun rrd print``), after
+    ``rerun rrd verify``; ValueError naming the file where either fails."""
+    import re
+    import subprocess
+    import sys
+
+    for check in (["verify"], ["print", "-v"]):
+        done = subprocess.run([sys.executable, "-m", "rerun", "rrd", *check, str(path)], capture_output=True,
+                              text=True, check=False)
+        if done.returncode:
+            raise ValueError(f"{path}: rerun rrd {check[0]} failed: {done.stderr.strip()[-500:]}")
+    rows: dict[str, int] = {}
+    for n, entity in re.findall(r"with (\d+) rows \([^)]*\) - (/\S+) - data columns", done.stdout):
+        rows[entity] = rows.get(entity, 0) + int(n)
+    return rows
+
+
 _utilities = jax.jit(active.candidate_utilities)  # (the episode's settings static: compiled once an episode)
 
 
-__all__ = ["APPLICATION", "TIMELINE", "EpisodeRecording"]
+__all__ = ["APPLICATION", "TIMELINE", "EpisodeRecording", "entity_rows", "layout"]

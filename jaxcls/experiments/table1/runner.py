@@ -274,6 +274,61 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     return made
 
 
+def chosen_episodes(config: Table1Config, chosen: list[str]) -> list[tuple[str, str, int, int]]:
+    """``--record``'s episodes as (classifier, row, scene, run): each ``ROW:SCENE:RUN`` or
+    ``CLASSIFIER:ROW:SCENE:RUN`` (the config's first classifier when left out); ValueError naming the entry for
+    another syntax, a classifier or row the config does not run, a row that is not a single-view or policy
+    row, or a run out of range (the scene's range is checked where the scenes are known)."""
+    wanted = []
+    for text in chosen:
+        parts = text.split(":")
+        if len(parts) == 3:
+            parts = [next(iter(config.classifiers)), *parts]
+        if len(parts) != 4 or not parts[2].isdigit() or not parts[3].isdigit():
+            raise ValueError(f"--record {text!r}: expected ROW:SCENE:RUN or CLASSIFIER:ROW:SCENE:RUN")
+        c, name, s, r = parts[0], parts[1], int(parts[2]), int(parts[3])
+        if c not in config.classifiers or name not in config.rows:
+            raise ValueError(f"--record {text!r}: classifier {c!r} / row {name!r} not among the config's "
+                             f"{sorted(config.classifiers)} / {list(config.rows)}")
+        if protocol.row(name).kind not in BATCHED:
+            raise ValueError(f"--record {text!r}: only the single-view and policy rows are recorded")
+        if r >= config.runs:
+            raise ValueError(f"--record {text!r}: run must lie in 0..{config.runs - 1}")
+        wanted.append((c, name, s, r))
+    return wanted
+
+
+def record_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig, chosen: list[str],
+                    folder: Path) -> list[Path]:
+    """The ``chosen_episodes`` again, move by move on the host (``runner.run``: the table's start view and key),
+    each recorded for rerun's 3-D viewer (``episode.viewer``) as ``folder/<classifier>_<row>_scene<S>_run<R>
+    .rrd`` (PointNetSingle: its one move). The replayed episode is the host path's: the batched program rounds
+    otherwise in the last bits, as any other compilation does."""
+    from jaxcls.episode.viewer import EpisodeRecording
+
+    wanted = chosen_episodes(config, chosen)
+    for c, name, s, _ in wanted:
+        if s >= scene_set.count:
+            raise ValueError(f"--record {c}:{name}:{s}: scene must lie in 0..{scene_set.count - 1}")
+    object_set = object_set_from_config(dataset.objects)
+    written = []
+    for c, name, s, r in wanted:
+        classifier = setup.load_classifier(config.classifiers[c], object_set, f"classifiers.{c}")
+        views = scene_set.load([s])[0]
+        row = protocol.row(name)
+        ep = episode(config, program_row(row), classifier, object_set, views.intrinsics, views.table_height,
+                     dataset.scene.split)
+        if row.kind is protocol.Kind.SINGLE:
+            ep = dataclasses.replace(ep, config=dataclasses.replace(ep.config, moves=1))
+        start = protocol.start_views(config.seed, s, config.runs, len(views.T_wc))[r]
+        recorder = EpisodeRecording(ep, views.T_wc, classifier.classes, views.scene, object_set,
+                                    name=f"{c} {name} scene {s} run {r}")
+        runner.run(ep, views, int(start), protocol.run_keys(config.seed, s, config.runs)[r],
+                   scoring.Truth.from_scene(views.scene, object_set), on_move=recorder.move)
+        written.append(recorder.write(folder / f"{c}_{name}_scene{s:04d}_run{r}.rrd"))
+    return written
+
+
 def chunk_sizes(scenes: int, devices: int, scene_chunk: int, batch_episodes: int, runs: int) -> tuple[int, int]:
     """(scenes a device holds in a chunk, scenes a device runs in a call) for ``scenes`` scenes over ``devices``:
     chunks of at most ``scene_chunk`` scenes rounded up to the devices, calls of at most ``batch_episodes``
