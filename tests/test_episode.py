@@ -299,7 +299,7 @@ def browser_screenshot(url: str, path, timeout: float = 90.0) -> np.ndarray:
         page.goto(url)
         before, deadline = None, time.monotonic() + timeout
         while time.monotonic() < deadline:
-            time.sleep(2.0)
+            time.sleep(1.0)
             page.screenshot(path=str(path))
             shot = np.asarray(Image.open(path).convert("RGB")).astype(np.int16)
             drawn = len(np.unique(shot.reshape(-1, 3), axis=0)) > 1000
