@@ -165,8 +165,10 @@ def read_bag(path: str | Path, config: BagConfig | None = None) -> recording.Rec
         reader_context = AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         with reader_context as reader:
             topics = {c.topic for c in reader.connections}
-            for topic in sorted(wanted - topics - {"/tf", "/tf_static"}):
-                raise BagError(f"{bag}: no topic {topic!r} (the bag has {sorted(topics)}); set bag.* to its topics")
+            missing = sorted(wanted - topics - {"/tf", "/tf_static"})
+            if missing:
+                raise BagError(f"{bag}: no topic {missing[0]!r} (the bag has {sorted(topics)}); set bag.* to its "
+                               "topics")
             if config.poses is PoseSource.tf and not topics & {"/tf", "/tf_static"}:
                 raise BagError(f"{bag}: no /tf or /tf_static topic for the camera poses (the bag has "
                                f"{sorted(topics)}); with a PoseStamped topic set bag.poses=topic bag.pose_topic=...")

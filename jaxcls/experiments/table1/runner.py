@@ -311,9 +311,11 @@ def record_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetCon
         if s >= scene_set.count:
             raise ValueError(f"--record {c}:{name}:{s}: scene must lie in 0..{scene_set.count - 1}")
     object_set = object_set_from_config(dataset.objects)
+    classifiers = {c: setup.load_classifier(config.classifiers[c], object_set, f"classifiers.{c}")
+                   for c in dict.fromkeys(w[0] for w in wanted)}
     written = []
     for c, name, s, r in wanted:
-        classifier = setup.load_classifier(config.classifiers[c], object_set, f"classifiers.{c}")
+        classifier = classifiers[c]
         views = scene_set.load([s])[0]
         row = protocol.row(name)
         ep = episode(config, program_row(row), classifier, object_set, views.intrinsics, views.table_height,
