@@ -107,7 +107,9 @@ def main(argv: list[str] | None = None, command_line: bool = False) -> None:
             if runner.process_share()[0] == 0:
                 data.open_scenes(config)
             multihost_utils.sync_global_devices("table1: the dataset is rendered")
-        dataset, scene_set = data.open_scenes(config)
+        with clock("start-up (devices, renderer)"):  # (the accelerator's runtime and the renderer start here)
+            dataset, scene_set = data.open_scenes(config)
+            runner.process_share()
         if runner.process_share()[0] == 0:
             save_config(config, out / "config.yaml")
         if args.distributed and runner.process_share()[0] == 0:  # (it makes the tables)

@@ -192,6 +192,15 @@ def load_config(schema: type[T], path: str | Path | None = None, overrides: Sequ
         layer = OmegaConf.from_dotlist(list(overrides))
         _drop_retired(layer, "command line", from_file=False)
         cfg = _merge(cfg, layer, "command line")
+        # ``key={...}`` on a plain mapping replaces it (``classifiers={paper: builtin_paper}``: that one
+        # classifier, not the file's plus it); ``key.sub=value`` changes one entry; a block (a dataclass) merges.
+        for key in (o.split("=", 1)[0].strip() for o in overrides if o.split("=", 1)[1].lstrip().startswith("{")):
+            value = OmegaConf.select(layer, key)
+            if isinstance(value, DictConfig) and OmegaConf.get_type(cfg, key) is dict:
+                try:
+                    OmegaConf.update(cfg, key, value, merge=False)
+                except OmegaConfBaseException as e:
+                    raise ConfigError(f"command line: key '{key}': {str(e).splitlines()[0]}") from None
         _check_tree(cfg, "command line")
     try:
         return OmegaConf.to_object(cfg)

@@ -29,6 +29,22 @@ def test_yaml_then_overrides_fill_a_frozen_dataclass(tmp_path):
         cfg.name = "z"
 
 
+@dataclasses.dataclass(frozen=True)
+class WithMapping:
+    classifiers: dict[str, str] = dataclasses.field(default_factory=dict)
+    inner: Inner = dataclasses.field(default_factory=Inner)
+
+
+def test_a_mapping_override_replaces_the_mapping_and_a_block_override_merges(tmp_path):
+    path = tmp_path / "c.yaml"
+    path.write_text("classifiers: {shipped: '', paper: builtin_paper}\ninner: {count: 7}\n")
+    assert load_config(WithMapping, path, ["classifiers={paper: builtin_paper}"]).classifiers == {
+        "paper": "builtin_paper"}
+    assert load_config(WithMapping, path, ["classifiers.mine=w.msgpack"]).classifiers == {
+        "shipped": "", "paper": "builtin_paper", "mine": "w.msgpack"}
+    assert load_config(WithMapping, path, ["inner={mode: b}"]).inner == Inner(count=7, mode="b")
+
+
 def test_defaults_without_file():
     assert load_config(Outer) == Outer()
 
