@@ -21,15 +21,20 @@ line is dropped). Same config, same numbers. Outputs in ``out_dir``: ``table.md`
 paper's, per classifier, then the paired differences and moves-to-correct), ``table.csv`` (every row x
 move), ``figure4.png`` (F1 over moves, with 95% bands), ``timing.json`` (each module's time per move).
 
+One host with several GPUs (``--local-processes N``): this process starts N processes, process i on the i-th
+visible GPU with ``--processes N --process-id i``; each runs the scenes s with s % N == i and appends to
+``episodes.<i>.jsonl`` (its output in ``process.<i>.log``); this one shows their progress, stops them all if one
+fails, and writes the tables. They do not use ``jax.distributed``, so each shares the compiled programs of a
+one-GPU run in the compilation cache (``jaxcls.experiments.table1.local`` says why). Or one process drives every
+local device (the episodes sharded over them, ``episode.batched``): slower, it renders every chunk on one GPU.
+
+    python experiments/table1.py --config table1_real_like_scale --local-processes 4
+
 Several hosts (``--distributed``): start the same command once per host (process), each with
 ``jax.distributed``'s coordinator, the process count and its index (or none of them where JAX detects the
-cluster: SLURM, Open MPI, ...); process i runs the scenes s with s % count == i on its local devices and
-appends to ``episodes.<i>.jsonl`` (no file is shared while written; a resumed run reads every store, under any
-process count); once all are done, process 0 writes the tables. (A dataset folder is best rendered before,
-by ``jaxcls dataset``, or the scenes drawn with ``scene_source=device``.) Within one host, one process drives every
-local device (the episodes are sharded over them, ``episode.batched``); or one process a GPU, process I started
-as ``CUDA_VISIBLE_DEVICES=I python experiments/table1.py ... --distributed --coordinator localhost:PORT
---processes N --process-id I`` (the frames, records and start-up split too).
+cluster: SLURM, Open MPI, ...); the scenes split and stored as above, whatever the process count (a resumed run
+reads every store); once all are done, process 0 writes the tables. (A dataset folder is best rendered before,
+by ``jaxcls dataset``, or the scenes drawn with ``scene_source=device``.)
 
     python experiments/table1.py --config table1_synthetic_scale --distributed \
         --coordinator host0:1234 --processes 2 --process-id 0        # on host 0; --process-id 1 on host 1
@@ -51,7 +56,7 @@ from jax.experimental import multihost_utils
 
 from jaxcls import compile_cache, io, precision, report
 from jaxcls.config import load_config, save_config
-from jaxcls.experiments.table1 import data, figure, runner, tables
+from jaxcls.experiments.table1 import data, figure, local, runner, tables
 from jaxcls.experiments.table1.config import SceneSource, Table1Config, check_out_dir
 from jaxcls.world.objects import object_set_from_config
 
@@ -71,20 +76,45 @@ def main(argv: list[str] | None = None, command_line: bool = False) -> None:
     parser.add_argument("--record", nargs="+", default=[], metavar="[CLASSIFIER:]ROW:SCENE:RUN",
                         help="also replay these episodes move by move and record each for rerun's 3-D viewer: "
                              "out_dir/recordings/*.rrd (jaxcls view FILE)")
+    parser.add_argument("--local-processes", type=int, metavar="N",
+                        help="start N processes on this host, one a GPU (the i-th visible one), and make the tables "
+                             "when they are done (jaxcls.experiments.table1.local)")
     parser.add_argument("--distributed", action="store_true",
                         help="one process of several (hosts): jax.distributed.initialize, the scenes split by process")
     parser.add_argument("--coordinator", help="with --distributed: host:port of process 0 (else detected)")
-    parser.add_argument("--processes", type=int, help="with --distributed: the process count (else detected)")
-    parser.add_argument("--process-id", type=int, help="with --distributed: this process's index (else detected)")
+    parser.add_argument("--processes", type=int,
+                        help="with --distributed: the process count (else detected); without it: one of "
+                             "--local-processes' processes (episodes only, no tables)")
+    parser.add_argument("--process-id", type=int, help="this process's index (with --distributed: else detected)")
     parser.add_argument("overrides", nargs="*")
     args = parser.parse_intermixed_args(argv)
-    if args.distributed:
+    # One of --local-processes' processes: its share of the scenes, no jax.distributed, no tables.
+    local_share = None
+    if args.local_processes is not None:
+        if args.local_processes < 1:
+            parser.error(f"--local-processes must be at least 1, got {args.local_processes}")
+        if (args.distributed or args.coordinator or args.processes is not None or args.process_id is not None
+                or args.tables_only or args.record):
+            parser.error("--local-processes starts its own processes: leave out --distributed, --coordinator, "
+                         "--processes, --process-id, --tables-only and --record (record afterwards with "
+                         "--tables-only --record ...)")
+    elif args.distributed:
         jax.config.update("jax_cpu_collectives_implementation", "gloo")  # (the barrier, where processes are CPUs)
         # The other processes wait at shutdown while process 0 makes the tables (JAX's default wait is 5 min).
         jax.distributed.initialize(args.coordinator, args.processes, args.process_id,
                                    shutdown_timeout_seconds=SHUTDOWN_WAIT_SECONDS)
-    elif args.coordinator or args.processes is not None or args.process_id is not None:
-        parser.error("--coordinator, --processes and --process-id need --distributed")
+    elif args.coordinator:
+        parser.error("--coordinator needs --distributed")
+    elif args.processes is not None or args.process_id is not None:
+        if args.processes is None or args.process_id is None or not 0 <= args.process_id < args.processes:
+            parser.error("a local process needs --processes N and --process-id I with 0 <= I < N "
+                         f"(got {args.processes} and {args.process_id})")
+        if args.tables_only or args.record:
+            parser.error("--processes / --process-id without --distributed run episodes only: leave out "
+                         "--tables-only and --record")
+        local_share = (args.process_id, args.processes)
+    if args.local_processes is not None:
+        jax.config.update("jax_platforms", "cpu")  # (its processes hold the GPUs; this one reads and tabulates)
     # No allocator.retain_freed_memory() here: batched episodes gain little from it.
     precision.full_float32_matmuls()  # no TF32 on a GPU (jaxcls.precision)
     compile_cache.enable()  # the row programs kept on disk for the next run (jaxcls.compile_cache)
@@ -102,24 +132,45 @@ def main(argv: list[str] | None = None, command_line: bool = False) -> None:
     if args.tables_only:
         dataset = data.dataset_config(config)
         records = data.stored_records(config, store)
+    elif args.local_processes is not None:
+        dataset, scene_set = data.open_scenes(config)  # (a dataset's missing scenes rendered here, once)
+        save_config(config, out / "config.yaml")
+        every = runner.episode_keys(config, scene_set.count)
+        stored = {data.record_key(r) for r in data.read_stores(store)} & set(every)
+        with clock(f"episodes ({args.local_processes} processes)"):
+            records = local.run(
+                local.commands(Path(__file__).resolve(), ["--config", args.config, *args.overrides],
+                               args.local_processes),
+                local.visible_gpus(args.local_processes), out, lambda: data.store_paths(store), len(every),
+                len(stored))
+        records = data.of_config(config, records)
+        clock.episodes = len(records) - len(stored)
+        timing = json.loads(timing_file.read_text()) if timing_file.exists() else None  # (process 0's)
     else:
+        share = local_share or runner.process_share()
         if args.distributed and config.scene_source is SceneSource.dataset:  # missing scenes rendered once
-            if runner.process_share()[0] == 0:
+            if share[0] == 0:
                 data.open_scenes(config)
             multihost_utils.sync_global_devices("table1: the dataset is rendered")
         with clock("start-up (devices, renderer)"):  # (the accelerator's runtime and the renderer start here)
             dataset, scene_set = data.open_scenes(config)
-            runner.process_share()
-        if runner.process_share()[0] == 0:
+            jax.devices()
+        if share[0] == 0:
             save_config(config, out / "config.yaml")
-        if args.distributed and runner.process_share()[0] == 0:  # (it makes the tables)
-            others = data.follow_other_stores(store, runner.process_share())
-        records = runner.run_episodes(config, scene_set, dataset, store, clock=clock)
+        if args.distributed and share[0] == 0:  # (it makes the tables)
+            others = data.follow_other_stores(store, share)
+        records = runner.run_episodes(config, scene_set, dataset, store, show_progress=local_share is None,
+                                      process=share, clock=clock)
+        if local_share is not None:  # (--local-processes' process: the tables are the launcher's)
+            if share[0] == 0 and timing is None and config.timing_moves:
+                io.write_json(timing_file, runner.time_modules(config, scene_set, dataset))
+            finish_run_times(clock, store, started, share)
+            return
     if args.distributed:  # every process's episodes stored; process 0 writes the tables
         with clock("waiting for the other processes"):
             multihost_utils.sync_global_devices("table1: every process's episodes stored")
         if runner.process_share()[0]:
-            finish_run_times(clock, store, started)
+            finish_run_times(clock, store, started, runner.process_share())
             jax.distributed.shutdown()  # (waits for process 0's tables, SHUTDOWN_WAIT_SECONDS at most)
             return
         with clock("tables and figure"):
@@ -140,19 +191,23 @@ def main(argv: list[str] | None = None, command_line: bool = False) -> None:
         io.write_text(out / "table.csv", tables.csv_text(csv_rows))
         if curves:
             figure.figure4(curves, out / "figure4.png")
-    finish_run_times(clock, store, started)
+    finish_run_times(clock, store, started, runner.process_share() if args.local_processes is None else (0, 1),
+                     args.local_processes)
     print(f"{len(records)} episodes in {out} ({time.perf_counter() - started:.0f} s this run)", file=sys.stderr)
     report.publish(markdown, args.out)
     if args.distributed:
         jax.distributed.shutdown()
 
 
-def finish_run_times(clock: runner.Phases, store: Path, started: float) -> None:
+def finish_run_times(clock: runner.Phases, store: Path, started: float, share: tuple[int, int],
+                     local_processes: int | None = None) -> None:
     """This process's phases, from its start (Python, imports) to now, appended to its ``run_times.json``
-    (``runner.run_times_file``) where it ran episodes."""
+    (``runner.run_times_file``: ``run_times.<i>.json`` for process i of several) where it ran episodes, or
+    (``local_processes``) its processes did (theirs: ``run_times.<i>.json``)."""
     if clock.episodes:
-        runner.write_run_times(runner.run_times_file(store, runner.process_share()), clock,
-                               clock.seconds.get(STARTUP, 0.0) + time.perf_counter() - started)
+        runner.write_run_times(runner.run_times_file(store, share), clock,
+                               clock.seconds.get(STARTUP, 0.0) + time.perf_counter() - started,
+                               device=local_processes and f"{local_processes} processes (run_times.<i>.json)")
 
 
 if __name__ == "__main__":

@@ -217,6 +217,10 @@ class JsonlFollower:
                                          f"({e})") from None
             self._read[path] = (offset + len(complete), records)
 
+    def count(self) -> int:
+        """How many records have been read so far (a progress count while the writers work)."""
+        return sum(len(records) for _, records in list(self._read.values()))
+
     def finish(self) -> list[dict[str, Any]]:
         self._stop.set()
         self._thread.join()

@@ -68,6 +68,28 @@ def test_jsonl_log_drops_a_torn_line_and_appends_cleanly(tmp_path):
     assert [r["n"] for r in io.read_jsonl(path)][-2:] == [19_999, "next"]
 
 
+def test_local_processes_get_a_gpu_each_and_a_failed_one_stops_them_all(tmp_path):
+    from jaxcls.experiments.table1 import local
+
+    assert local.visible_gpus(2, {}) == ["0", "1"]
+    assert local.visible_gpus(2, {"CUDA_VISIBLE_DEVICES": "3,5,6"}) == ["3", "5"]
+    with pytest.raises(ValueError, match="CUDA_VISIBLE_DEVICES lists 1 GPU"):
+        local.visible_gpus(2, {"CUDA_VISIBLE_DEVICES": "4"})
+    gpu = "import os; print('gpu', os.environ['CUDA_VISIBLE_DEVICES'])"
+    lines = [[sys.executable, "-c", f"{gpu}; raise SystemExit(3)"],
+             [sys.executable, "-c", f"{gpu}; import time; time.sleep(60)"]]
+    began = time.perf_counter()
+    with pytest.raises(RuntimeError, match=r"process 0 of 2 failed \(exit status 3\).*process\.0\.log:\ngpu 7"):
+        local.run(lines, ["7", "8"], tmp_path, lambda: [tmp_path / "episodes.0.jsonl"], 4, 0, show_progress=False,
+                  poll_seconds=0.1)
+    assert time.perf_counter() - began < 30  # the sleeping one was stopped, not waited for
+    assert (tmp_path / "process.1.log").read_text().strip() == "gpu 8"
+    io.append_jsonl(tmp_path / "episodes.1.jsonl", [{"a": 1}, {"a": 2}])
+    done = local.run([[sys.executable, "-c", "pass"]], ["0"], tmp_path, lambda: [tmp_path / "episodes.1.jsonl"], 2,
+                     0, show_progress=False, poll_seconds=0.1)
+    assert done == [{"a": 1}, {"a": 2}]
+
+
 def test_a_follower_reads_logs_as_other_processes_append_to_them(tmp_path):
     """The records process 0 reads while the others append (``io.JsonlFollower``): each log's records, once,
     in order, a torn last line left out; a file that appears later is read too; then ``of_config`` keeps a
@@ -185,6 +207,20 @@ def test_interrupted_experiment_resumes_and_the_same_seed_gives_the_same_numbers
     assert [p.returncode for p in processes] == [0, 0], logs
     assert "4 episodes in" in logs[0] and "episodes in" not in logs[1]  # process 0 alone made the tables
     assert "| VisOcclHistGR |" in (tmp_path / "s" / "table.md").read_text()
+    # --local-processes: this process starts the processes (one a GPU, no jax.distributed), waits for them and makes
+    # the tables from their stores. (Both shares stored already: each process finds its share done, ~6 s; running
+    # a share is ``run_episodes(process=...)``, checked above.)
+    local_out = tmp_path / "l"
+    local_out.mkdir()
+    for index in (0, 1):
+        (local_out / f"episodes.{index}.jsonl").write_bytes((tmp_path / "s" / f"episodes.{index}.jsonl").read_bytes())
+    result = subprocess.run([sys.executable, str(ROOT / "experiments" / "table1.py"), *split_argv,
+                             f"out_dir={local_out}", "--local-processes", "2"], capture_output=True, text=True,
+                            timeout=300)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert [io.read_jsonl(local_out / f"episodes.{index}.jsonl") for index in (0, 1)] == shares  # (nothing redone)
+    assert "4 episodes in" in result.stderr and "| VisOcclHistGR |" in (local_out / "table.md").read_text()
+    assert all((local_out / f"process.{index}.log").exists() for index in (0, 1))
     for r in records:
         assert len(r["refined"]) == (2 if r["row"] == "vis_occl_hist_gr" else 1)
         assert len(r["true"]) == 5 and all(len(labels) == 5 for labels in r["refined"])

@@ -51,11 +51,12 @@ class Phases:
             self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - t0
 
 
-def write_run_times(path: Path, clock: Phases, total: float) -> None:
+def write_run_times(path: Path, clock: Phases, total: float, device: str | None = None) -> None:
     """Append this run's phases (wall s) to ``path`` (a JSON list, one entry a run) and print them; ``total``:
-    the wall seconds they are part of (what no phase names is the rest)."""
+    the wall seconds they are part of (what no phase names is the rest); ``device``: where the episodes ran
+    (default this process's devices)."""
     runs = json.loads(path.read_text()) if path.exists() else []
-    entry = {"device": report.device_name(), "devices": len(jax.local_devices()), "episodes": clock.episodes,
+    entry = {"device": device or report.device_name(), "devices": len(jax.local_devices()), "episodes": clock.episodes,
              "total_s": round(total, 1), "phases_s": {k: round(v, 1) for k, v in clock.seconds.items()}}
     io.write_json(path, [*runs, entry])
     print(f"run times ({entry['device']}, {clock.episodes} episodes): {entry['total_s']} s; "
@@ -111,9 +112,7 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
         stored = read_stores(store)
     rows = {name: protocol.row(name) for name in config.rows}
     done = {record_key(r) for r in stored}
-    every = [(c, name, s, run) for s in range(scene_set.count) for c in classifiers for name, row in rows.items()
-             if row.kind is not protocol.Kind.ORACLE or s < config.oracle_scenes
-             for run in range(runs_of(row, config.runs))]
+    every = episode_keys(config, scene_set.count)
     wanted = [k for k in every if k[2] % count == index]
     todo = [k for k in wanted if k not in done]
     mine = process_store(store, (index, count))  # where this process appends
@@ -158,6 +157,15 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
         write_run_times(run_times_file(store, (index, count)), clock, time.perf_counter() - began)
     keep = set(every)
     return [r for r in stored if record_key(r) in keep]  # (what was read at the start, and what this run added)
+
+
+def episode_keys(config: Table1Config, scenes: int) -> list[tuple[str, str, int, int]]:
+    """Every (classifier, row, scene, run) episode of ``config`` over ``scenes`` scenes (the oracle's on its first
+    ``oracle_scenes``), scene by scene."""
+    rows = {name: protocol.row(name) for name in config.rows}
+    return [(c, name, s, run) for s in range(scenes) for c in config.classifiers for name, row in rows.items()
+            if row.kind is not protocol.Kind.ORACLE or s < config.oracle_scenes
+            for run in range(runs_of(row, config.runs))]
 
 
 def program_row(row: protocol.Row) -> protocol.Row:

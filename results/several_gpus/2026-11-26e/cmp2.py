@@ -1,8 +1,11 @@
-"""Compare Table 1 runs (folders of episodes*.jsonl): identical records overall and per row; for records that differ,
-the first move where the path or the refined labels part."""
-import json, sys
+"""Compare Table 1 runs (folders of episodes*.jsonl): identical records overall and per row; for records that
+differ, the first move where the path or the refined labels part."""
+import json
+import sys
 from collections import Counter
 from pathlib import Path
+
+
 def load(p):
     out = {}
     for f in sorted(Path(p).glob("episodes*.jsonl")):
@@ -20,8 +23,8 @@ for other in sys.argv[2:]:
     for k in keys:
         if base[k] != b[k]:
             x, y = base[k], b[k]
-            m = next((i for i in range(len(x["path"])) if x["path"][i] != y["path"][i] or x["refined"][i] != y["refined"][i]
-                      or x["prior"][i] != y["prior"][i]), None)
+            m = next((i for i in range(len(x["path"])) if x["path"][i] != y["path"][i]
+                      or x["refined"][i] != y["refined"][i] or x["prior"][i] != y["prior"][i]), None)
             first[m] += 1
     print(f"{sys.argv[1]} vs {other}: {len(base)} vs {len(b)} records, {len(keys)} shared, identical "
           f"{sum(same.values())}; per row: " + ", ".join(f"{r} {same[r]}/{n}" for r, n in rows.items())

@@ -1,0 +1,101 @@
+"""Several processes of one host, one a GPU, without ``jax.distributed`` (``experiments/table1.py
+--local-processes N``): this process starts N copies of the command, process i with ``CUDA_VISIBLE_DEVICES`` set
+to the i-th visible GPU and ``--processes N --process-id i``; each runs the scenes s with s % N == i and appends
+to its own store (``data.process_store``); this one shows their progress from the stores, stops them all if one
+fails (naming it and its log), and makes the tables once they are done.
+
+Why not ``jax.distributed`` on one host: a GPU program's entry in JAX's persistent compilation cache is keyed by
+the devices' topology, which under ``jax.distributed`` is the process group's, not the one GPU a process uses;
+so a process of a group misses the programs a one-process run compiled, and only process 0 of a group writes
+entries (on a CPU every process but 0 compiles on every run). Processes that do not know of each other have a
+one-GPU client each: they share every cached program with a one-GPU run of the same shapes. Several hosts still
+need ``--distributed``."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from tqdm.auto import tqdm
+
+from jaxcls import io
+
+# How much of a failed process's log the error shows.
+LOG_TAIL_LINES = 30
+
+
+def visible_gpus(count: int, environ: dict[str, str] | None = None) -> list[str]:
+    """The GPU each of ``count`` processes gets (``CUDA_VISIBLE_DEVICES`` values): the i-th of the visible ones
+    where ``CUDA_VISIBLE_DEVICES`` lists them (ValueError if it lists fewer than ``count``), else ``"i"``."""
+    environ = os.environ if environ is None else environ
+    listed = [g.strip() for g in environ.get("CUDA_VISIBLE_DEVICES", "").split(",") if g.strip()]
+    if "CUDA_VISIBLE_DEVICES" in environ and len(listed) < count:
+        raise ValueError(f"--local-processes {count}: CUDA_VISIBLE_DEVICES lists {len(listed)} GPU(s) "
+                         f"({environ['CUDA_VISIBLE_DEVICES']!r}); start at most that many processes")
+    return listed[:count] if listed else [str(i) for i in range(count)]
+
+
+def commands(script: Path, argv: Sequence[str], count: int) -> list[list[str]]:
+    """The command line of each of ``count`` processes: ``script`` with ``argv`` (the config and its overrides)
+    and ``--processes count --process-id i``."""
+    return [[sys.executable, str(script), *argv, "--processes", str(count), "--process-id", str(i)]
+            for i in range(count)]
+
+
+def log_path(out: Path, index: int) -> Path:
+    """Where process ``index`` writes its output: ``out_dir/process.<index>.log``."""
+    return out / f"process.{index}.log"
+
+
+def run(command_lines: list[list[str]], gpus: list[str], out: Path, store_paths, total: int, done: int,
+        show_progress: bool = True, poll_seconds: float = 0.5) -> list[dict]:
+    """Start every command (process i on GPU ``gpus[i]``, its output to ``log_path(out, i)``), show the episodes
+    stored by all of them (``store_paths()``: the stores; ``total`` episodes wanted, ``done`` of them stored
+    before) and wait for them. Returns every stored record (read while they ran: ``io.JsonlFollower``).
+    RuntimeError naming the process, its exit status and the end of its log if one fails (the others are
+    stopped); an interrupt stops them all."""
+    follower = io.JsonlFollower(store_paths, interval=poll_seconds)
+    processes, logs, records = [], [], None
+    try:
+        for i, (line, gpu) in enumerate(zip(command_lines, gpus, strict=True)):
+            logs.append(open(log_path(out, i), "w"))  # (closed below, once it ended)
+            processes.append(subprocess.Popen(line, stdout=logs[-1], stderr=subprocess.STDOUT,
+                                              env={**os.environ, "CUDA_VISIBLE_DEVICES": gpu}))
+        with tqdm(total=total, initial=done, desc=f"episodes ({len(processes)} processes)", unit="episode",
+                  disable=not show_progress) as bar:
+            while True:
+                codes = [p.poll() for p in processes]
+                failed = [i for i, c in enumerate(codes) if c not in (None, 0)]
+                if failed:
+                    i = failed[0]
+                    tail = "".join(log_path(out, i).read_text(errors="replace").replace("\r", "\n")
+                                   .splitlines(keepends=True)[-LOG_TAIL_LINES:])
+                    raise RuntimeError(f"process {i} of {len(processes)} failed (exit status {codes[i]}); the others "
+                                       f"were stopped. The end of its log, {log_path(out, i)}:\n{tail}")
+                bar.update(max(0, min(total, follower.count()) - bar.n))
+                if all(c == 0 for c in codes):
+                    break
+                time.sleep(poll_seconds)
+            records = follower.finish()
+            bar.update(max(0, min(total, len(records)) - bar.n))
+        return records
+    finally:
+        if records is None:
+            try:
+                follower.finish()  # (stops its thread)
+            except ValueError:
+                pass  # (a damaged store: the error being raised says more)
+        for p in processes:
+            if p.poll() is None:
+                p.terminate()
+        for p in processes:
+            try:
+                p.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+        for f in logs:
+            f.close()
