@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -212,3 +213,8 @@ def finish_run_times(clock: runner.Phases, store: Path, started: float, share: t
 
 if __name__ == "__main__":
     main(command_line=True)
+    # Done, every file written: end without tearing down the accelerator's runtime and the episodes' memory
+    # (~6 s on an H200 after a 1,000-scene run, in every process of a run split over GPUs).
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(0)
