@@ -338,6 +338,65 @@ def _interval(statistic_of, n: int, confidence: float, resamples: int, seed: int
     return estimate, float(result.confidence_interval.low), float(result.confidence_interval.high)
 
 
+def _intervals(statistics_of, n: int, count: int, confidence: float, resamples: int, seed: int
+               ) -> list[tuple[float, float, float]]:
+    """``_interval`` of ``count`` statistics at once, ``statistics_of(picks [..., S]) -> [count, ...]``: one
+    ``scipy.stats.bootstrap`` call, every statistic on the same resamples (those ``_interval`` draws with this
+    seed for each alone: the same bounds, to the last bits of the percentile's arithmetic)."""
+    from scipy.stats import bootstrap
+
+    index = np.arange(n)
+    estimates = np.asarray(statistics_of(index), np.float64).reshape(count)
+    if n < 2:
+        return [(float(e), float(e), float(e)) for e in estimates]
+    result = bootstrap((index,), lambda picks, axis: statistics_of(picks), vectorized=True, axis=-1,
+                       confidence_level=confidence, n_resamples=resamples, method="percentile",
+                       rng=np.random.default_rng(seed))
+    low, high = (np.asarray(b, np.float64).reshape(count) for b in result.confidence_interval)
+    return [(float(e), float(lo), float(hi)) for e, lo, hi in zip(estimates, low, high, strict=True)]
+
+
+def _stacked_confusions(sets: Sequence[Sequence[tuple[np.ndarray, np.ndarray]]], num_classes: int, what: str
+                        ) -> np.ndarray:
+    """[S, k, M + 1, M + 1]: the scenes' confusion matrices of ``k`` label sets over the same S scenes."""
+    counts = {len(per_scene) for per_scene in sets}
+    if len(counts) > 1:
+        raise ValueError(f"{what}: the label sets cover {sorted(counts)} scenes; give each the same scenes")
+    return np.stack([_scene_confusions(per_scene, num_classes) for per_scene in sets], axis=1)
+
+
+def scene_intervals(sets: Sequence[Sequence[tuple[np.ndarray, np.ndarray]]], num_classes: int,
+                    statistic: str = "f1", confidence: float = 0.95, resamples: int = 2000, seed: int = 0
+                    ) -> list[tuple[float, float, float]]:
+    """``scene_interval`` of several label sets of the same scenes (e.g. a row's labels after each move) in one
+    bootstrap: [(estimate, low, high)] per set, as ``scene_interval`` gives each."""
+    if not sets:
+        return []
+    cms = _stacked_confusions(sets, num_classes, "scene_intervals")
+    return _intervals(lambda picks: np.moveaxis(confusion_scores(_resampled_sum(cms, picks))[statistic], -1, 0),
+                      len(cms), len(sets), confidence, resamples, seed)
+
+
+def paired_differences(pairs: Sequence[tuple[Sequence[tuple[np.ndarray, np.ndarray]],
+                                             Sequence[tuple[np.ndarray, np.ndarray]]]], num_classes: int,
+                       statistic: str = "f1", confidence: float = 0.95, resamples: int = 2000, seed: int = 0
+                       ) -> list[tuple[float, float, float]]:
+    """``paired_difference`` of several pairs (a, b) of label sets of the same scenes in one bootstrap:
+    [(estimate, low, high)] per pair, as ``paired_difference`` gives each."""
+    if not pairs:
+        return []
+    a = _stacked_confusions([x for x, _ in pairs], num_classes, "paired_differences")
+    b = _stacked_confusions([y for _, y in pairs], num_classes, "paired_differences")
+    if len(a) != len(b):
+        raise ValueError(f"paired_differences: {len(a)} and {len(b)} scenes; pair the same ones")
+
+    def differences(picks):
+        return np.moveaxis(confusion_scores(_resampled_sum(a, picks))[statistic]
+                           - confusion_scores(_resampled_sum(b, picks))[statistic], -1, 0)
+
+    return _intervals(differences, len(a), len(pairs), confidence, resamples, seed)
+
+
 def scene_interval(per_scene: Sequence[tuple[np.ndarray, np.ndarray]], num_classes: int, statistic: str = "f1",
                    confidence: float = 0.95, resamples: int = 2000, seed: int = 0) -> tuple[float, float, float]:
     """(estimate, low, high): a ``statistic`` of ``Scores`` over all scenes pooled and its percentile bootstrap

@@ -231,6 +231,30 @@ def test_resampled_sums_equal_the_gathered_ones_and_no_scenes_score_zero():
     assert metrics.paired_difference([], [], 4) == (0.0, 0.0, 0.0)
 
 
+def test_several_intervals_in_one_bootstrap_equal_each_alone():
+    """``scene_intervals`` / ``paired_differences`` (Table 1's every move and difference in one bootstrap each) give
+    the bounds ``scene_interval`` / ``paired_difference`` give each set alone: the same resamples (seed)."""
+    rng = np.random.default_rng(2)
+
+    def label_set(error):
+        out = []
+        for _ in range(40):
+            true = rng.integers(0, 4, 5)
+            out.append((true, np.where(rng.random(5) < error, rng.integers(-1, 4, 5), true)))
+        return out
+
+    sets = [label_set(e) for e in (0.1, 0.3, 0.5)]
+    alone = [metrics.scene_interval(x, 4, resamples=500) for x in sets]
+    assert np.allclose(metrics.scene_intervals(sets, 4, resamples=500), alone, rtol=0, atol=1e-12)
+    assert len({a[1:] for a in alone}) == 3  # (three different intervals)
+    pairs = [(sets[0], sets[1]), (sets[2], sets[0])]
+    alone = [metrics.paired_difference(a, b, 4, resamples=500) for a, b in pairs]
+    assert np.allclose(metrics.paired_differences(pairs, 4, resamples=500), alone, rtol=0, atol=1e-12)
+    assert metrics.scene_intervals([], 4) == [] and metrics.paired_differences([], 4) == []
+    with pytest.raises(ValueError, match=r"\[39, 40\] scenes"):
+        metrics.scene_intervals([sets[0], sets[1][:39]], 4)
+
+
 def test_scene_pooling_and_confusions_equal_the_plain_loops():
     """``protocol.per_scene`` pools each scene's runs (scenes ascending, runs in the records' order, an episode
     of fewer moves counted with its last) and ``_scene_confusions`` counts them in one bincount: both equal the

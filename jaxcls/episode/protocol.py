@@ -335,20 +335,19 @@ def per_scene(records: Sequence[dict[str, Any]], move: int, label: str = "refine
     return scene_labels(records, label).at(move)
 
 
-def moves_to_correct(records: Sequence[dict[str, Any]], label: str = "refined") -> tuple[float, float]:
+def moves_to_correct(records: Sequence[dict[str, Any]], label: str = "refined", labels: SceneLabels | None = None
+                     ) -> tuple[float, float]:
     """(mean moves until a target's label turns right and stays right, over the targets that end right;
-    the share of targets right after the last move)."""
-    moves, right, total = [], 0, 0
-    for r in records:
-        labels, true = np.asarray(r[label]), np.asarray(r["true"])
-        correct = labels == true[None]  # [T, K]
-        for k in range(correct.shape[1]):
-            total += 1
-            if correct[-1, k]:
-                right += 1
-                wrong = np.flatnonzero(~correct[:, k])
-                moves.append(int(wrong[-1]) + 2 if len(wrong) else 1)
-    return (float(np.mean(moves)) if moves else float("nan")), (right / total if total else 0.0)
+    the share of targets right after the last move). ``labels``: ``scene_labels(records, label)`` where the
+    caller has them (an episode of fewer moves repeats its last labels there, which changes neither)."""
+    labels = labels or scene_labels(records, label)
+    if not labels.predicted.size:
+        return float("nan"), 0.0
+    correct = labels.predicted == labels.true[None]  # [T, n]
+    wrong = ~correct
+    last_wrong = len(correct) - 1 - np.argmax(wrong[::-1], axis=0)  # (where any move was wrong)
+    moves = np.where(wrong.any(axis=0), last_wrong + 2, 1)[correct[-1]]
+    return (float(moves.mean()) if moves.size else float("nan")), float(correct[-1].mean())
 
 
 __all__ = ["PAPER_ROWS", "ROWS", "Kind", "Row", "SceneLabels", "all_views", "episode_record", "episode_records",

@@ -3,6 +3,7 @@ the paired differences between rows that the paper's findings rest on."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -14,16 +15,23 @@ from jaxcls.experiments.table1.config import Table1Config
 STATISTICS = ("accuracy", "precision", "recall", "f1")
 
 
-def row_scores(records: list[dict[str, Any]], classes: int, move: int, resamples: int,
-               labels: protocol.SceneLabels | None = None) -> dict[str, Any]:
+def row_scores(records: list[dict[str, Any]], classes: int, move: int | Sequence[int], resamples: int,
+               labels: protocol.SceneLabels | None = None) -> dict[str, Any] | list[dict[str, Any]]:
     """A row's scores after ``move``: each statistic pooled over scenes, F1's 95% scene-bootstrap interval;
-    ``labels``: ``protocol.scene_labels(records)`` where the caller scores several moves."""
-    per_scene = (labels or protocol.scene_labels(records)).at(move)
-    pooled = metrics.classification_scores(np.concatenate([t for t, _ in per_scene]),
-                                           np.concatenate([p for _, p in per_scene]), classes)
-    _, low, high = metrics.scene_interval(per_scene, classes, "f1", resamples=resamples)
-    return {**{k: getattr(pooled, k) for k in STATISTICS}, "f1_low": low, "f1_high": high,
-            "scenes": len(per_scene), "episodes": len(records)}
+    ``labels``: ``protocol.scene_labels(records)`` where the caller has them. ``move`` a sequence of moves: a
+    list of their scores, every move's interval from one bootstrap (``metrics.scene_intervals``: the bounds
+    each alone would get)."""
+    moves = [move] if isinstance(move, int) else list(move)
+    labels = labels or protocol.scene_labels(records)
+    per_move = [labels.at(t) for t in moves]
+    intervals = metrics.scene_intervals(per_move, classes, "f1", resamples=resamples)
+    scores = []
+    for per_scene, (_, low, high) in zip(per_move, intervals, strict=True):
+        pooled = metrics.classification_scores(np.concatenate([t for t, _ in per_scene]),
+                                               np.concatenate([p for _, p in per_scene]), classes)
+        scores.append({**{k: getattr(pooled, k) for k in STATISTICS}, "f1_low": low, "f1_high": high,
+                       "scenes": len(per_scene), "episodes": len(records)})
+    return scores[0] if isinstance(move, int) else scores
 
 
 def differences(config: Table1Config, by: dict, c: str, classes: int,
@@ -32,7 +40,7 @@ def differences(config: Table1Config, by: dict, c: str, classes: int,
     PointNetSingle; VisOcclHist(GR) against Random(GR); every policy against VisOcclHistGR; the oracle
     against the best policy. ``by``: (classifier, row) -> that row's records; ``labels``: row -> its
     ``protocol.scene_labels`` where the caller has them."""
-    T, notes = config.moves, []
+    T = config.moves
     prepared: dict[tuple[str, frozenset | None], protocol.SceneLabels] = {
         (name, None): lab for name, lab in (labels or {}).items()}
     scene_sets: dict[str, set] = {}
@@ -47,31 +55,39 @@ def differences(config: Table1Config, by: dict, c: str, classes: int,
                                                    if key[1] is None or r["scene"] in key[1]])
         return prepared[key].at(move)
 
-    def diff(a, b, move_a=T, move_b=T):
-        # Paired on the scenes both rows have (the oracle runs on fewer; an interrupted run may have more).
-        shared = {r["scene"] for r in by[c, a]} & {r["scene"] for r in by[c, b]}
-        d, lo, hi = metrics.paired_difference(scenes_of(a, move_a, shared), scenes_of(b, move_b, shared), classes,
-                                              resamples=config.resamples)
-        sig = "" if lo <= 0 <= hi else " (the interval excludes 0)"
-        return f"{protocol.ROWS[a].label} - {protocol.ROWS[b].label}: {metrics.format_difference(d, lo, hi)}{sig}"
-
+    pairs: list[tuple[str, str, str, int, int]] = []  # (the note's prefix, row a, row b, a's move, b's move)
     present = [n for n in config.rows if (c, n) in by]
     policies = [n for n in present if protocol.ROWS[n].kind is protocol.Kind.POLICY]
     for n in present:
         if n.endswith("_gr") and n[:-3] in present:
-            notes.append("GR: " + diff(n, n[:-3]))
+            pairs.append(("GR: ", n, n[:-3], T, T))
     for n in policies:
         single = "single_gr" if protocol.ROWS[n].refinement else "single"
         if single in present:
-            notes.append("Active at T against one view: " + diff(n, single, T, 1))
+            pairs.append(("Active at T against one view: ", n, single, T, 1))
     for a, b in (("vis_occl_hist", "random"), ("vis_occl_hist_gr", "random_gr")):  # the paper's VisOcclHist >= Random
         if a in present and b in present:
-            notes.append("VisOcclHist against Random: " + diff(a, b))
+            pairs.append(("VisOcclHist against Random: ", a, b, T, T))
     if "vis_occl_hist_gr" in present:
-        notes += ["Against VisOcclHistGR: " + diff(n, "vis_occl_hist_gr") for n in policies
-                  if n != "vis_occl_hist_gr"]
+        pairs += [("Against VisOcclHistGR: ", n, "vis_occl_hist_gr", T, T) for n in policies if n != "vis_occl_hist_gr"]
     if "oracle_gr" in present and policies:
         best = max(policies, key=lambda n: metrics.classification_scores(
             *map(np.concatenate, zip(*scenes_of(n, T), strict=True)), classes).f1)
-        notes.append("Oracle against the best policy: " + diff("oracle_gr", best))
+        pairs.append(("Oracle against the best policy: ", "oracle_gr", best, T, T))
+    # Paired on the scenes both rows have (the oracle runs on fewer; an interrupted run may have more); the pairs of
+    # one scene set in one bootstrap (``metrics.paired_differences``: the bounds each alone would get).
+    shared = [frozenset({r["scene"] for r in by[c, a]} & {r["scene"] for r in by[c, b]}) for _, a, b, _, _ in pairs]
+    results: list = [None] * len(pairs)
+    for scenes in dict.fromkeys(shared):
+        at = [i for i, sc in enumerate(shared) if sc == scenes]
+        found = metrics.paired_differences(
+            [(scenes_of(pairs[i][1], pairs[i][3], scenes), scenes_of(pairs[i][2], pairs[i][4], scenes)) for i in at],
+            classes, resamples=config.resamples)
+        for i, r in zip(at, found, strict=True):
+            results[i] = r
+    notes = []
+    for (prefix, a, b, _, _), (d, lo, hi) in zip(pairs, results, strict=True):
+        sig = "" if lo <= 0 <= hi else " (the interval excludes 0)"
+        notes.append(f"{prefix}{protocol.ROWS[a].label} - {protocol.ROWS[b].label}: "
+                     f"{metrics.format_difference(d, lo, hi)}{sig}")
     return notes

@@ -36,13 +36,13 @@ def tables(config: Table1Config, records: list[dict[str, Any]], classes: int, ti
             row = protocol.ROWS[name]
             moves = T if row.kind in (protocol.Kind.POLICY, protocol.Kind.ORACLE) else 1
             labels[name] = protocol.scene_labels(recs)
-            per_move = [row_scores(recs, classes, t, config.resamples, labels[name]) for t in range(1, moves + 1)]
+            per_move = row_scores(recs, classes, range(1, moves + 1), config.resamples, labels[name])
             for t, sc in enumerate(per_move, 1):
                 csv_rows.append({"classifier": c, "row": name, "label": row.label, "move": t, **sc})
             curves[c][row.label] = per_move
             last = per_move[-1]
             mid = per_move[min(half, moves) - 1]["f1"]
-            steps, right = protocol.moves_to_correct(recs)
+            steps, right = protocol.moves_to_correct(recs, labels=labels[name])
             table_rows.append((row.label, *(f"{last[k]:.3f}" for k in STATISTICS),
                                f"[{last['f1_low']:.3f}, {last['f1_high']:.3f}]", f"{mid:.3f}",
                                f"{steps:.2f}" if moves > 1 else "-", f"{right:.2f}", last["scenes"], last["episodes"]))
