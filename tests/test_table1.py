@@ -68,8 +68,17 @@ def test_jsonl_log_drops_a_torn_line_and_appends_cleanly(tmp_path):
     assert [r["n"] for r in io.read_jsonl(path)][-2:] == [19_999, "next"]
 
 
-def test_local_processes_get_a_gpu_each_and_a_failed_one_stops_them_all(tmp_path):
+def test_local_processes_get_a_gpu_each_and_a_failed_one_stops_them_all(table1, tmp_path, capsys):
     from jaxcls.experiments.table1 import local
+
+    for argv, message in [(["--local-processes", "2", "--tables-only"], "leave out --distributed"),
+                          (["--local-processes", "0"], "at least 1"),
+                          (["--processes", "2", "--process-id", "2"], "0 <= I < N"),
+                          (["--processes", "2"], "0 <= I < N"),
+                          (["--processes", "2", "--process-id", "0", "--tables-only"], "episodes only")]:
+        with pytest.raises(SystemExit):
+            table1.main(argv)
+        assert message in capsys.readouterr().err
 
     assert local.visible_gpus(2, {}) == ["0", "1"]
     assert local.visible_gpus(2, {"CUDA_VISIBLE_DEVICES": "3,5,6"}) == ["3", "5"]
