@@ -247,40 +247,42 @@ def test_interrupted_experiment_resumes_and_the_same_seed_gives_the_same_numbers
 def test_the_oracle_bounds_a_policy_one_move_ahead(table1, tmp_path):
     """From the same start, the oracle's second move scores at least the F1 of VisOcclHistGR's second move:
     both share the first move, and the policy's pick is one of the candidates the oracle scores. So it does
-    with a scene's runs tried one at a time (the CPU's default) and two in one vmapped call
-    (``oracle_runs_per_call``)."""
+    with the runs tried one at a time (the CPU's default) and with two scenes' runs in one vmapped call
+    (``oracle_runs_per_call``, each run against its own scene's frames and objects)."""
     # The paper-recipe weights, whose labels change from view to view, and every view a candidate (12 views
     # are too sparse for the 0.5 m radius): candidates differ in F1. Frames fused at the poses given, as where
     # test_episode.py and test_batched.py compare two compiled programs: a tracked pose differs between the
     # oracle's programs (one run a call, two a call) and the policy's in its last float32 digits, which moves
     # the fused surface chaotically downstream; and the programs compile in half the time (~10 s, not ~25 s,
     # on the 2-core CPU: five of them here).
-    argv = _small(tmp_path, "o", "scenes=1", "runs=2", "rows=[vis_occl_hist_gr,oracle_gr]", "oracle_scenes=1",
+    argv = _small(tmp_path, "o", "runs=1", "scene_chunk=2", "rows=[vis_occl_hist_gr,oracle_gr]", "oracle_scenes=2",
                   "nbv.radius=2.0", "perception.tracking.mode=reported", classifiers="{paper: builtin_paper}")
     table1.main(argv)
     table1.main([*argv, "rows=[oracle_gr]", "oracle_runs_per_call=2", f"out_dir={tmp_path / 'o2'}"])
-    records = {(r["row"], r["run"]): r for r in io.read_jsonl(tmp_path / "o" / "episodes.jsonl")}
+    records = {(r["row"], r["scene"]): r for r in io.read_jsonl(tmp_path / "o" / "episodes.jsonl")}
     assert len(records) == 4
-    in_pairs = {r["run"]: r for r in io.read_jsonl(tmp_path / "o2" / "episodes.jsonl")}
-    assert sorted(in_pairs) == [0, 1]
+    together = {r["scene"]: r for r in io.read_jsonl(tmp_path / "o2" / "episodes.jsonl")}
+    assert sorted(together) == [0, 1]
     classes = len(object_set_from_config(ObjectSetConfig()).classes)  # the synthetic set's, the builtin one
 
     def f1(r):
         return metrics.classification_scores(np.asarray(r["true"]), np.asarray(r["refined"][1]), classes).f1
 
-    for oracles in ({run: records["oracle_gr", run] for run in range(2)}, in_pairs):
+    for oracles in ({scene: records["oracle_gr", scene] for scene in range(2)}, together):
         gains = []
-        for run, oracle in oracles.items():
-            policy = records["vis_occl_hist_gr", run]
+        for scene, oracle in oracles.items():
+            policy = records["vis_occl_hist_gr", scene]
+            assert oracle["true"] == policy["true"]  # (each run scored against its own scene's objects)
             assert oracle["path"][0] == policy["path"][0] and oracle["refined"][0] == policy["refined"][0]
             assert len(oracle["path"]) == 2 and oracle["path"][1] != oracle["path"][0]
             gains.append(f1(oracle) - f1(policy))
-        print("oracle - policy F1 after move 2, per run:", gains)
+        print("oracle - policy F1 after move 2, per scene:", gains)
         assert min(gains) >= -1e-9
+    assert records["oracle_gr", 0]["true"] != records["oracle_gr", 1]["true"]  # (two scenes of other objects)
     # Batches of other sizes may round differently and break a tie between candidates otherwise (seen: one
     # run of four, one at a time against two a call, took another of two candidates of equal F1); the best F1
     # found is the same.
-    assert [f1(in_pairs[run]) for run in range(2)] == pytest.approx([f1(records["oracle_gr", run]) for run in range(2)])
+    assert [f1(together[s]) for s in range(2)] == pytest.approx([f1(records["oracle_gr", s]) for s in range(2)])
 
 
 def _memory_maps() -> int | None:

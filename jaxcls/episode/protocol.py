@@ -163,19 +163,20 @@ def all_views(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, key: j
 
 
 def _moves_to(episode: active.Episode, state: active.EpisodeState, depth: jax.Array, T_wc: jax.Array,
-              views: jax.Array) -> tuple[active.EpisodeState, active.Trace]:
-    """The move to each of ``views: [C]`` from one ``state`` (vmapped): [C] states and their traces."""
+              scene: jax.Array, views: jax.Array) -> tuple[active.EpisodeState, active.Trace]:
+    """The move to each of ``views: [C]`` of ``scene``'s frames (depth [S, V, H, W], T_wc [S, V, 4, 4]) from one
+    ``state`` (vmapped): [C] states and their traces."""
     def go(view):
-        new = active.step(episode, state.replace(next_view=view), depth[view], T_wc[view])
+        new = active.step(episode, state.replace(next_view=view), depth[scene, view], T_wc[scene, view])
         return new, active.trace(new, view)
 
     return jax.vmap(go)(views)
 
 
-# The runs' first states: starts [R], keys [R] -> [R] states.
-_resets = jax.jit(jax.vmap(active.reset, in_axes=(None, None, 0, 0)))
-# Runs [R] of one scene, each from its own state to its own candidates: views [R, C] -> [R, C] states, traces.
-_runs_moves_to = jax.jit(jax.vmap(_moves_to, in_axes=(None, 0, None, None, 0)))
+# The runs' first states: T_wc [R, V, 4, 4] (each run's scene's), starts [R], keys [R] -> [R] states.
+_resets = jax.jit(jax.vmap(active.reset, in_axes=(None, 0, 0, 0)))
+# Runs [R], each from its own state to its own candidates of its scene: views [R, C] -> [R, C] states, traces.
+_runs_moves_to = jax.jit(jax.vmap(_moves_to, in_axes=(None, 0, None, None, 0, 0)))
 
 
 @jax.jit
@@ -185,18 +186,29 @@ def _runs_candidates(episode: active.Episode, views: nbv.Views) -> tuple[jax.Arr
 
 
 def oracle_rollouts(episode: active.Episode, depth: np.ndarray, T_wc: np.ndarray, starts: np.ndarray,
-                    keys: jax.Array, truth: scoring.Truth) -> active.Trace:
-    """The oracle NBV for the runs ``starts: [R]`` (keys [R]) of one scene: the first move from each start;
-    then at each move every candidate of every run (``nbv.candidates`` within the radius, unvisited ones
-    first) is fused, segmented, classified and refined in one vmapped call, and each run keeps the one whose
-    refined labels score the best true F1 of the target objects (ties: the nearer candidate). A ``Trace``
-    with [R, T, ...] leaves."""
+                    keys: jax.Array, truth: scoring.Truth | Sequence[scoring.Truth],
+                    scene: np.ndarray | None = None) -> active.Trace:
+    """The oracle NBV for the runs ``starts: [R]`` (keys [R]): the first move from each start; then at each move
+    every candidate of every run (``nbv.candidates`` within the radius, unvisited ones first) is fused,
+    segmented, classified and refined in one vmapped call, and each run keeps the one whose refined labels score
+    the best true F1 of the target objects (ties: the nearer candidate). A ``Trace`` with [R, T, ...] leaves.
+
+    One scene: depth [V, H, W] m, T_wc [V, 4, 4], ``truth`` its ``Truth``. Several scenes in one call: depth
+    [S, V, H, W], T_wc [S, V, 4, 4], ``scene: [R]`` each run's scene and ``truth`` a ``Truth`` per run."""
     depth, T_wc = jnp.asarray(depth, jnp.float32), jnp.asarray(T_wc, jnp.float32)
     starts = np.asarray(starts, np.int64)
     R, num_classes = len(starts), len(episode.spec.classifier.classes)
-    runs = np.arange(R)
-    states = _resets(episode, T_wc, jnp.asarray(starts, jnp.int32), keys)
-    states, traces = _runs_moves_to(episode, states, depth, T_wc, jnp.asarray(starts[:, None], jnp.int32))
+    if scene is None:
+        depth, T_wc, scene, truths = depth[None], T_wc[None], np.zeros(R, np.int32), [truth] * R
+    else:
+        scene, truths = np.asarray(scene, np.int32), list(truth)
+        if scene.shape != (R,) or len(truths) != R or depth.ndim != 4 or T_wc.ndim != 4:
+            raise ValueError(f"oracle_rollouts: several scenes need depth [S, V, H, W], T_wc [S, V, 4, 4], scene [R] "
+                             f"and a truth per run; got {depth.shape}, {T_wc.shape}, {scene.shape}, {len(truths)} "
+                             f"truths for {R} runs")
+    runs, at = np.arange(R), jnp.asarray(scene)
+    states = _resets(episode, T_wc[at], jnp.asarray(starts, jnp.int32), keys)
+    states, traces = _runs_moves_to(episode, states, depth, T_wc, at, jnp.asarray(starts[:, None], jnp.int32))
     traces = jax.device_get(traces)  # [R, C] traces on the host once a move: scored, and the picks kept
     pick = np.zeros(R, np.int64)
     kept = []
@@ -209,11 +221,12 @@ def oracle_rollouts(episode: active.Episode, depth: np.ndarray, T_wc: np.ndarray
         fresh = ok & ~np.take_along_axis(np.asarray(states.views.visited), index, axis=1)
         first = np.arange(index.shape[1]) == 0
         allowed = np.where(fresh.any(1, keepdims=True), fresh, np.where(ok.any(1, keepdims=True), ok, first))
-        states, traces = _runs_moves_to(episode, states, depth, T_wc, jnp.asarray(index, jnp.int32))
+        states, traces = _runs_moves_to(episode, states, depth, T_wc, at, jnp.asarray(index, jnp.int32))
         traces = jax.device_get(traces)
         centroid, valid, refined = traces.centroid, traces.refinement.valid, traces.refinement.refined
-        f1 = np.array([[scoring.target_scores(truth, scoring.object_labels(truth, centroid[r, c], valid[r, c],
-                                                                          refined[r, c]), num_classes).f1
+        f1 = np.array([[scoring.target_scores(truths[r], scoring.object_labels(truths[r], centroid[r, c],
+                                                                               valid[r, c], refined[r, c]),
+                                              num_classes).f1
                         if allowed[r, c] else -1.0 for c in range(index.shape[1])] for r in runs])
         pick = np.argmax(f1, axis=1)
     return jax.tree.map(lambda *xs: np.stack(xs, axis=1), *kept)

@@ -8,12 +8,14 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
+import operator
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
@@ -32,6 +34,8 @@ from jaxcls.world.objects import object_set_from_config
 # died with LLVM's "Cannot allocate memory" after ~30. On the CPU the rows run in passes over the scenes of at
 # most this many (classifier, row) programs each, freed after the pass (a scene is read once per pass).
 CPU_PROGRAMS_PER_PASS = 12
+# The oracle's episodes in one call off the CPU: each tries its ~16 candidates at every move, ~1,000 moves a call.
+ORACLE_EPISODES_PER_CALL = 64
 
 
 class Phases:
@@ -93,7 +97,8 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
     """Every (classifier, row, scene, run) episode not yet stored, appended to ``store`` (JSONL) as each batch
     of a row finishes; returns the records of this config's rows and scenes stored when it began (every
     process's) and those it added (with one process: all of them). The single-view and policy
-    rows run batched over scenes and runs (``run_batched``); PointNetFull and the oracle scene by scene.
+    rows run batched over scenes and runs (``run_batched``), the oracle's runs of several scenes a call
+    (``run_oracle``), PointNetFull scene by scene.
 
     Several processes (``process``: (index, count), default ``process_share()``; hosts of a ``jax.distributed``
     run) split the scenes: process i runs the scenes s with s % count == i on its local devices and appends to
@@ -123,7 +128,10 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
             share = len({k[2] for k in wanted if rows[k[1]].kind in BATCHED})  # (a resumed run: the same shapes)
             stored += run_batched(config, scene_set, dataset, classifiers, object_set, batched_todo, mine, bar, clock,
                                   share)
-        todo = [k for k in todo if rows[k[1]].kind not in BATCHED]
+        oracle_todo = [k for k in todo if rows[k[1]].kind is protocol.Kind.ORACLE]
+        if oracle_todo:
+            stored += run_oracle(config, scene_set, dataset, classifiers, object_set, oracle_todo, mine, bar, clock)
+        todo = [k for k in todo if rows[k[1]].kind not in (*BATCHED, protocol.Kind.ORACLE)]
         programs = [(c, name) for c in classifiers for name in rows if any(k[:2] == (c, name) for k in todo)]
         for group in passes(programs, jax.default_backend()):
             episodes: dict[tuple[str, str], active.Episode] = {}
@@ -145,7 +153,7 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
                         episodes[c, name] = episode(config, row, classifiers[c], object_set, views.intrinsics,
                                                     views.table_height, dataset.scene.split)
                     bar.set_postfix(scene=s, classifier=c, row=name)
-                    with clock("scene by scene (PointNetFull, the oracle)"):
+                    with clock("scene by scene (PointNetFull)"):
                         records = row_records(config, row, episodes[c, name], views, truth, starts, keys, missing)
                     records = [{"classifier": c, "row": name, "scene": s, **r} for r in records]
                     io.append_jsonl(mine, records)
@@ -282,6 +290,53 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     return made
 
 
+def run_oracle(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
+               classifiers: dict[str, pointnet.Classifier], object_set, todo: list[tuple[str, str, int, int]],
+               store: Path, bar: tqdm, clock: Phases) -> list[dict[str, Any]]:
+    """The oracle row's episodes ``todo``: the frames of ``scene_chunk`` of their scenes at a time, the runs of
+    several scenes in one call (``protocol.oracle_rollouts``), ``oracle_runs_per_call`` episodes a call (0: one on
+    a CPU, ``ORACLE_EPISODES_PER_CALL`` elsewhere), the last call padded to that shape (nothing compiles again).
+    Returns the records appended to ``store``."""
+    size = config.oracle_runs_per_call or (1 if jax.default_backend() == "cpu" else ORACLE_EPISODES_PER_CALL)
+    scenes = sorted({k[2] for k in todo})
+    episodes: dict[tuple[str, str], active.Episode] = {}
+    made: list[dict[str, Any]] = []
+    for first in range(0, len(scenes), config.scene_chunk):
+        chunk_scenes = scenes[first:first + config.scene_chunk]
+        with clock("frames (rendered or read)"):
+            chunk = scene_set.chunk(chunk_scenes)
+            depth = jnp.asarray(chunk.depth, jnp.float32)  # (on the device once for the chunk's calls)
+        place = {s: i for i, s in enumerate(chunk_scenes)}
+        truths = {s: scoring.Truth.from_scene(chunk.scenes[i], object_set) for s, i in place.items()}
+        starts = {s: protocol.start_views(config.seed, s, config.runs, chunk.T_wc.shape[1]) for s in chunk_scenes}
+        with jax.default_device(devices.host_cpu()):  # (on a GPU they would wait for its queue)
+            keys = {s: np.asarray(protocol.run_keys(config.seed, s, config.runs)) for s in chunk_scenes}
+        for c, name in dict.fromkeys(k[:2] for k in todo):
+            calls = [k for k in todo if k[:2] == (c, name) and k[2] in place]
+            if (c, name) not in episodes:
+                episodes[c, name] = episode(config, protocol.ROWS[name], classifiers[c], object_set, chunk.intrinsics,
+                                            chunk.scenes[0].table_height, dataset.scene.split)
+            for at in range(0, len(calls), size):
+                part = calls[at:at + size]
+                padded = part + [part[0]] * (size - len(part))  # (copies of its first, dropped)
+                bar.set_postfix(scenes=f"{chunk_scenes[0]}-{chunk_scenes[-1]}", classifier=c, row=name)
+                with clock("the oracle (runs of several scenes a call)"):
+                    traces = protocol.oracle_rollouts(
+                        episodes[c, name], depth, chunk.T_wc, np.array([starts[s][r] for _, _, s, r in padded]),
+                        np.stack([keys[s][r] for _, _, s, r in padded]), [truths[s] for _, _, s, _ in padded],
+                        scene=np.array([place[s] for _, _, s, _ in padded]))
+                records = protocol.episode_records(
+                    jax.tree.map(operator.itemgetter(slice(len(part))), traces), [truths[k[2]] for k in part],
+                    [{"classifier": c, "row": name, "scene": s, "run": r, "start": int(starts[s][r])}
+                     for _, _, s, r in part])
+                io.append_jsonl(store, records)
+                made.extend(records)
+                bar.update(len(records))
+    if jax.default_backend() == "cpu":
+        jax.clear_caches()  # (its programs' memory maps: see CPU_PROGRAMS_PER_PASS)
+    return made
+
+
 def chosen_episodes(config: Table1Config, chosen: list[str]) -> list[tuple[str, str, int, int]]:
     """``--record``'s episodes as (classifier, row, scene, run): each ``ROW:SCENE:RUN`` or
     ``CLASSIFIER:ROW:SCENE:RUN`` (the config's first classifier when left out); ValueError naming the entry for
@@ -388,15 +443,6 @@ def row_records(config: Table1Config, row: protocol.Row, episode: active.Episode
     if row.kind is protocol.Kind.FULL:
         trace, _ = protocol.all_views(episode, views.depth, views.T_wc, keys[0])
         return [protocol.episode_record(trace, truth, run=0, start=-1)]
-    if row.kind is protocol.Kind.ORACLE:
-        size = config.oracle_runs_per_call or (1 if jax.default_backend() == "cpu" else len(runs))
-        records = []
-        for chunk in (runs[i:i + size] for i in range(0, len(runs), size)):
-            traces = protocol.oracle_rollouts(episode, views.depth, views.T_wc, starts[chunk], keys[np.asarray(chunk)],
-                                              truth)
-            records += protocol.episode_records(jax.device_get(traces), [truth] * len(chunk),
-                                                [{"run": r, "start": int(starts[r])} for r in chunk])
-        return records
     # All runs (one compiled shape), brought to the host once.
     traces = jax.device_get(protocol.rollouts(episode, views.depth, views.T_wc, starts, keys))
     runs_index = np.asarray(runs, np.int64)
