@@ -67,16 +67,23 @@ def records_one_at_a_time(traces, truths, keys) -> list[dict]:
     names = {s.value: s.name.lower() for s in tracking.Status}
     records = []
     for e, (truth, key) in enumerate(zip(truths, keys, strict=True)):
-        labels = []
+        labels, phantoms, segments = [], [], []
         for t in range(done.shape[1]):
+            if done[e, t] and labels:
+                labels.append(labels[-1]), phantoms.append(phantoms[-1]), segments.append(segments[-1])
+                continue
             both = np.stack([r.prior[e, t], r.refined[e, t]])
-            labels.append(labels[-1] if done[e, t] and labels else
-                          scoring.object_labels(truth, traces.centroid[e, t], r.valid[e, t], both)[:, truth.target])
+            labels.append(scoring.object_labels(truth, traces.centroid[e, t], r.valid[e, t], both)[:, truth.target])
+            match = metrics.match_objects(traces.centroid[e, t], r.valid[e, t], truth.centroid)
+            live = np.asarray(r.valid[e, t], bool)
+            phantoms.append([int(r.refined[e, t, n]) for n in np.flatnonzero(live) if n not in set(match.tolist())])
+            segments.append(int(live.sum()))
         made, labels = ~done[e], np.stack(labels)
         records.append({**key, "path": traces.view[e][made].tolist(), "true": truth.label[truth.target].tolist(),
                         "prior": labels[:, 0].tolist(), "refined": labels[:, 1].tolist(),
                         "tracking": [names[s] for s in traces.tracking[e][made]],
-                        "hand_eye": hand_eye[e][made].tolist()})
+                        "hand_eye": hand_eye[e][made].tolist(), "phantom": phantoms, "segments": segments,
+                        "objects": len(truth.label)})
     return records
 
 

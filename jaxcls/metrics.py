@@ -231,11 +231,14 @@ class Scores:
 
 
 def confusion(true: np.ndarray, predicted: np.ndarray, num_classes: int) -> np.ndarray:
-    """[M + 1, M + 1] i64 counts of (true, predicted) labels; row/column M holds "no class" (-1 predicted:
-    the object was not matched by any segment). true: [n] in [0, M); predicted: [n] in [-1, M)."""
+    """[M + 1, M + 1] i64 counts of (true, predicted) labels; row/column M holds "no object" / "no class":
+    predicted -1, an object no segment matched (a false negative of its class); true -1, a segment that matched
+    no object (a phantom: a false positive of its predicted class). A pair of two -1s (an empty slot) is not
+    counted. true: [n] in [-1, M); predicted: [n] in [-1, M)."""
     true, predicted = _checked_labels(true, predicted, num_classes)
     cm = np.zeros((num_classes + 1, num_classes + 1), np.int64)
-    np.add.at(cm, (true, np.where(predicted < 0, num_classes, predicted)), 1)
+    np.add.at(cm, (np.where(true < 0, num_classes, true), np.where(predicted < 0, num_classes, predicted)), 1)
+    cm[num_classes, num_classes] = 0
     return cm
 
 
@@ -244,9 +247,9 @@ def _checked_labels(true: np.ndarray, predicted: np.ndarray, num_classes: int) -
     true, predicted = np.asarray(true, np.int64), np.asarray(predicted, np.int64)
     if true.shape != predicted.shape or true.ndim != 1:
         raise ValueError(f"classification_scores: need true [n] and predicted [n], got {true.shape}, {predicted.shape}")
-    if len(true) and (true.min() < 0 or true.max() >= num_classes or predicted.max() >= num_classes
+    if len(true) and (true.min() < -1 or true.max() >= num_classes or predicted.max() >= num_classes
                       or predicted.min() < -1):
-        raise ValueError(f"classification_scores: labels must lie in [0, {num_classes}) (predicted may be -1)")
+        raise ValueError(f"classification_scores: labels must lie in [0, {num_classes}) (-1: no object / no class)")
     return true, predicted
 
 
@@ -259,7 +262,7 @@ def confusion_scores(cm: np.ndarray) -> dict[str, np.ndarray]:
     cls = cm[..., :-1, :-1]
     tp = np.diagonal(cls, axis1=-2, axis2=-1)
     true_count = cm[..., :-1, :].sum(axis=-1)  # objects of each class (unmatched ones too)
-    pred_count = cls.sum(axis=-2)  # objects labelled with each class
+    pred_count = cm[..., :, :-1].sum(axis=-2)  # labelled with each class: objects, and phantoms (row M)
     n = cm.sum(axis=(-2, -1))
     occurs = (true_count > 0) | (pred_count > 0)
     classes = np.maximum(occurs.sum(axis=-1), 1)
@@ -281,7 +284,8 @@ def confusion_scores(cm: np.ndarray) -> dict[str, np.ndarray]:
 
 def classification_scores(true: np.ndarray, predicted: np.ndarray, num_classes: int) -> Scores:
     """Scores of labels ``predicted: [n]`` (class indices; -1 = the object was not matched by any segment,
-    which counts as wrong) against ``true: [n]``, macro-averaged over the classes (of 0..num_classes-1)
+    which counts as wrong) against ``true: [n]`` (-1: a segment that matched no object, a phantom, which counts
+    as a false positive of its predicted class), macro-averaged over the classes (of 0..num_classes-1)
     that occur in ``true`` or ``predicted``: what scikit-learn's ``precision_recall_fscore_support(average=
     "macro", zero_division=0)`` gives (checked in the tests), from the confusion matrix so that a bootstrap
     can score thousands of resamples at once (``confusion_scores``)."""
@@ -305,8 +309,10 @@ def _scene_confusions(per_scene: Sequence[tuple[np.ndarray, np.ndarray]], num_cl
     true, predicted = _checked_labels(np.concatenate([t for t, _ in per_scene]),
                                       np.concatenate([p for _, p in per_scene]), num_classes)
     scene = np.repeat(np.arange(S), [len(t) for t, _ in per_scene])
-    cell = (scene * M + true) * M + np.where(predicted < 0, num_classes, predicted)
-    return np.bincount(cell, minlength=S * M * M).reshape(S, M, M)
+    cell = (scene * M + np.where(true < 0, num_classes, true)) * M + np.where(predicted < 0, num_classes, predicted)
+    cms = np.bincount(cell, minlength=S * M * M).reshape(S, M, M)
+    cms[:, num_classes, num_classes] = 0  # (empty slots: no object, no class)
+    return cms
 
 
 def _resampled_sum(cms: np.ndarray, picks: np.ndarray) -> np.ndarray:

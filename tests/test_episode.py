@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxcls import cli
+from jaxcls import cli, metrics
 from jaxcls.config import ConfigError, load_config
 from jaxcls.episode import active, runner, scoring, setup, sources
 from jaxcls.geometry import CameraConfig
@@ -71,8 +71,16 @@ def test_same_seed_same_episode(episode, world, frames):
     assert _strip_times(a) == _strip_times(b)
     assert set(a.moves[0]["times_ms"]) == set(active.MODULES)
     assert all(m["segments"] for m in a.moves) and all(0 <= m["scores"]["refined"]["f1"] <= 1 for m in a.moves)
-    # The record's scores are the metrics of its labels against the scene.
+    # The record's scores are the metrics of its labels against the scene; phantoms only lower the F1.
     last = a.moves[-1]
+    assert last["detection"]["segments"] == len(last["segments"]) and last["detection"]["objects"] == len(truth.label)
+    assert all(m["detection"]["f1"] <= m["scores"]["refined"]["f1"] + 1e-9 for m in a.moves)
+    classes = list(episode.spec.classifier.classes)
+    for m in a.moves:  # the target objects' labels, and each phantom a detection of no object
+        phantom = np.array([classes.index(c) for c in m["detection"]["phantoms"]], np.int64)
+        true = np.concatenate([truth.label[truth.target], np.full(len(phantom), -1)])
+        predicted = np.concatenate([np.asarray(m["labels"]["refined"])[truth.target], phantom])
+        assert m["detection"]["f1"] == round(metrics.classification_scores(true, predicted, len(classes)).f1, 4)
     assert 0 < np.mean(last["coverage"]) <= 1
 
 

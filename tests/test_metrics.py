@@ -231,6 +231,28 @@ def test_resampled_sums_equal_the_gathered_ones_and_no_scenes_score_zero():
     assert metrics.paired_difference([], [], 4) == (0.0, 0.0, 0.0)
 
 
+def test_phantom_segments_count_as_false_positives_of_their_class():
+    """true -1: a segment that matched no object (a phantom), a false positive of its predicted class; predicted
+    -1: an object no segment matched, a false negative; (-1, -1) an empty slot, counted nowhere. The peer:
+    scikit-learn with "no object" as one more label, left out of the macro average."""
+    from sklearn.metrics import accuracy_score, precision_recall_fscore_support
+
+    true = np.array([0, 1, 2, 2, -1, -1, 1, -1])
+    predicted = np.array([0, 1, 1, -1, 2, 0, 1, -1])
+    ours = metrics.classification_scores(true, predicted, 3)
+    kept = ~((true < 0) & (predicted < 0))
+    t, p = np.where(true < 0, 3, true)[kept], np.where(predicted < 0, 3, predicted)[kept]
+    precision, recall, f1, _ = precision_recall_fscore_support(t, p, labels=[0, 1, 2], average="macro",
+                                                               zero_division=0)
+    assert (ours.precision, ours.recall, ours.f1) == pytest.approx((precision, recall, f1))
+    assert ours.plain_accuracy == pytest.approx(accuracy_score(t, p)) and ours.count == 7
+    without = metrics.classification_scores(true[true >= 0], predicted[true >= 0], 3)
+    assert ours.recall == pytest.approx(without.recall) and ours.precision < without.precision
+    assert metrics.scene_interval([(true, predicted)], 3)[0] == pytest.approx(ours.f1)
+    with pytest.raises(ValueError, match="-1: no object"):
+        metrics.classification_scores(np.array([-2]), np.array([0]), 3)
+
+
 def test_several_intervals_in_one_bootstrap_equal_each_alone():
     """``scene_intervals`` / ``paired_differences`` (Table 1's every move and difference in one bootstrap each) give
     the bounds ``scene_interval`` / ``paired_difference`` give each set alone: the same resamples (seed)."""

@@ -327,6 +327,21 @@ def test_table_and_csv_against_hand_made_episodes():
     assert rows[2]["f1_low"] <= rows[2]["f1"] <= rows[2]["f1_high"] and rows[2]["scenes"] == 2
     assert list(curves["c"]) == ["PointNetSingleGR", "VisOcclHistGR"]
     assert "VisOcclHistGR - PointNetSingleGR" in markdown  # the paired difference against one view
+    assert cells[-2:] == ["-", "-"]  # (records without their phantom segments)
+    # Phantom segments (live, matched to no object): after move 2 scene 0 has one labelled 1 and one labelled 3,
+    # scene 1 none; 5 segments live against 5 objects in scene 0 (3 targets, 2 clutter), 4 against 5 in scene 1.
+    records[0].update(phantom=[[], [1, 3]], segments=[4, 5], objects=5)
+    records[1].update(phantom=[[2], []], segments=[5, 4], objects=5)
+    for r in records[2:]:
+        r.update(phantom=[[]], segments=[5], objects=5)
+    markdown, _, _ = tables.tables(config, records, 4, None, ["x"])
+    cells = [c.strip() for c in next(x for x in markdown.splitlines()
+                                     if x.startswith("| VisOcclHistGR |")).strip("|").split("|")]
+    # Each phantom a false positive of its class, the padded slots (-1, -1) nowhere.
+    detected = metrics.classification_scores(np.array([0, 1, 2, -1, -1, 1, 2, 3, -1, -1]),
+                                             np.array([0, 1, 2, 1, 3, 1, 2, 0, -1, -1]), 4)
+    assert detected.f1 < policy.f1 and cells[-2].startswith(f"{detected.f1:.3f} [")
+    assert cells[-1] == "-0.50 (abs 0.50)"
 
 
 def test_protocol_rows_and_starts():
@@ -432,6 +447,14 @@ def test_records_of_a_batch_are_each_episodes_own():
         assert together[e] == protocol.episode_record(jax.tree.map(lambda x, e=e: x[e], traces), truths[e], run=e)
     stopped = together[1]
     assert len(stopped["path"]) == len(stopped["hand_eye"]) == 2 and stopped["refined"][3] == stopped["refined"][1]
+    assert stopped["phantom"][3] == stopped["phantom"][1] and stopped["segments"][3] == stopped["segments"][1]
+    for e in range(E):  # phantoms: the live segments no object (target or clutter) took, with their refined class
+        for t in range(T if e != 1 else 2):
+            match = set(metrics.match_objects(traces.centroid[e, t], refinement.valid[e, t], truths[e].centroid))
+            live = np.flatnonzero(refinement.valid[e, t])
+            assert together[e]["phantom"][t] == [int(refinement.refined[e, t, n]) for n in live if n not in match]
+            assert together[e]["segments"][t] == len(live) and together[e]["objects"] == K
+    assert any(together[e]["phantom"][t] for e in range(E) for t in range(T))  # (some phantoms to check)
     assert np.allclose(np.asarray(together[0]["hand_eye"])[:, :3], hand_eye[0, :, :3, 3], atol=1e-5)
 
 

@@ -211,6 +211,10 @@ def _run(config: RunConfig, args: argparse.Namespace) -> str:
     if "labels" in final:
         n, m = right_counts(log)["refined"]
         score += f"; {n} of {m} objects right"
+    if "detection" in final:
+        d = final["detection"]
+        score += (f"; {d['segments']} segments for {d['objects']} objects, {len(d['phantoms'])} phantom(s), "
+                  f"F1 with phantoms counted {d['f1']:.3f}")
     print(f"{len(log.moves)} moves{score}", file=sys.stderr)
     return f"wrote {out}"
 

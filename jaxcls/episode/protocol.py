@@ -237,8 +237,10 @@ def episode_record(trace: active.Trace, truth: scoring.Truth, **keys: Any) -> di
     scene, run, start, ...), the views fused (``path``), the target objects' true classes (``true``: [K])
     and their prior and refined labels after every move (``prior``, ``refined``: [T][K]; -1 = no segment
     matched the object); each frame's tracking status (``tracking.Status``) and the hand-eye estimate Y
-    after it (``hand_eye``: [T][6], its SE(3) log, translation m then rotation rad). A move the episode did
-    not make (it had stopped) repeats the last labels. ``episode_records`` does a batch at once."""
+    after it (``hand_eye``: [T][6], its SE(3) log, translation m then rotation rad); the refined classes of the
+    phantom segments after every move (``phantom``: [T][p], live segments that matched no object, target or
+    clutter), the live segments' count (``segments``: [T]) and the scene's objects' (``objects``). A move the
+    episode did not make (it had stopped) repeats the last labels. ``episode_records`` does a batch at once."""
     return episode_records(jax.tree.map(lambda x: np.asarray(x)[None], trace), [truth], [keys])[0]
 
 
@@ -265,6 +267,8 @@ def episode_records(traces: active.Trace, truths: Sequence[scoring.Truth], keys:
     # Each scene's episodes matched to its objects together (one truth, every move at once); a move after the
     # episode stopped keeps the labels of the move before.
     labels: list[np.ndarray | None] = [None] * E  # [T, 2, targets] each
+    phantom: list[np.ndarray | None] = [None] * E  # [T, N] each: a phantom segment's refined class, else -1
+    segments = np.asarray(valid).sum(axis=-1)  # [E, T] live segments after each move
     same_truth: dict[int, list[int]] = {}
     for e, truth in enumerate(truths):
         same_truth.setdefault(id(truth), []).append(e)
@@ -276,16 +280,26 @@ def episode_records(traces: active.Trace, truths: Sequence[scoring.Truth], keys:
         both = np.stack([prior[idx], refined[idx]], axis=2)  # [n, T, 2, N]
         picked = np.take_along_axis(both, np.maximum(match, 0)[:, :, None, :], axis=-1)
         picked = np.where(match[:, :, None, :] >= 0, picked, -1)[..., truth.target]  # [n, T, 2, targets]
+        # Phantoms: live segments that matched no object (target or clutter), with their refined class.
+        matched = np.zeros(valid[idx].shape, bool)  # [n, T, N]
+        ii, tt, kk = np.nonzero(match >= 0)
+        matched[ii, tt, match[ii, tt, kk]] = True
+        ghosts = np.where(valid[idx] & ~matched, refined[idx], -1)  # [n, T, N]
         for t in range(1, T):
             picked[:, t] = np.where(done[idx, t][:, None, None], picked[:, t - 1], picked[:, t])
+            ghosts[:, t] = np.where(done[idx, t][:, None], ghosts[:, t - 1], ghosts[:, t])
         for i, e in enumerate(members):
-            labels[e] = picked[i]
+            labels[e], phantom[e] = picked[i], ghosts[i]
+    for t in range(1, T):
+        segments[:, t] = np.where(done[:, t], segments[:, t - 1], segments[:, t])
     records = []
     for e, (truth, key) in enumerate(zip(truths, keys, strict=True)):
         made = ~done[e]
         records.append({**key, "path": views[e][made].tolist(), "true": truth.label[truth.target].tolist(),
                         "prior": labels[e][:, 0].tolist(), "refined": labels[e][:, 1].tolist(),
-                        "tracking": [names[s] for s in status[e][made]], "hand_eye": hand_eye[e][made].tolist()})
+                        "tracking": [names[s] for s in status[e][made]], "hand_eye": hand_eye[e][made].tolist(),
+                        "phantom": [row[row >= 0].tolist() for row in phantom[e]],
+                        "segments": segments[e].tolist(), "objects": len(truth.label)})
     return records
 
 
@@ -307,10 +321,22 @@ class SceneLabels:
         return list(zip(np.split(self.true, self.cuts), np.split(predicted, self.cuts), strict=True))
 
 
-def scene_labels(records: Sequence[dict[str, Any]], label: str = "refined") -> SceneLabels:
+def scene_labels(records: Sequence[dict[str, Any]], label: str = "refined", phantoms: bool = False
+                 ) -> SceneLabels:
     """The ``label`` labels of ``records`` (one row's) per scene, pooling each scene's runs, for every move
     (``SceneLabels.at(move)``: ``per_scene``'s answer). Where every record has as many moves and targets, one
-    NumPy conversion of all; else a move at a time."""
+    NumPy conversion of all; else a move at a time. ``phantoms``: each record's phantom segments too (its
+    ``phantom`` classes as detections of no object, true -1: false positives; ``label`` must be "refined"),
+    padded to the row's most with empty slots (-1, -1), which count nowhere."""
+    if phantoms:
+        if label != "refined" or any("phantom" not in r for r in records):
+            raise ValueError("scene_labels: phantoms need the refined labels of records that keep their phantom "
+                             "segments (stored since 2026-11-26)")
+        most = max((len(x) for r in records for x in r["phantom"]), default=0)
+        records = [{**r, "true": [*r["true"], *[-1] * most],
+                    label: [[*labels, *x, *[-1] * (most - len(x))] for labels, x in zip(r[label], r["phantom"],
+                                                                                          strict=True)]}
+                   for r in records]
     if not records:
         return SceneLabels(np.zeros(0, np.int64), np.zeros((0, 0), np.int64), np.zeros(0, np.int64))
     scene = np.array([int(r["scene"]) for r in records], np.int64)

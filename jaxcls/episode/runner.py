@@ -10,7 +10,9 @@ prior class and score, candidates with their rho, refined class, model and pose 
 moves its class has held; tracking: the frame's registration (status ``accepted``, ``refused`` or
 ``reported``, object pairs, RMS residual in mm, the pose it was fused at, frames accepted and refused so
 far, the hand-eye estimate as translation mm and rotation deg). With a ``truth``: the target objects'
-scores for the prior and the refined labels, and each object's surface coverage.
+scores for the prior and the refined labels, each object's surface coverage, and ``detection``: live segments
+against the scene's objects, the phantom segments' classes (live, matched to no object) and the refined F1 with
+each phantom a false positive of its class.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from typing import Any
 import jax
 import numpy as np
 
+from jaxcls import metrics
 from jaxcls.episode import active, scoring
 from jaxcls.episode.sources import ViewSource
 from jaxcls.perception import tracking
@@ -85,6 +88,14 @@ def move_record(episode: active.Episode, state: active.EpisodeState, times: dict
         record["scores"] = {name: dataclasses.asdict(scoring.target_scores(truth, lab, len(classes)))
                             for name, lab in zip(("prior", "refined"), labels, strict=True)}
         record["labels"] = {"prior": labels[0].tolist(), "refined": labels[1].tolist()}
+        # Phantoms: live segments that matched no object (target or clutter), false positives of their class.
+        taken = set(metrics.match_objects(centroid, valid, truth.centroid).tolist())
+        phantom = [int(refined[n]) for n in np.flatnonzero(valid) if n not in taken]
+        with_phantoms = metrics.classification_scores(
+            np.concatenate([truth.label[truth.target], np.full(len(phantom), -1)]),
+            np.concatenate([labels[1][truth.target], np.asarray(phantom, np.int64)]), len(classes))
+        record["detection"] = {"segments": int(np.asarray(valid).sum()), "objects": len(truth.label),
+                               "phantoms": [classes[c] for c in phantom], "f1": round(with_phantoms.f1, 4)}
         surface = obs.surface
         record["coverage"] = _round(scoring.coverage(truth, np.asarray(surface.points)[np.asarray(surface.mask)]), 3)
     return record

@@ -8,6 +8,8 @@ import io as _io
 from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
+
 from jaxcls import report
 from jaxcls.episode import active, protocol
 from jaxcls.experiments.table1.config import Table1Config
@@ -45,11 +47,13 @@ def tables(config: Table1Config, records: list[dict[str, Any]], classes: int, ti
             steps, right = protocol.moves_to_correct(recs, labels=labels[name])
             table_rows.append((row.label, *(f"{last[k]:.3f}" for k in STATISTICS),
                                f"[{last['f1_low']:.3f}, {last['f1_high']:.3f}]", f"{mid:.3f}",
-                               f"{steps:.2f}" if moves > 1 else "-", f"{right:.2f}", last["scenes"], last["episodes"]))
+                               f"{steps:.2f}" if moves > 1 else "-", f"{right:.2f}", last["scenes"], last["episodes"],
+                               *detections(recs, classes, moves, config.resamples)))
         notes += differences(config, by, c, classes, labels)
         sections.append(report.table(
             ("method", "accuracy", "precision", "recall", "F1", "F1 95% CI (scenes)", f"F1 after {half} moves",
-             "moves to correct", "share right at the end", "scenes", "episodes"), table_rows))
+             "moves to correct", "share right at the end", "scenes", "episodes", "F1, phantoms counted",
+             "segments - objects"), table_rows))
         sections[-1] = f"#### Classifier `{c}` ({config.classifiers[c] or 'shipped weights'})\n\n" + sections[-1] \
             + ("\n\n" + "\n".join(f"- {n}" for n in notes) if notes else "")
     timing_md = "\n\n" + timing_table(timing) if timing else ""
@@ -60,6 +64,18 @@ def tables(config: Table1Config, records: list[dict[str, Any]], classes: int, ti
     markdown = (f"### Table 1 on `{config.dataset}`\n\n`{report.command_line(argv)}`\n\n{intro}\n\n"
                 + "\n\n".join(sections) + timing_md + "\n")
     return markdown, csv_rows, curves
+
+
+def detections(records: list[dict[str, Any]], classes: int, moves: int, resamples: int) -> tuple[str, str]:
+    """(F1 at the row's last move with each phantom segment a false positive of its class, and its scene-bootstrap
+    interval; the mean count error, live segments - the scene's objects, and its mean absolute value), or "-"
+    for records stored before they kept their phantoms."""
+    if not records or any("phantom" not in r for r in records):
+        return "-", "-"
+    scores = row_scores(records, classes, moves, resamples, protocol.scene_labels(records, phantoms=True))
+    error = np.array([r["segments"][-1] - r["objects"] for r in records], np.float64)
+    return (f"{scores['f1']:.3f} [{scores['f1_low']:.3f}, {scores['f1_high']:.3f}]",
+            f"{error.mean():+.2f} (abs {np.abs(error).mean():.2f})")
 
 
 def timing_table(timing: dict) -> str:
