@@ -292,14 +292,16 @@ def episode_records(traces: active.Trace, truths: Sequence[scoring.Truth], keys:
             labels[e], phantom[e] = picked[i], ghosts[i]
     for t in range(1, T):
         segments[:, t] = np.where(done[:, t], segments[:, t - 1], segments[:, t])
+    phantom_lists = np.stack(phantom).tolist()  # [E][T][N] (one conversion; filtered below)
+    segment_lists = segments.tolist()
     records = []
     for e, (truth, key) in enumerate(zip(truths, keys, strict=True)):
         made = ~done[e]
         records.append({**key, "path": views[e][made].tolist(), "true": truth.label[truth.target].tolist(),
                         "prior": labels[e][:, 0].tolist(), "refined": labels[e][:, 1].tolist(),
                         "tracking": [names[s] for s in status[e][made]], "hand_eye": hand_eye[e][made].tolist(),
-                        "phantom": [row[row >= 0].tolist() for row in phantom[e]],
-                        "segments": segments[e].tolist(), "objects": len(truth.label)})
+                        "phantom": [[c for c in row if c >= 0] for row in phantom_lists[e]],
+                        "segments": segment_lists[e], "objects": len(truth.label)})
     return records
 
 
