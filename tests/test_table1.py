@@ -259,6 +259,9 @@ def test_the_oracle_bounds_a_policy_one_move_ahead(table1, tmp_path):
                   "nbv.radius=2.0", "perception.tracking.mode=reported", classifiers="{paper: builtin_paper}")
     table1.main(argv)
     table1.main([*argv, "rows=[oracle_gr]", "oracle_runs_per_call=2", f"out_dir={tmp_path / 'o2'}"])
+    # A process's share, shorter than the chunk: its frames padded to the run's chunk (the same program's shape).
+    table1.main([*argv, "rows=[oracle_gr]", "oracle_runs_per_call=2", f"out_dir={tmp_path / 'o3'}", "--processes",
+                 "2", "--process-id", "1"])
     records = {(r["row"], r["scene"]): r for r in io.read_jsonl(tmp_path / "o" / "episodes.jsonl")}
     assert len(records) == 4
     together = {r["scene"]: r for r in io.read_jsonl(tmp_path / "o2" / "episodes.jsonl")}
@@ -283,6 +286,8 @@ def test_the_oracle_bounds_a_policy_one_move_ahead(table1, tmp_path):
     # run of four, one at a time against two a call, took another of two candidates of equal F1); the best F1
     # found is the same.
     assert [f1(together[s]) for s in range(2)] == pytest.approx([f1(records["oracle_gr", s]) for s in range(2)])
+    (share,) = io.read_jsonl(tmp_path / "o3" / "episodes.1.jsonl")
+    assert share["scene"] == 1 and share["path"] == together[1]["path"] and f1(share) == pytest.approx(f1(together[1]))
 
 
 def _memory_maps() -> int | None:

@@ -130,7 +130,9 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
                                   share)
         oracle_todo = [k for k in todo if rows[k[1]].kind is protocol.Kind.ORACLE]
         if oracle_todo:
-            stored += run_oracle(config, scene_set, dataset, classifiers, object_set, oracle_todo, mine, bar, clock)
+            planned = len({k[2] for k in every if rows[k[1]].kind is protocol.Kind.ORACLE})  # (every process's)
+            stored += run_oracle(config, scene_set, dataset, classifiers, object_set, oracle_todo, mine, bar, clock,
+                                 planned)
         todo = [k for k in todo if rows[k[1]].kind not in (*BATCHED, protocol.Kind.ORACLE)]
         programs = [(c, name) for c in classifiers for name in rows if any(k[:2] == (c, name) for k in todo)]
         for group in passes(programs, jax.default_backend()):
@@ -292,20 +294,27 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
 
 def run_oracle(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                classifiers: dict[str, pointnet.Classifier], object_set, todo: list[tuple[str, str, int, int]],
-               store: Path, bar: tqdm, clock: Phases) -> list[dict[str, Any]]:
+               store: Path, bar: tqdm, clock: Phases, planned: int | None = None) -> list[dict[str, Any]]:
     """The oracle row's episodes ``todo``: the frames of ``scene_chunk`` of their scenes at a time, the runs of
     several scenes in one call (``protocol.oracle_rollouts``), ``oracle_runs_per_call`` episodes a call (0: one on
-    a CPU, ``ORACLE_EPISODES_PER_CALL`` elsewhere), the last call padded to that shape (nothing compiles again).
-    Returns the records appended to ``store``."""
+    a CPU, ``ORACLE_EPISODES_PER_CALL`` elsewhere), the last call padded to that shape. A chunk's frames are
+    padded (copies of its first scene's, never used) to min(``scene_chunk``, ``planned``) scenes: ``planned`` is
+    the oracle's scenes over every process (default: ``todo``'s), so that a shorter last chunk, a process's share
+    and a resumed run have one shape and nothing compiles again (~25 s a program on an H200). Returns the
+    records appended to ``store``."""
     size = config.oracle_runs_per_call or (1 if jax.default_backend() == "cpu" else ORACLE_EPISODES_PER_CALL)
     scenes = sorted({k[2] for k in todo})
+    frames = min(config.scene_chunk, max(planned or 0, len(scenes)))  # scenes' frames in every call
     episodes: dict[tuple[str, str], active.Episode] = {}
     made: list[dict[str, Any]] = []
     for first in range(0, len(scenes), config.scene_chunk):
         chunk_scenes = scenes[first:first + config.scene_chunk]
         with clock("frames (rendered or read)"):
             chunk = scene_set.chunk(chunk_scenes)
-            depth = jnp.asarray(chunk.depth, jnp.float32)  # (on the device once for the chunk's calls)
+            depth, T_wc = jnp.asarray(chunk.depth, jnp.float32), chunk.T_wc  # (on the device once for the chunk)
+            if len(chunk_scenes) < frames:
+                slots = np.r_[np.arange(len(chunk_scenes)), np.zeros(frames - len(chunk_scenes), np.int64)]
+                depth, T_wc = depth[slots], T_wc[slots]
         place = {s: i for i, s in enumerate(chunk_scenes)}
         truths = {s: scoring.Truth.from_scene(chunk.scenes[i], object_set) for s, i in place.items()}
         starts = {s: protocol.start_views(config.seed, s, config.runs, chunk.T_wc.shape[1]) for s in chunk_scenes}
@@ -322,7 +331,7 @@ def run_oracle(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                 bar.set_postfix(scenes=f"{chunk_scenes[0]}-{chunk_scenes[-1]}", classifier=c, row=name)
                 with clock("the oracle (runs of several scenes a call)"):
                     traces = protocol.oracle_rollouts(
-                        episodes[c, name], depth, chunk.T_wc, np.array([starts[s][r] for _, _, s, r in padded]),
+                        episodes[c, name], depth, T_wc, np.array([starts[s][r] for _, _, s, r in padded]),
                         np.stack([keys[s][r] for _, _, s, r in padded]), [truths[s] for _, _, s, _ in padded],
                         scene=np.array([place[s] for _, _, s, _ in padded]))
                 records = protocol.episode_records(
