@@ -13,7 +13,7 @@ from jaxcls import metrics, perception
 from jaxcls.geometry import CameraConfig, Intrinsics
 from jaxcls.perception import foreground, segment
 from jaxcls.perception.segment import grid
-from jaxcls.perception.settings import ForegroundConfig, PerceptionConfig, ShapeConfig, Spec
+from jaxcls.perception.settings import ForegroundConfig, ObjectCount, PerceptionConfig, ShapeConfig, Spec
 from jaxcls.perception.tracking import TrackingConfig
 from jaxcls.world import scenes
 from jaxcls.world.setup import WorldConfig, make_world
@@ -227,3 +227,142 @@ def test_grid_building_blocks_match_scipy():
     votes = rng.random((120, 120))
     np.testing.assert_allclose(np.asarray(grid._blur(jnp.asarray(votes, jnp.float32), 1.0)),
                                ndimage.gaussian_filter(votes, 1.0, mode="reflect"), atol=1e-5)
+
+
+# --- The number of objects estimated (shapes.num_objects = estimated): num_segments is the slots' count. ---
+
+SLOTS = 6
+COUNTING = SPEC.replace(config=PerceptionConfig(
+    shapes=ShapeConfig(surface_points=32768, num_segments=SLOTS, num_objects=ObjectCount.estimated),
+    tracking=TrackingConfig(mode="reported")))
+
+
+def _cylinders(cylinders, spacing=0.006):
+    """Closed upright cylinders ``(x, y, radius, height)`` (m) standing on the table (z = 0): side wall with
+    outward normals, top disc with normals up, points about ``spacing`` m apart (a fused surface's density).
+    Returns (points [M, 3] f32, normals [M, 3] f32, mask [M] bool, owner [M] i64 each point's cylinder)."""
+    pts, nrm, owner = [np.zeros((0, 3))], [np.zeros((0, 3))], [np.zeros(0, np.int64)]
+    for k, (cx, cy, radius, height) in enumerate(cylinders):
+        a = np.linspace(0, 2 * np.pi, max(8, int(2 * np.pi * radius / spacing)), endpoint=False)
+        z = np.arange(SPEC.floor + spacing, height, spacing)
+        u = np.repeat(np.c_[np.cos(a), np.sin(a)], len(z), axis=0)  # [ring * levels, 2] outward
+        side = np.c_[cx + radius * u[:, 0], cy + radius * u[:, 1], np.tile(z, len(a))]
+        rings = [(r, np.linspace(0, 2 * np.pi, max(6, int(2 * np.pi * r / spacing)), endpoint=False))
+                 for r in np.arange(spacing, radius, spacing)]
+        disc = np.concatenate([np.zeros((1, 2))] + [r * np.c_[np.cos(b), np.sin(b)] for r, b in rings])
+        top = np.c_[cx + disc[:, 0], cy + disc[:, 1], np.full(len(disc), height)]
+        pts += [side, top]
+        nrm += [np.c_[u, np.zeros(len(u))], np.tile([0.0, 0.0, 1.0], (len(top), 1))]
+        owner += [np.full(len(side) + len(top), k)]
+    p = np.concatenate(pts).astype(np.float32)
+    return p, np.concatenate(nrm).astype(np.float32), np.ones(len(p), bool), np.concatenate(owner)
+
+
+def _live(seg) -> int:
+    """Segments with points (a slot's liveness is its mask having points)."""
+    return int(np.asarray(seg.mask).any(1).sum())
+
+
+def _ring(count, radius=0.16, size=0.025, height=0.06):
+    """``count`` equal cylinders on a circle of ``radius`` m around the table's centre."""
+    return [(radius * np.cos(a), radius * np.sin(a), size, height)
+            for a in np.linspace(0, 2 * np.pi, count, endpoint=False)]
+
+
+_HAND_MADE = {  # name: (cylinders (x, y, radius, height), objects)
+    "lone": ([(0.02, -0.03, 0.03, 0.06)], 1),
+    "touching pair": ([(-0.031, 0.0, 0.03, 0.06), (0.031, 0.0, 0.03, 0.06)], 2),  # 2 mm apart
+    "touching pair, unequal": ([(-0.03, 0.0, 0.03, 0.06), (0.025, 0.0, 0.023, 0.09)], 2),  # 2 mm apart
+    "three apart": (_ring(3, size=0.03), 3),
+    "empty table": ([], 0),
+}
+
+
+@pytest.mark.parametrize("path", PATHS)
+def test_estimated_count_on_hand_made_clouds(path):
+    """The count, not a given N: a lone object is one segment (never split to fill the slots), a touching
+    pair (one DBSCAN cluster, one footprint) two, separated objects one each, an empty table (only points in
+    its band) none; each segment one cylinder whole, empty slots last, nothing NaN."""
+    for name, (cylinders, objects) in _HAND_MADE.items():
+        pts, nrm, m, owner = _cylinders(cylinders)
+        if not objects:  # an empty table: only points in the table band
+            pts = np.c_[np.random.default_rng(0).uniform(-0.2, 0.2, (300, 2)), np.zeros(300)].astype(np.float32)
+            nrm, m, owner = np.tile(np.float32([0, 0, 1]), (300, 1)), np.ones(300, bool), np.full(300, -1)
+        seg = PATHS[path](COUNTING, pts, nrm, m)
+        assert seg.points.shape == (SLOTS, SPEC.points_per_segment, 3), name
+        assert _live(seg) == objects, (name, _live(seg))
+        assert np.isfinite(np.asarray(seg.points)).all() and np.isfinite(np.asarray(seg.normals)).all(), name
+        labels = np.asarray(seg.labels)
+        live = np.asarray(seg.mask).any(1)
+        assert live[:objects].all() and not live[objects:].any(), f"{name}: empty slots must come last"
+        assert set(np.unique(labels)) <= set(range(objects)) | {-1}, name
+        if objects:
+            kept = labels >= 0
+            assert np.mean(kept) > 0.95, f"{name}: points dropped"
+            assert adjusted_rand_score(owner[kept], labels[kept]) > 0.95, name
+
+
+@pytest.mark.parametrize("path", PATHS)
+def test_estimated_count_is_capped_by_the_slots_and_drops_fragments(path):
+    """More separated objects than slots: every slot is used, the nearest merge, no point is lost; a fragment
+    smaller than ``min_object_area`` beside an object is dropped, not counted."""
+    pts, nrm, m, _ = _cylinders(_ring(SLOTS + 2, 0.2, size=0.02))
+    seg = PATHS[path](COUNTING, pts, nrm, m)
+    assert _live(seg) == SLOTS and np.mean(np.asarray(seg.labels) >= 0) > 0.95
+    chip = (0.12, 0.0, 0.008, 0.03)  # a 2 cm^2 footprint, 6 cm from the object
+    assert np.pi * chip[2] ** 2 < COUNTING.segmentation.min_object_area
+    pts, nrm, m, owner = _cylinders([(0.0, 0.0, 0.03, 0.06), chip])
+    seg = PATHS[path](COUNTING, pts, nrm, m)
+    labels = np.asarray(seg.labels)
+    assert _live(seg) == 1 and np.all(labels[owner == 1] == -1) and np.mean(labels[owner == 0] == 0) > 0.95
+
+
+def test_estimated_count_static_shapes_for_one_to_all_slots():
+    """The twin's shapes are static whatever the count: 1 up to ``num_segments`` objects in one compiled
+    program (and vmapped over clouds of different counts), slots beyond the count empty, nothing NaN."""
+    size = 4096
+    clouds = []
+    for count in range(1, SLOTS + 1):
+        pts, nrm, m, _ = _cylinders(_ring(count, 0.18 if count > 1 else 0.0))
+        clouds.append([np.pad(a, [(0, size - len(a))] + [(0, 0)] * (a.ndim - 1)) for a in (pts, nrm, m)])
+    p, n, m = (np.stack(a) for a in zip(*clouds, strict=True))
+    batched = jax.vmap(segment.segment_jax, in_axes=(None, 0, 0, 0))(COUNTING, p, n, m)
+    assert batched.points.shape == (SLOTS, SLOTS, SPEC.points_per_segment, 3)
+    assert batched.labels.shape == (SLOTS, size) and batched.labels.dtype == jnp.int32
+    live = np.asarray(batched.mask).any(2)
+    np.testing.assert_array_equal(live.sum(1), np.arange(1, SLOTS + 1))
+    np.testing.assert_array_equal(live, np.arange(SLOTS)[None, :] < np.arange(1, SLOTS + 1)[:, None])
+    for leaf in (batched.points, batched.normals):
+        assert np.isfinite(np.asarray(leaf)).all()
+    assert not np.asarray(batched.points)[~live].any()
+    one = segment.segment_jax(COUNTING, p[2], n[2], m[2])
+    np.testing.assert_array_equal(np.asarray(one.labels), np.asarray(batched.labels[2]))
+
+
+def test_known_count_is_the_default_and_a_bad_choice_names_the_key():
+    assert ShapeConfig().num_objects is ObjectCount.known
+    assert ShapeConfig(num_objects="estimated").num_objects is ObjectCount.estimated
+    with pytest.raises(ValueError, match=r"shapes\.num_objects"):
+        PerceptionConfig(shapes=ShapeConfig(num_objects="guess"))
+    with pytest.raises(ValueError, match="merge_persistence"):
+        PerceptionConfig(segmentation=segment.SegmentConfig(merge_persistence=1.5))
+    with pytest.raises(ValueError, match="min_object_area"):
+        PerceptionConfig(segmentation=segment.SegmentConfig(min_object_area=-1.0))
+
+
+def test_fused_scenes_estimated_count_and_twin_agreement(fused_scenes):
+    """On rendered scenes fused from five views (5 objects each, 6 slots): the count is right in most
+    scenes, and the twin and the reference agree on the count in every scene and on the partition (ARI)."""
+    right, agree = [], []
+    for clouds in fused_scenes:
+        for p, n, m, _ in clouds:
+            ref, twin = segment.segment(COUNTING, p, n, m), segment.segment_jax(COUNTING, p, n, m)
+            assert _live(ref) == _live(twin), (_live(ref), _live(twin))
+            right.append(_live(ref) == 5)
+            a, b = np.asarray(ref.labels), np.asarray(twin.labels)
+            either = (a >= 0) | (b >= 0)
+            agree.append(adjusted_rand_score(a[either], b[either]))
+            assert not np.isnan(np.asarray(twin.points)).any()
+    print("count right", np.mean(right), "agreement", np.round(agree, 3))
+    assert np.mean(right) >= 0.5, right
+    assert min(agree) >= 0.95, agree

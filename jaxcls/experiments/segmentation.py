@@ -37,16 +37,17 @@ def render_scene(kind: str, seed: int, scale: float):
     return world, np.asarray(depth), np.asarray(world.poses(list(VIEWS)), np.float32), truth
 
 
-def fused(kind: str, seed: int, scale: float, settings: perception.PerceptionConfig, observe: Callable):
-    """The scene's surfaces after each of ``SCORED`` views: (world, spec, truth, {views: state}); ``observe`` is
+def fused(kind: str, seed: int, scale: float, settings: perception.PerceptionConfig, observe: Callable,
+          scored: tuple[int, ...] = SCORED):
+    """The scene's surfaces after each of ``scored`` views: (world, spec, truth, {views: state}); ``observe`` is
     ``perception.observe`` (jitted by the caller, so that one compiled move serves every scene)."""
     world, depth, Ts, truth = render_scene(kind, seed, scale)
     spec = perception.Spec.create(settings, world.intrinsics, world.table_height)
     state = perception.init_state(spec)
     states = {}
-    for v in range(len(VIEWS)):
+    for v in range(max(scored)):
         state = observe(spec, state, jnp.asarray(depth[v]), jnp.asarray(Ts[v]))
-        if v + 1 in SCORED:
+        if v + 1 in scored:
             states[v + 1] = state
     return world, spec, truth, states
 

@@ -47,6 +47,18 @@ class Segmenter(enum.StrEnum):
     reference = "reference"
 
 
+class ObjectCount(enum.StrEnum):
+    """How many objects the segmentation looks for (``perception.shapes.num_objects``): ``known``, exactly
+    ``shapes.num_segments`` (the paper: basins merged down to N, the largest part split by 2-means up to N);
+    ``estimated``, as many as the data shows, at most ``shapes.num_segments`` (basins merged only while their
+    relative persistence is below ``segmentation.merge_persistence`` or there are more than the slots; no
+    splits; parts with a footprint under ``segmentation.min_object_area`` dropped); slots beyond the count have
+    empty masks."""
+
+    known = "known"
+    estimated = "estimated"
+
+
 @dataclasses.dataclass(frozen=True)
 class ForegroundConfig:
     """Which depth pixels and surface points are objects: above the table band, nearer than ``max_depth``."""
@@ -102,6 +114,14 @@ class SegmentConfig:
     # mid-height; at most kmeans_iters Lloyd rounds.
     kmeans_iters: int = bounded(20, ge=1)
     kmeans_z_weight: float = bounded(0.25, ge=0.0)
+    # Estimated object count only (shapes.num_objects = estimated): basins are merged, lowest first, while
+    # (peak - saddle) / peak, the persistence of the lower one relative to its own peak, is below
+    # merge_persistence (parts apart on the table never, unless there are more than the slots), and parts whose
+    # footprint (closed, filled cells) covers less than min_object_area m^2 are dropped as fragments. Measured
+    # on rendered scenes disjoint from RESULTS.md's ("Counting objects"): one object's basins merge at 0.02-0.28,
+    # touching objects' at 0.1-0.9; the smallest builtin object's footprint hull is 18 cm^2.
+    merge_persistence: float = bounded(0.3, ge=0.0, le=1.0)
+    min_object_area: float = bounded(0.001, ge=0.0)
     # JAX twin only: static bounds.
     max_basins: int = bounded(64, ge=1)  # basins kept (highest peaks); the others join the nearest kept one
     max_cc_iters: int = bounded(64, ge=1)  # label-propagation rounds (about log of the diameter suffice)
@@ -114,7 +134,10 @@ class SegmentConfig:
 class ShapeConfig:
     """The static shapes of a move: what crosses a jitted boundary has these sizes."""
 
-    num_segments: int = bounded(5, ge=1)  # N, the paper's number of objects on the table
+    # N: with num_objects = known, the number of objects on the table (the paper's N), every slot filled; with
+    # estimated, the static number of segment slots, the most objects that can be found (the rest empty).
+    num_segments: int = bounded(5, ge=1)
+    num_objects: ObjectCount = ObjectCount.known  # or estimated: count the objects (ObjectCount)
     points_per_segment: int = bounded(1024, ge=1)  # Ps, a segment's padded size (PointNet's input size)
     surface_points: int = bounded(16384, ge=1)  # P, the padded size of the surface extracted from the TSDF
     # Segments PointNet classifies in one pass (0 = all N): fewer keep its widest activations, [Ps, 1024] a

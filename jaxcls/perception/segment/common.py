@@ -12,7 +12,7 @@ import numpy as np
 from flax import struct
 
 from jaxcls.perception.foreground import strided_slots
-from jaxcls.perception.settings import Spec
+from jaxcls.perception.settings import ObjectCount, Spec
 
 
 @struct.dataclass
@@ -91,13 +91,19 @@ class _Merging(NamedTuple):
     group: np.ndarray | jax.Array
 
 
-def _merge_step(xp, state: _Merging, peak) -> _Merging:
-    """One persistence merge: the live basin with the lowest peak - saddle (to a higher live basin) joins
-    that basin. A basin with no saddle to a higher one (a separate DBSCAN cluster) is separated from it by
-    empty space, where the field is 0: its cost is its peak, and it joins the nearest higher basin (the
-    paper's merge of cluster centres), so fragments go early and separate objects last.
-    Shared by both paths (``xp`` = numpy or jax.numpy)."""
-    alive, saddle, centre, size, group = state
+def _merge_costs(xp, state: _Merging, peak, relative: bool = False):
+    """What merging each basin would cost: ([K] cost, inf for a basin that cannot merge; [K] i32 the basin it
+    would join).
+
+    A live basin joins the higher live basin it shares the highest saddle with. A basin with no saddle to a
+    higher one (a separate DBSCAN cluster) is separated from it by empty space, where the field is 0: its
+    saddle is 0 and it joins the nearest higher basin (the paper's merge of cluster centres). ``relative``
+    False (a known N): the cost is the persistence peak - saddle (field units), so that fragments go early
+    and separate objects last. ``relative`` True (the count estimated): (peak - saddle) / peak, in [0, 1],
+    comparable across object sizes; a basin apart on the table costs 1 + peak / the highest live peak, above
+    every touching merge, smallest first.
+    """
+    alive, saddle, centre = state.alive, state.saddle, state.centre
     K = peak.shape[0]
     ar = xp.arange(K)
     higher = alive[None, :] & (ar[None, :] != ar[:, None]) & (
@@ -108,10 +114,36 @@ def _merge_step(xp, state: _Merging, peak) -> _Merging:
     d2 = xp.where(higher, xp.sum((centre[:, None] - centre[None]) ** 2, axis=-1), xp.inf)
     near = xp.argmin(d2, axis=1)
     linked = top > -xp.inf
-    cost = xp.where(linked, peak - top, peak)  # no saddle: the empty space between, where the field is 0
+    if relative:
+        scale = xp.maximum(peak, 1e-12)
+        highest = xp.maximum(xp.max(xp.where(alive, peak, 0.0)), 1e-12)
+        cost = xp.where(linked, (peak - xp.where(linked, top, 0.0)) / scale, 1.0 + peak / highest)
+    else:
+        cost = xp.where(linked, peak - top, peak)  # no saddle: the empty space between, where the field is 0
     cost = xp.where(alive & xp.any(higher, axis=1), cost, xp.inf)
+    return cost, xp.where(linked, up, near)
+
+
+def _merge_more(xp, state: _Merging, peak, slots: int, persistence: float | None):
+    """[] bool whether the persistence merge goes on: while more than ``slots`` basins live, and, with the count
+    estimated (``persistence`` not None), while the cheapest merge's relative persistence is below
+    ``persistence``. Shared by both paths."""
+    more = xp.sum(state.alive) > slots
+    if persistence is None:
+        return more
+    cost, _ = _merge_costs(xp, state, peak, relative=True)
+    return more | (xp.min(cost) < persistence)
+
+
+def _merge_step(xp, state: _Merging, peak, relative: bool = False) -> _Merging:
+    """One persistence merge: the live basin with the lowest cost (``_merge_costs``) joins its target basin;
+    the target's saddles become the higher of the two rows, its centre the size-weighted mean.
+    Shared by both paths (``xp`` = numpy or jax.numpy)."""
+    alive, saddle, centre, size, group = state
+    cost, target = _merge_costs(xp, state, peak, relative)
+    ar = xp.arange(peak.shape[0])
     i = xp.argmin(cost)
-    t = xp.where(linked[i], up[i], near[i])
+    t = target[i]
     row = xp.maximum(saddle[t], saddle[i])
     row = xp.where(ar == t, -xp.inf, row)
     if xp is np:
@@ -127,6 +159,25 @@ def _merge_step(xp, state: _Merging, peak) -> _Merging:
         size = size.at[t].add(size[i])
         alive = alive.at[i].set(False)
     return _Merging(alive, saddle, centre, size, xp.where(group == i, t, group))
+
+
+def _estimated(spec: Spec) -> bool:
+    """Whether the number of objects is estimated (``shapes.num_objects``), not given as ``num_segments``."""
+    return spec.config.shapes.num_objects is ObjectCount.estimated
+
+
+def _merge_persistence(spec: Spec) -> float | None:
+    """The relative persistence below which basins merge with the count estimated; None with N known."""
+    return spec.segmentation.merge_persistence if _estimated(spec) else None
+
+
+def _too_small(state: _Merging, spec: Spec, xp=np):
+    """[K] bool: with the count estimated, the live groups whose footprint (cells, closed and filled) covers
+    less than ``min_object_area`` m^2: fragments, dropped (never with N known)."""
+    if not _estimated(spec):
+        return xp.zeros(state.alive.shape, bool)
+    area = state.size * spec.segmentation.footprint_cell ** 2
+    return state.alive & (area < spec.segmentation.min_object_area)
 
 
 def _basin_centres(basin: np.ndarray | jax.Array, K: int, xp=np):

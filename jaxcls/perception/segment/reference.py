@@ -14,12 +14,16 @@ from jaxcls.perception.segment.common import (
     Segments,
     _basin_centres,
     _cell_of,
+    _estimated,
     _gaussian_kernel,
     _grid_size,
+    _merge_more,
+    _merge_persistence,
     _merge_step,
     _Merging,
     _order_segments,
     _pointer_jumps,
+    _too_small,
     _vote_targets,
     pack_segments,
 )
@@ -116,34 +120,42 @@ def _principal_split(x: np.ndarray) -> np.ndarray:
 
 
 def cluster_reference(spec: Spec, x: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """[M] i64 partition of foreground points ``x: [M, 3]`` (unit ``normals``) into N segments, -1 = noise.
+    """[M] i64 partition of foreground points ``x: [M, 3]`` (unit ``normals``) into segments, -1 = noise.
 
-    DBSCAN drops noise; the footprint field's watershed basins are merged by persistence to N; every point
-    takes its cell's basin; while there are fewer than N parts, the one with the largest sum of squares is
-    split by 2-means.
+    DBSCAN drops noise; the footprint field's watershed basins are merged by persistence (``_merge_step``).
+    N known (``shapes.num_objects``): merged down to N; while there are fewer than N parts, the one with the
+    largest sum of squares is split by 2-means. N estimated: merged while ``_merge_more`` says so (a
+    relative persistence below ``merge_persistence``, or more parts than the ``num_segments`` slots), parts
+    with a footprint under ``min_object_area`` dropped (-1), never split: 0 to ``num_segments`` parts.
     """
     from sklearn.cluster import DBSCAN, KMeans
 
     N, M = spec.num_segments, len(x)
+    estimated = _estimated(spec)
+    least = 1 if estimated else N  # fewer points than this: no segment
     labels = np.full(M, -1, np.int64)
-    if M < N:
+    if M < least:
         return labels
     cfg = spec.segmentation
     good = DBSCAN(eps=cfg.dbscan_eps, min_samples=cfg.dbscan_min_samples).fit_predict(x) >= 0
     y = x[good]
-    if len(y) < N:
+    if len(y) < least:
         return labels
     occ, field = footprint_field_reference(spec, y, normals[good])
     basin, peak = _basins_np(field, occ)
     K = len(peak)
     state = _Merging(np.ones(K, bool), _saddles_np(basin, field, K), *_basin_centres(basin, K), np.arange(K))
-    for _ in range(K - N):
-        state = _merge_step(np, state, peak)
-    group = state.group
+    persistence = _merge_persistence(spec)
+    while _merge_more(np, state, peak, N, persistence):
+        state = _merge_step(np, state, peak, relative=estimated)
     ij = _cell_of(y, spec)
-    _, part = np.unique(group[basin[ij[:, 0], ij[:, 1]]], return_inverse=True)
+    group = state.group[basin[ij[:, 0], ij[:, 1]]]
+    keep = ~_too_small(state, spec)[group]
+    part = np.full(len(y), -1, np.int64)
+    if keep.any():
+        part[keep] = np.unique(group[keep], return_inverse=True)[1]
     ys = y * np.array([1.0, 1.0, cfg.kmeans_z_weight])
-    while part.max() + 1 < N:
+    while not estimated and part.max() + 1 < N:
         sse = [((ys[part == j] - ys[part == j].mean(0)) ** 2).sum() for j in range(part.max() + 1)]
         sel = np.flatnonzero(part == int(np.argmax(sse)))
         if len(sel) < 2:
@@ -163,12 +175,15 @@ def _labels_host(spec: Spec, points: np.ndarray, normals: np.ndarray, fg: np.nda
 
 def segment(spec: Spec, points: np.ndarray | jax.Array, normals: np.ndarray | jax.Array,
             mask: np.ndarray | jax.Array) -> Segments:
-    """Reference segmentation (scikit-learn on the host) of a padded cloud into exactly N segments.
+    """Reference segmentation (scikit-learn on the host) of a padded cloud into N = ``num_segments`` segment
+    slots: exactly N with ``shapes.num_objects = known``; with ``estimated``, one a counted object, the slots
+    beyond the count empty.
 
     points, normals: [P, 3] (m, unit); mask: [P] bool. Foreground is ``foreground_mask``; segments are
-    ordered by centroid x then y and packed by ``pack_segments``. Fewer foreground points than N, or
-    none: all masks empty, labels -1. The clustering runs on the host through ``jax.pure_callback``, so
-    this traces into a jitted move like the JAX twin (vmapped: one episode after another).
+    ordered by centroid x then y, empty slots last, and packed by ``pack_segments``. N known and fewer
+    foreground points than N, or none: all masks empty, labels -1. The clustering runs on the host through
+    ``jax.pure_callback``, so this traces into a jitted move like the JAX twin (vmapped: one episode after
+    another).
     """
     check_cloud_shape(points, mask, "segment", normals)
     points = jnp.asarray(points, jnp.float32)

@@ -15,11 +15,15 @@ from jaxcls.perception.segment.common import (
     Segments,
     _basin_centres,
     _cell_of,
+    _estimated,
     _grid_size,
+    _merge_more,
+    _merge_persistence,
     _merge_step,
     _Merging,
     _order_segments,
     _pointer_jumps,
+    _too_small,
     _vote_directions,
     _vote_radii,
     pack_segments,
@@ -208,22 +212,27 @@ def _split_until_n(part: jax.Array, y: jax.Array, kept: jax.Array, spec: Spec) -
 
 
 def cluster_jax(spec: Spec, x: jax.Array, normals: jax.Array, valid: jax.Array) -> jax.Array:
-    """[P] i32 partition of the valid points ``x: [P, 3]`` (unit ``normals``) into N segments, -1 = invalid
-    or noise: the JAX twin of ``cluster_reference``."""
+    """[P] i32 partition of the valid points ``x: [P, 3]`` (unit ``normals``) into N segments (N known) or 0
+    to N (N estimated: ``shapes.num_objects``), -1 = invalid, noise or a dropped fragment: the JAX twin of
+    ``cluster_reference``."""
     N, K = spec.num_segments, spec.segmentation.max_basins
     kept = _dense_points(x, valid, spec)
     occ, field = _footprint_field(x, normals, kept, spec)
     basin, peak, exists = _basins(field, occ, K)
     centre, size = _basin_centres(basin, K, xp=jnp)
 
+    estimated, persistence = _estimated(spec), _merge_persistence(spec)
     state = _Merging(exists, _saddles(basin, field, K), centre, size, jnp.arange(K))
-    group = jax.lax.while_loop(lambda s: jnp.sum(s.alive) > N, lambda s: _merge_step(jnp, s, peak), state).group
+    state = jax.lax.while_loop(lambda s: _merge_more(jnp, s, peak, N, persistence),
+                               lambda s: _merge_step(jnp, s, peak, relative=estimated), state)
     ij = _cell_of(x, spec, xp=jnp)
-    part = group[jnp.maximum(basin[ij[:, 0], ij[:, 1]], 0)]
-    present = jnp.zeros(K, bool).at[part].max(kept)
-    part = (jnp.cumsum(present) - 1)[part].astype(jnp.int32)
-    part = _split_until_n(part, x, kept, spec)
-    enough = jnp.sum(kept) >= N
+    group = state.group[jnp.maximum(basin[ij[:, 0], ij[:, 1]], 0)]
+    kept = kept & ~_too_small(state, spec, xp=jnp)[group]
+    present = jnp.zeros(K, bool).at[group].max(kept)
+    part = (jnp.cumsum(present) - 1)[group].astype(jnp.int32)
+    if not estimated:
+        part = _split_until_n(part, x, kept, spec)
+    enough = jnp.sum(kept) >= (1 if estimated else N)
     return jnp.where(kept & enough, part, -1).astype(jnp.int32)
 
 
@@ -231,8 +240,9 @@ def cluster_jax(spec: Spec, x: jax.Array, normals: jax.Array, valid: jax.Array) 
 def segment_jax(spec: Spec, points: jax.Array, normals: jax.Array, mask: jax.Array) -> Segments:
     """Scale-path segmentation, the twin of ``segment``: jittable, vmappable over episodes.
 
-    points, normals: [P, 3] (m, unit); mask: [P] bool. Same contract as ``segment``; the partition agrees
-    with it (adjusted Rand index, tested on rendered scenes).
+    points, normals: [P, 3] (m, unit); mask: [P] bool. Same contract as ``segment`` (N known: N segments;
+    N estimated: the count's segments, then empty slots); the partition and the count agree with it
+    (adjusted Rand index, tested on rendered scenes).
     """
     check_cloud_shape(points, mask, "segment_jax", normals)
     points = jnp.asarray(points, jnp.float32)
