@@ -1,5 +1,5 @@
-"""Segmentation of the fused surface into exactly N object candidates (paper Sec. 3.1; the foreground
-step before it is ``perception.foreground``).
+"""Segmentation of the fused surface into N object candidates, or as many as it counts, at most N (paper
+Sec. 3.1; the foreground step before it is ``perception.foreground``).
 
 The paper isolates the foreground by truncating depth and removing the table plane, fuses it, cuts the
 reconstruction to a cube of interest, clusters it with DBSCAN and forces N clusters with K-means on the
@@ -13,6 +13,13 @@ merged by persistence (peak minus saddle, lowest first) until N remain; a basin 
 one (a separate DBSCAN cluster) has the empty space around it as its saddle (field 0) and joins the nearest
 centre: the paper's merge of cluster centres, which takes small fragments early and separate objects last.
 With fewer than N basins the part with the largest sum of squares is split by 2-means (K-means).
+
+Without a known N (``shapes.num_objects: estimated``; ``num_segments`` is then the number of slots, the most
+objects that can be found), the merge orders basins by their persistence relative to their own peak,
+(peak - saddle) / peak, and stops once the cheapest is at least ``merge_persistence`` and no more basins live
+than slots; basins apart on the table (no saddle) merge only to fit the slots. Nothing is split; parts whose
+footprint covers less than ``min_object_area`` are dropped as fragments. Slots beyond the count are empty
+(their masks all False), ordered last.
 
 Two implementations of the same algorithm:
 - ``segment``: the reference path, scikit-learn DBSCAN + SciPy grid operations on the host (one episode).
