@@ -33,8 +33,8 @@ import jax.numpy as jnp
 import jaxlie
 import numpy as np
 
-from jaxcls import devices, metrics
-from jaxcls.episode import active, scoring, setup
+from jaxcls import compile_cache, devices, metrics
+from jaxcls.episode import active, batched, scoring, setup
 from jaxcls.episode.setup import ActiveConfig
 from jaxcls.geometry import Intrinsics
 from jaxcls.perception import observation, pointnet, tracking
@@ -177,6 +177,9 @@ def _moves_to(episode: active.Episode, state: active.EpisodeState, depth: jax.Ar
 _resets = jax.jit(jax.vmap(active.reset, in_axes=(None, 0, 0, 0)))
 # Runs [R], each from its own state to its own candidates of its scene: views [R, C] -> [R, C] states, traces.
 _runs_moves_to = jax.jit(jax.vmap(_moves_to, in_axes=(None, 0, None, None, 0, 0)))
+# Each run's state after the candidate it keeps: [R, C] states, pick [R] -> [R] states (one program, not a gather
+# of each leaf; its states are like the resets' to the next move's program: no second signature).
+_picked = jax.jit(lambda states, pick: jax.tree.map(lambda x: x[jnp.arange(pick.shape[0]), pick], states))
 
 
 @jax.jit
@@ -187,14 +190,20 @@ def _runs_candidates(episode: active.Episode, views: nbv.Views) -> tuple[jax.Arr
 
 def oracle_rollouts(episode: active.Episode, depth: np.ndarray, T_wc: np.ndarray, starts: np.ndarray,
                     keys: jax.Array, truth: scoring.Truth | Sequence[scoring.Truth],
-                    scene: np.ndarray | None = None) -> active.Trace:
+                    scene: np.ndarray | None = None, kernels: batched.Kernels = batched.Kernels.fixed
+                    ) -> active.Trace:
     """The oracle NBV for the runs ``starts: [R]`` (keys [R]): the first move from each start; then at each move
     every candidate of every run (``nbv.candidates`` within the radius, unvisited ones first) is fused,
     segmented, classified and refined in one vmapped call, and each run keeps the one whose refined labels score
     the best true F1 of the target objects (ties: the nearer candidate). A ``Trace`` with [R, T, ...] leaves.
 
     One scene: depth [V, H, W] m, T_wc [V, 4, 4], ``truth`` its ``Truth``. Several scenes in one call: depth
-    [S, V, H, W], T_wc [S, V, 4, 4], ``scene: [R]`` each run's scene and ``truth`` a ``Truth`` per run."""
+    [S, V, H, W], T_wc [S, V, 4, 4], ``scene: [R]`` each run's scene and ``truth`` a ``Truth`` per run.
+
+    Every move is one program of one shape ([R, C] moves; the first one's C columns all go to the start): traced
+    once (kept on disk with the compilation cache on, ``compile_cache.exported``), with ``kernels`` as the
+    batched rows' (``batched.Kernels``: ``fixed`` picks the same GPU kernels on every compilation, so that a
+    process that compiles it again gives the same records)."""
     depth, T_wc = jnp.asarray(depth, jnp.float32), jnp.asarray(T_wc, jnp.float32)
     starts = np.asarray(starts, np.int64)
     R, num_classes = len(starts), len(episode.spec.classifier.classes)
@@ -206,14 +215,21 @@ def oracle_rollouts(episode: active.Episode, depth: np.ndarray, T_wc: np.ndarray
             raise ValueError(f"oracle_rollouts: several scenes need depth [S, V, H, W], T_wc [S, V, 4, 4], scene [R] "
                              f"and a truth per run; got {depth.shape}, {T_wc.shape}, {scene.shape}, {len(truths)} "
                              f"truths for {R} runs")
-    runs, at = np.arange(R), jnp.asarray(scene)
-    states = _resets(episode, T_wc[at], jnp.asarray(starts, jnp.int32), keys)
-    states, traces = _runs_moves_to(episode, states, depth, T_wc, at, jnp.asarray(starts[:, None], jnp.int32))
+    # Every input committed to the frames' device: the program sees one signature on every move (its own
+    # outputs, the next move's states, are committed).
+    device = next(iter(depth.devices()))
+    runs, at, episode, T_wc = np.arange(R), *jax.device_put((jnp.asarray(scene), episode, T_wc), device)
+    states = jax.device_put(_resets(episode, T_wc[at], jnp.asarray(starts, jnp.int32), keys), device)
+    C = _runs_candidates(episode, states.views)[0].shape[1]
+    to_start = jax.device_put(jnp.asarray(np.repeat(starts[:, None], C, axis=1), jnp.int32), device)
+    moves_to = compile_cache.exported(_runs_moves_to, (episode, states, depth, T_wc, at, to_start), "oracle_moves",
+                                      batched.KERNEL_OPTIONS[kernels])
+    states, traces = moves_to(episode, states, depth, T_wc, at, to_start)
     traces = jax.device_get(traces)  # [R, C] traces on the host once a move: scored, and the picks kept
     pick = np.zeros(R, np.int64)
     kept = []
     for _ in range(episode.config.moves):
-        states = jax.tree.map(lambda x, p=pick: x[runs, p], states)
+        states = _picked(states, jnp.asarray(pick, jnp.int32))
         kept.append(jax.tree.map(lambda x, p=pick: x[runs, p], traces))
         if len(kept) == episode.config.moves:
             break
@@ -221,7 +237,8 @@ def oracle_rollouts(episode: active.Episode, depth: np.ndarray, T_wc: np.ndarray
         fresh = ok & ~np.take_along_axis(np.asarray(states.views.visited), index, axis=1)
         first = np.arange(index.shape[1]) == 0
         allowed = np.where(fresh.any(1, keepdims=True), fresh, np.where(ok.any(1, keepdims=True), ok, first))
-        states, traces = _runs_moves_to(episode, states, depth, T_wc, at, jnp.asarray(index, jnp.int32))
+        index = jax.device_put(jnp.asarray(index, jnp.int32), device)
+        states, traces = moves_to(episode, states, depth, T_wc, at, index)
         traces = jax.device_get(traces)
         centroid, valid, refined = traces.centroid, traces.refinement.valid, traces.refinement.refined
         f1 = np.array([[scoring.target_scores(truths[r], scoring.object_labels(truths[r], centroid[r, c],

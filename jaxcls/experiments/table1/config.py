@@ -48,10 +48,11 @@ class Table1Config:
     # least devices x runs episodes). To keep a device's share as on one device, scale both with the devices.
     scene_chunk: int = bounded(8, ge=1)
     batch_episodes: int = bounded(0, ge=0)
-    # How XLA picks the GPU kernels of that program (``batched.Kernels``): ``fixed`` compiles to the same kernels
-    # every time, so a rerun, a resumed run and a run over more devices or processes give the same records;
-    # ``autotuned`` (XLA's default) times candidates while compiling: as fast here, twice the compile time, and
-    # two compilations may differ in the last bits, which near-ties carry into paths (BENCHMARKS.md).
+    # How XLA picks the GPU kernels of that program and of the oracle's (``batched.Kernels``): ``fixed`` compiles
+    # to the same kernels every time, so a rerun, a resumed run and a run over more devices or processes give the
+    # same records; ``autotuned`` (XLA's default) times candidates while compiling: as fast here, twice the
+    # compile time, and two compilations may differ in the last bits, which near-ties carry into paths
+    # (BENCHMARKS.md).
     kernels: batched.Kernels = batched.Kernels.fixed
     # name: weights (a .msgpack path or a shipped name, "" = the shipped weights); no default, so that a
     # config's own list is the whole list (OmegaConf merges mappings into the defaults).

@@ -333,7 +333,7 @@ def run_oracle(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                     traces = protocol.oracle_rollouts(
                         episodes[c, name], depth, T_wc, np.array([starts[s][r] for _, _, s, r in padded]),
                         np.stack([keys[s][r] for _, _, s, r in padded]), [truths[s] for _, _, s, _ in padded],
-                        scene=np.array([place[s] for _, _, s, _ in padded]))
+                        scene=np.array([place[s] for _, _, s, _ in padded]), kernels=config.kernels)
                 records = protocol.episode_records(
                     jax.tree.map(operator.itemgetter(slice(len(part))), traces), [truths[k[2]] for k in part],
                     [{"classifier": c, "row": name, "scene": s, "run": r, "start": int(starts[s][r])}
