@@ -266,6 +266,7 @@ def test_the_oracle_bounds_a_policy_one_move_ahead(table1, tmp_path):
     assert len(records) == 4
     together = {r["scene"]: r for r in io.read_jsonl(tmp_path / "o2" / "episodes.jsonl")}
     assert sorted(together) == [0, 1]
+    assert json.loads((tmp_path / "o2" / "run_times.json").read_text())[-1]["episodes"] == 2  # (the oracle's count)
     classes = len(object_set_from_config(ObjectSetConfig()).classes)  # the synthetic set's, the builtin one
 
     def f1(r):

@@ -162,7 +162,7 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
                     stored += records
                     bar.update(len(records))
             jax.clear_caches()  # the pass's compiled programs (and their memory maps) go
-    clock.episodes += len(batched_todo) + len(todo)
+    clock.episodes += len(batched_todo) + len(oracle_todo) + len(todo)
     if owner and clock.episodes:
         write_run_times(run_times_file(store, (index, count)), clock, time.perf_counter() - began)
     keep = set(every)
