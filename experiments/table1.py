@@ -22,11 +22,12 @@ paper's, per classifier, then the paired differences and moves-to-correct), ``ta
 move), ``figure4.png`` (F1 over moves, with 95% bands), ``timing.json`` (each module's time per move).
 
 One host with several GPUs (``--local-processes N``): this process starts N processes, process i on the i-th
-visible GPU with ``--processes N --process-id i``; each runs the scenes s with s % N == i and appends to
-``episodes.<i>.jsonl`` (its output in ``process.<i>.log``); this one shows their progress, stops them all if one
-fails, and writes the tables. They do not use ``jax.distributed``, so each shares the compiled programs of a
-one-GPU run in the compilation cache (``jaxcls.experiments.table1.local`` says why). Or one process drives every
-local device (the episodes sharded over them, ``episode.batched``): slower, it renders every chunk on one GPU.
+visible GPU with ``--processes N --process-id i``; each runs the scenes s with s % N == i (the oracle: its calls
+i, i + N, ...) and appends to ``episodes.<i>.jsonl`` (its output in ``process.<i>.log``); this one shows their
+progress, stops them all if one fails, and writes the tables. They do not use ``jax.distributed``, so each
+shares the compiled programs of a one-GPU run in the compilation cache (``jaxcls.experiments.table1.local`` says
+why). Or one process drives every local device (the episodes sharded over them, ``episode.batched``): slower, it
+renders every chunk on one GPU.
 
     python experiments/table1.py --config table1_real_like_scale --local-processes 4
 

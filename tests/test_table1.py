@@ -259,9 +259,9 @@ def test_the_oracle_bounds_a_policy_one_move_ahead(table1, tmp_path):
                   "nbv.radius=2.0", "perception.tracking.mode=reported", classifiers="{paper: builtin_paper}")
     table1.main(argv)
     table1.main([*argv, "rows=[oracle_gr]", "oracle_runs_per_call=2", f"out_dir={tmp_path / 'o2'}"])
-    # A process's share, shorter than the chunk: its frames padded to the run's chunk (the same program's shape).
-    table1.main([*argv, "rows=[oracle_gr]", "oracle_runs_per_call=2", f"out_dir={tmp_path / 'o3'}", "--processes",
-                 "2", "--process-id", "1"])
+    # A process's share of the oracle's calls (the second of two, one episode a call as in "o"): its one scene's
+    # frames padded to the run's two (the same program's shape).
+    table1.main([*argv, "rows=[oracle_gr]", f"out_dir={tmp_path / 'o3'}", "--processes", "2", "--process-id", "1"])
     records = {(r["row"], r["scene"]): r for r in io.read_jsonl(tmp_path / "o" / "episodes.jsonl")}
     assert len(records) == 4
     together = {r["scene"]: r for r in io.read_jsonl(tmp_path / "o2" / "episodes.jsonl")}
@@ -288,7 +288,7 @@ def test_the_oracle_bounds_a_policy_one_move_ahead(table1, tmp_path):
     # found is the same.
     assert [f1(together[s]) for s in range(2)] == pytest.approx([f1(records["oracle_gr", s]) for s in range(2)])
     (share,) = io.read_jsonl(tmp_path / "o3" / "episodes.1.jsonl")
-    assert share["scene"] == 1 and share["path"] == together[1]["path"] and f1(share) == pytest.approx(f1(together[1]))
+    assert share == records["oracle_gr", 1]  # (the same call, whatever the process count)
 
 
 def _memory_maps() -> int | None:
@@ -300,6 +300,21 @@ def _memory_maps() -> int | None:
 def _record(row: str, scene: int, run: int, true: list[int], labels: list[list[int]]) -> dict:
     return {"classifier": "c", "row": row, "scene": scene, "run": run, "start": run, "path": list(range(len(labels))),
             "true": true, "prior": labels, "refined": labels}
+
+
+def test_the_oracle_splits_its_calls_not_its_scenes():
+    """The oracle's calls are the same for every process count (process i of N runs calls i, i + N, ...): each
+    classifier's episodes in (scene, run) order, ``oracle_runs_per_call`` a call; a call's frames hold its scenes."""
+    config = Table1Config(rows=("random_gr", "oracle_gr"), classifiers={"a": "", "b": ""}, runs=3, scenes=6,
+                          oracle_scenes=5, oracle_runs_per_call=4, scene_chunk=3)
+    keys = [k for k in runner.episode_keys(config, 6) if k[1] == "oracle_gr"]
+    calls = runner.oracle_calls(config, keys)
+    assert [len(call) for call in calls] == [4, 4, 4, 3] * 2 and sorted(sum(calls, [])) == sorted(keys)
+    assert calls[1] == [("a", "oracle_gr", 1, 1), ("a", "oracle_gr", 1, 2), ("a", "oracle_gr", 2, 0),
+                        ("a", "oracle_gr", 2, 1)]
+    assert {k[0] for k in calls[4]} == {"b"} and max(k[2] for k in keys) == 4  # (the first oracle_scenes only)
+    assert runner.oracle_frames(config, calls) == 3  # scene_chunk
+    assert runner.oracle_frames(dataclasses.replace(config, scene_chunk=1), calls) == 2  # a call's scenes
 
 
 def test_table_and_csv_against_hand_made_episodes():

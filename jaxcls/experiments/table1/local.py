@@ -1,8 +1,9 @@
 """Several processes of one host, one a GPU, without ``jax.distributed`` (``experiments/table1.py
 --local-processes N``): this process starts N copies of the command, process i with ``CUDA_VISIBLE_DEVICES`` set
-to the i-th visible GPU and ``--processes N --process-id i``; each runs the scenes s with s % N == i and appends
-to its own store (``data.process_store``); this one shows their progress from the stores, stops them all if one
-fails (naming it and its log), and makes the tables once they are done.
+to the i-th visible GPU and ``--processes N --process-id i``; each runs the scenes s with s % N == i (the oracle:
+its calls i, i + N, ..., ``runner.oracle_calls``) and appends to its own store (``data.process_store``); this one
+shows their progress from the stores, stops them all if one fails (naming it and its log), and makes the tables
+once they are done.
 
 Why not ``jax.distributed`` on one host: a GPU program's entry in JAX's persistent compilation cache is keyed by
 the devices' topology, which under ``jax.distributed`` is the process group's, not the one GPU a process uses;

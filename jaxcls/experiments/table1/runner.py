@@ -1,7 +1,7 @@
 """Table 1's episodes: every (classifier, row, scene, run) not yet stored, streamed to JSONL as each batch of
 a row finishes (an interrupted run resumes without redoing or losing an episode); one episode timed module by
 module. The single-view and policy rows run batched over scenes and runs in one switched program per
-classifier (``episode.batched``); PointNetFull and the oracle run scene by scene."""
+classifier (``episode.batched``); the oracle in calls of several scenes' runs; PointNetFull scene by scene."""
 
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ from jaxcls.world.objects import object_set_from_config
 # died with LLVM's "Cannot allocate memory" after ~30. On the CPU the rows run in passes over the scenes of at
 # most this many (classifier, row) programs each, freed after the pass (a scene is read once per pass).
 CPU_PROGRAMS_PER_PASS = 12
-# The oracle's episodes in one call off the CPU: each tries its ~16 candidates at every move, ~1,000 moves a call.
+# The oracle's episodes in one call off the CPU: each tries its 32 candidates at every move, ~18,500 moves a call.
 ORACLE_EPISODES_PER_CALL = 64
 
 
@@ -101,9 +101,9 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
     (``run_oracle``), PointNetFull scene by scene.
 
     Several processes (``process``: (index, count), default ``process_share()``; hosts of a ``jax.distributed``
-    run) split the scenes: process i runs the scenes s with s % count == i on its local devices and appends to
-    its own store (``data.process_store``); what is done is read from every process's store, so a run resumes
-    under another process count too.
+    run) split the scenes: process i runs the scenes s with s % count == i (the oracle: its calls i, i + count,
+    ..., ``oracle_calls``) on its local devices and appends to its own store (``data.process_store``); what is
+    done is read from every process's store, so a run resumes under another process count too.
 
     ``clock``: where the phases' wall seconds go (the caller writes them); without one, the phases of a run
     that ran episodes are written to ``run_times.json`` beside the store (``run_times.<i>.json``)."""
@@ -118,7 +118,9 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
     rows = {name: protocol.row(name) for name in config.rows}
     done = {record_key(r) for r in stored}
     every = episode_keys(config, scene_set.count)
-    wanted = [k for k in every if k[2] % count == index]
+    oracle = oracle_calls(config, [k for k in every if rows[k[1]].kind is protocol.Kind.ORACLE])
+    wanted = [k for k in every if k[2] % count == index and rows[k[1]].kind is not protocol.Kind.ORACLE]
+    wanted += [k for call in oracle[index::count] for k in call]  # (the oracle's calls, not its scenes, split)
     todo = [k for k in wanted if k not in done]
     mine = process_store(store, (index, count))  # where this process appends
     with tqdm(total=len(wanted), initial=len(wanted) - len(todo), desc="episodes", unit="episode",
@@ -130,9 +132,8 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
                                   share)
         oracle_todo = [k for k in todo if rows[k[1]].kind is protocol.Kind.ORACLE]
         if oracle_todo:
-            planned = len({k[2] for k in every if rows[k[1]].kind is protocol.Kind.ORACLE})  # (every process's)
-            stored += run_oracle(config, scene_set, dataset, classifiers, object_set, oracle_todo, mine, bar, clock,
-                                 planned)
+            stored += run_oracle(config, scene_set, dataset, classifiers, object_set, oracle[index::count], done,
+                                 mine, bar, clock, oracle_frames(config, oracle))
         todo = [k for k in todo if rows[k[1]].kind not in (*BATCHED, protocol.Kind.ORACLE)]
         programs = [(c, name) for c in classifiers for name in rows if any(k[:2] == (c, name) for k in todo)]
         for group in passes(programs, jax.default_backend()):
@@ -292,23 +293,46 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     return made
 
 
-def run_oracle(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
-               classifiers: dict[str, pointnet.Classifier], object_set, todo: list[tuple[str, str, int, int]],
-               store: Path, bar: tqdm, clock: Phases, planned: int | None = None) -> list[dict[str, Any]]:
-    """The oracle row's episodes ``todo``: the frames of ``scene_chunk`` of their scenes at a time, the runs of
-    several scenes in one call (``protocol.oracle_rollouts``), ``oracle_runs_per_call`` episodes a call (0: one on
-    a CPU, ``ORACLE_EPISODES_PER_CALL`` elsewhere), the last call padded to that shape. A chunk's frames are
-    padded (copies of its first scene's, never used) to min(``scene_chunk``, ``planned``) scenes: ``planned`` is
-    the oracle's scenes over every process (default: ``todo``'s), so that a shorter last chunk, a process's share
-    and a resumed run have one shape and nothing compiles again (~25 s a program on an H200). Returns the
-    records appended to ``store``."""
+def oracle_calls(config: Table1Config, keys: list[tuple[str, str, int, int]]) -> list[list[tuple[str, str, int, int]]]:
+    """The oracle's calls: each (classifier, row)'s episodes ``keys`` in (scene, run) order, ``oracle_runs_per_call``
+    a call (0: one on a CPU, ``ORACLE_EPISODES_PER_CALL`` elsewhere). The calls are the same for every process
+    count, and process i of N runs calls i, i + N, ...: on a GPU an oracle episode's records depend on which
+    episodes share its call (its candidates' labels, in the last bits: measured, BENCHMARKS.md "Several GPUs"),
+    so a split by scene, as the other rows', would change them."""
     size = config.oracle_runs_per_call or (1 if jax.default_backend() == "cpu" else ORACLE_EPISODES_PER_CALL)
-    scenes = sorted({k[2] for k in todo})
-    frames = min(config.scene_chunk, max(planned or 0, len(scenes)))  # scenes' frames in every call
+    calls = []
+    for program in dict.fromkeys(k[:2] for k in keys):
+        ordered = sorted((k for k in keys if k[:2] == program), key=operator.itemgetter(2, 3))
+        calls += [ordered[i:i + size] for i in range(0, len(ordered), size)]
+    return calls
+
+
+def oracle_frames(config: Table1Config, calls: list[list[tuple[str, str, int, int]]]) -> int:
+    """Scenes' frames in each of the oracle's calls (every process's ``calls``): min(``scene_chunk``, the oracle's
+    scenes), at least a call's scenes. One shape whatever a process's share and however far a run got."""
+    scenes = {k[2] for call in calls for k in call}
+    return max(min(config.scene_chunk, len(scenes)), *(len({k[2] for k in call}) for call in calls), 1)
+
+
+def run_oracle(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
+               classifiers: dict[str, pointnet.Classifier], object_set,
+               calls: list[list[tuple[str, str, int, int]]], done: set, store: Path, bar: tqdm, clock: Phases,
+               frames: int) -> list[dict[str, Any]]:
+    """The oracle row's ``calls`` (``oracle_calls``; this process's) with an episode not in ``done``, each one call
+    of ``protocol.oracle_rollouts`` over the runs of its scenes, padded to the calls' size (copies of its first
+    episode, dropped); the frames of consecutive calls' scenes at a time, ``frames`` scenes (``oracle_frames``;
+    padded with copies of the first scene's, never used). A call runs whole, as every process count and an
+    uninterrupted run have it; its episodes not in ``done`` are appended to ``store`` and returned."""
+    calls = [call for call in calls if any(k not in done for k in call)]
+    size = max((len(call) for call in calls), default=0)
     episodes: dict[tuple[str, str], active.Episode] = {}
     made: list[dict[str, Any]] = []
-    for first in range(0, len(scenes), config.scene_chunk):
-        chunk_scenes = scenes[first:first + config.scene_chunk]
+    while calls:
+        group, scenes = [], set()  # consecutive calls whose scenes' frames fit in ``frames``
+        while calls and len(scenes | {k[2] for k in calls[0]}) <= frames:
+            scenes |= {k[2] for k in calls[0]}
+            group.append(calls.pop(0))
+        chunk_scenes = sorted(scenes)
         with clock("frames (rendered or read)"):
             chunk = scene_set.chunk(chunk_scenes)
             depth, T_wc = jnp.asarray(chunk.depth, jnp.float32), chunk.T_wc  # (on the device once for the chunk)
@@ -320,27 +344,26 @@ def run_oracle(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
         starts = {s: protocol.start_views(config.seed, s, config.runs, chunk.T_wc.shape[1]) for s in chunk_scenes}
         with jax.default_device(devices.host_cpu()):  # (on a GPU they would wait for its queue)
             keys = {s: np.asarray(protocol.run_keys(config.seed, s, config.runs)) for s in chunk_scenes}
-        for c, name in dict.fromkeys(k[:2] for k in todo):
-            calls = [k for k in todo if k[:2] == (c, name) and k[2] in place]
+        for call in group:
+            c, name = call[0][:2]
             if (c, name) not in episodes:
                 episodes[c, name] = episode(config, protocol.ROWS[name], classifiers[c], object_set, chunk.intrinsics,
                                             chunk.scenes[0].table_height, dataset.scene.split)
-            for at in range(0, len(calls), size):
-                part = calls[at:at + size]
-                padded = part + [part[0]] * (size - len(part))  # (copies of its first, dropped)
-                bar.set_postfix(scenes=f"{chunk_scenes[0]}-{chunk_scenes[-1]}", classifier=c, row=name)
-                with clock("the oracle (runs of several scenes a call)"):
-                    traces = protocol.oracle_rollouts(
-                        episodes[c, name], depth, T_wc, np.array([starts[s][r] for _, _, s, r in padded]),
-                        np.stack([keys[s][r] for _, _, s, r in padded]), [truths[s] for _, _, s, _ in padded],
-                        scene=np.array([place[s] for _, _, s, _ in padded]), kernels=config.kernels)
-                records = protocol.episode_records(
-                    jax.tree.map(operator.itemgetter(slice(len(part))), traces), [truths[k[2]] for k in part],
-                    [{"classifier": c, "row": name, "scene": s, "run": r, "start": int(starts[s][r])}
-                     for _, _, s, r in part])
-                io.append_jsonl(store, records)
-                made.extend(records)
-                bar.update(len(records))
+            padded = call + [call[0]] * (size - len(call))
+            bar.set_postfix(scenes=f"{call[0][2]}-{call[-1][2]}", classifier=c, row=name)
+            with clock("the oracle (runs of several scenes a call)"):
+                traces = protocol.oracle_rollouts(
+                    episodes[c, name], depth, T_wc, np.array([starts[s][r] for _, _, s, r in padded]),
+                    np.stack([keys[s][r] for _, _, s, r in padded]), [truths[s] for _, _, s, _ in padded],
+                    scene=np.array([place[s] for _, _, s, _ in padded]), kernels=config.kernels)
+            new = np.array([i for i, k in enumerate(call) if k not in done])
+            records = protocol.episode_records(
+                jax.tree.map(lambda x, i=new: x[i], traces), [truths[call[i][2]] for i in new],
+                [{"classifier": c, "row": name, "scene": call[i][2], "run": call[i][3],
+                  "start": int(starts[call[i][2]][call[i][3]])} for i in new])
+            io.append_jsonl(store, records)
+            made.extend(records)
+            bar.update(len(records))
     if jax.default_backend() == "cpu":
         jax.clear_caches()  # (its programs' memory maps: see CPU_PROGRAMS_PER_PASS)
     return made
