@@ -345,6 +345,25 @@ def test_batched_matching_is_scipys_hungarian_assignment():
         metrics.match_objects_batched(np.zeros((2, 3, 3)), np.ones((2, 4), bool), np.zeros((1, 3)))
 
 
+def test_the_oracles_candidate_scores_are_each_candidates_own():
+    """``scoring.candidate_f1`` (all of a run's candidates at once: batched matching, one confusion matrix a
+    candidate) gives each candidate's ``target_scores(object_labels(...)).f1`` exactly: clutter in the matching,
+    dead segments, fewer segments than objects, classes of another set (-1)."""
+    from jaxcls.episode import scoring
+
+    rng = np.random.default_rng(3)
+    for trial in range(60):
+        K, N, C, M = int(rng.integers(1, 7)), int(rng.integers(1, 8)), int(rng.integers(1, 33)), 10
+        label = rng.integers(-1 if trial % 3 == 0 else 0, M, K)
+        truth = scoring.Truth(centroid=rng.uniform(-0.2, 0.2, (K, 3)), label=label, target=rng.random(K) < 0.7,
+                              surface=(), names=())
+        centroid = truth.centroid[rng.integers(0, K, (C, N))] + rng.normal(0, 0.03, (C, N, 3))
+        valid, labels = rng.random((C, N)) < 0.8, rng.integers(0, M, (C, N))
+        want = [scoring.target_scores(truth, scoring.object_labels(truth, centroid[c], valid[c], labels[c]), M).f1
+                for c in range(C)]
+        np.testing.assert_array_equal(scoring.candidate_f1(truth, centroid, valid, labels, M), want)
+
+
 def test_a_batchs_records_match_each_move_as_the_plain_loop_does():
     """``protocol.episode_records`` (a scene's episodes matched together, every move at once, a stopped
     episode keeping its last labels) gives the labels of matching each move of each episode on its own."""

@@ -241,10 +241,8 @@ def oracle_rollouts(episode: active.Episode, depth: np.ndarray, T_wc: np.ndarray
         states, traces = moves_to(episode, states, depth, T_wc, at, index)
         traces = jax.device_get(traces)
         centroid, valid, refined = traces.centroid, traces.refinement.valid, traces.refinement.refined
-        f1 = np.array([[scoring.target_scores(truths[r], scoring.object_labels(truths[r], centroid[r, c],
-                                                                               valid[r, c], refined[r, c]),
-                                              num_classes).f1
-                        if allowed[r, c] else -1.0 for c in range(index.shape[1])] for r in runs])
+        f1 = np.stack([scoring.candidate_f1(truths[r], centroid[r], valid[r], refined[r], num_classes) for r in runs])
+        f1 = np.where(allowed, f1, -1.0)
         pick = np.argmax(f1, axis=1)
     return jax.tree.map(lambda *xs: np.stack(xs, axis=1), *kept)
 

@@ -51,6 +51,24 @@ def target_scores(truth: Truth, labels: np.ndarray, num_classes: int) -> metrics
     return metrics.classification_scores(truth.label[truth.target], np.asarray(labels)[truth.target], num_classes)
 
 
+def candidate_f1(truth: Truth, centroid: np.ndarray, valid: np.ndarray, labels: np.ndarray, num_classes: int
+                 ) -> np.ndarray:
+    """[C] the target objects' macro F1 of each of C candidates' segments at once: ``target_scores(truth,
+    object_labels(truth, centroid[c], valid[c], labels[c]), num_classes).f1`` for every c (the same numbers; the
+    oracle scores every candidate of every run at each move).
+
+    centroid: [C, N, 3] segment centroids (m); valid: [C, N] bool; labels: [C, N] class index per segment."""
+    match = metrics.match_objects_batched(centroid, valid, truth.centroid)[:, truth.target]  # [C, Kt]
+    predicted = np.where(match >= 0, np.take_along_axis(np.asarray(labels), np.maximum(match, 0), axis=1), -1)
+    true = np.broadcast_to(truth.label[truth.target], predicted.shape)
+    M = num_classes
+    cm = np.zeros((len(predicted), M + 1, M + 1), np.int64)
+    candidate = np.broadcast_to(np.arange(len(predicted))[:, None], predicted.shape)
+    np.add.at(cm, (candidate, np.where(true < 0, M, true), np.where(predicted < 0, M, predicted)), 1)
+    cm[:, M, M] = 0
+    return metrics.confusion_scores(cm)["f1"]
+
+
 def coverage(truth: Truth, fused_points: np.ndarray) -> np.ndarray:
     """[K] the share of each object's surface samples within 5 mm of the fused surface points [P, 3]."""
     return np.array([metrics.surface_coverage(s, fused_points) for s in truth.surface])
