@@ -345,25 +345,20 @@ def scene_labels(records: Sequence[dict[str, Any]], label: str = "refined", phan
     NumPy conversion of all; else a move at a time. ``phantoms``: each record's phantom segments too (its
     ``phantom`` classes as detections of no object, true -1: false positives; ``label`` must be "refined"),
     padded to the row's most with empty slots (-1, -1), which count nowhere."""
-    if phantoms:
-        if label != "refined" or any("phantom" not in r for r in records):
-            raise ValueError("scene_labels: phantoms need the refined labels of records that keep their phantom "
-                             "segments (stored since 2026-11-26)")
-        most = max((len(x) for r in records for x in r["phantom"]), default=0)
-        records = [{**r, "true": [*r["true"], *[-1] * most],
-                    label: [[*labels, *x, *[-1] * (most - len(x))] for labels, x in zip(r[label], r["phantom"],
-                                                                                          strict=True)]}
-                   for r in records]
+    if phantoms and (label != "refined" or any("phantom" not in r for r in records)):
+        raise ValueError("scene_labels: phantoms need the refined labels of records that keep their phantom "
+                         "segments (stored since 2026-11-26)")
     if not records:
         return SceneLabels(np.zeros(0, np.int64), np.zeros((0, 0), np.int64), np.zeros(0, np.int64))
     scene = np.array([int(r["scene"]) for r in records], np.int64)
     order = np.argsort(scene, kind="stable")  # scenes ascending, each scene's runs in the records' order
     ordered = [records[i] for i in order]
+    most = max((len(x) for r in ordered for x in r["phantom"]), default=0) if phantoms else 0
     true = [r["true"] for r in ordered]
     sizes = np.array([len(t) for t in true], np.int64)
     moves = np.array([len(r[label]) for r in ordered], np.int64)
     bad = ValueError(f"scene_labels: a record's {label!r} labels and its true labels differ in length")
-    T, n = int(moves.max()), int(sizes.sum())
+    T = int(moves.max())
     if (moves == moves[0]).all() and (sizes == sizes[0]).all():
         try:
             labels = np.asarray([r[label] for r in ordered], np.int64)  # [E, T, K]
@@ -371,16 +366,33 @@ def scene_labels(records: Sequence[dict[str, Any]], label: str = "refined", phan
             raise bad from None
         if labels.shape != (len(ordered), T, sizes[0]):
             raise bad
-        predicted = labels.transpose(1, 0, 2).reshape(T, n)
+        true_labels = np.asarray(true, np.int64).reshape(len(ordered), sizes[0])
+        if most:  # the phantoms after the targets, padded with empty slots
+            ghost = np.full((len(ordered), T, most), -1, np.int64)
+            for e, r in enumerate(ordered):
+                for t, x in enumerate(r["phantom"]):
+                    if x:
+                        ghost[e, t, :len(x)] = x
+            labels = np.concatenate([labels, ghost], axis=2)
+            true_labels = np.pad(true_labels, ((0, 0), (0, most)), constant_values=-1)
+            sizes = sizes + most
+        predicted = labels.transpose(1, 0, 2).reshape(T, -1)
+        true_flat = true_labels.ravel()
     else:
+        if most:
+            ordered = [{**r, "true": [*r["true"], *[-1] * most],
+                        label: [[*labels, *x, *[-1] * (most - len(x))]
+                                for labels, x in zip(r[label], r["phantom"], strict=True)]} for r in ordered]
+            true, sizes = [r["true"] for r in ordered], sizes + most
+        n = int(sizes.sum())
         if any(len(labels) != k for r, k in zip(ordered, sizes, strict=True) for labels in r[label]):
             raise bad
         predicted = np.stack([np.fromiter(itertools.chain.from_iterable(r[label][min(t, len(r[label]) - 1)]
                                                                         for r in ordered), np.int64, n)
                               for t in range(T)])
+        true_flat = np.fromiter(itertools.chain.from_iterable(true), np.int64, n)
     starts = np.flatnonzero(np.diff(scene[order])) + 1  # the records where a new scene begins
-    return SceneLabels(true=np.fromiter(itertools.chain.from_iterable(true), np.int64, n), predicted=predicted,
-                       cuts=np.cumsum(sizes)[starts - 1])
+    return SceneLabels(true=true_flat, predicted=predicted, cuts=np.cumsum(sizes)[starts - 1])
 
 
 def per_scene(records: Sequence[dict[str, Any]], move: int, label: str = "refined"
