@@ -11,8 +11,8 @@ episodes run (the scene bank on a GPU, MuJoCo's C caster on a CPU), nothing writ
 ``protocol.ROWS`` names (``rows``); each runs ``runs`` episodes per scene from seeded random start views
 (the same starts and keys for every row: rows are paired), ``moves`` moves each, with every classifier of
 ``classifiers`` (name: a ``.msgpack`` path or a shipped name, "" = the shipped weights). The oracle row
-runs on the first ``oracle_scenes`` scenes only (it tries every candidate at every move), a scene's runs
-together on an accelerator (``oracle_runs_per_call``). On a GPU, float32 products run at full precision
+runs on the first ``oracle_scenes`` scenes only (it tries every candidate at every move), 64 episodes a call
+on an accelerator (``oracle_runs_per_call``). On a GPU, float32 products run at full precision
 (``jaxcls.precision``).
 
 Episodes stream to ``out_dir/episodes.jsonl`` as each scene's runs of a row finish; running the command

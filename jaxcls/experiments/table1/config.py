@@ -37,9 +37,10 @@ class Table1Config:
     moves: int = bounded(10, ge=1)  # T
     rows: tuple[str, ...] = protocol.PAPER_ROWS
     oracle_scenes: int = bounded(7, ge=0)  # the oracle row runs on the first this many scenes
-    # The oracle's runs of a scene tried together (each tries every candidate at every move: runs x
-    # candidates moves in one vmapped call, ~45 MB each at 640x480). 0: all of a scene's runs on an
-    # accelerator (6.8x one at a time on an H100, BENCHMARKS.md), one at a time on the CPU (no faster there).
+    # The oracle's episodes tried together (each tries every candidate at every move: episodes x candidates
+    # moves in one vmapped call, ~45 MB each at 640x480), its episodes in (scene, run) order, the same calls for
+    # every process count (``runner.oracle_calls``). 0: 64 on an accelerator (``ORACLE_EPISODES_PER_CALL``),
+    # one at a time on the CPU (no faster there).
     oracle_runs_per_call: int = bounded(0, ge=0)
     # The single-view and policy rows run batched over scenes and runs (``episode.batched``): the frames of
     # this many scenes (rounded up to a multiple of the devices) sit in device memory at once, split over the
