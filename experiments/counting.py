@@ -1,6 +1,7 @@
 """Counting objects: the share of fused scenes whose estimated number of objects is right, both paths.
 
     python experiments/counting.py [--seeds 30] [--first-seed 0] [--slots 8] [--tracking reported] [--out RESULTS.md]
+    python experiments/counting.py --episodes KNOWN_DIR ESTIMATED_DIR [--moves 1 3 10] [--out RESULTS.md]
 
 Perception with ``perception.shapes.num_objects = estimated`` and ``--slots`` segment slots
 (``shapes.num_segments``). Scenes: the builtin set, ``synthetic`` (5 objects, footprint gaps 3 mm - 3 cm),
@@ -8,7 +9,15 @@ Perception with ``perception.shapes.num_objects = estimated`` and ``--slots`` se
 backend at five hemisphere views from low to high elevation, fused into the default 0.6 m / 128^3 volume
 through ``perception.observe``; after 1, 3 and 5 views the JAX twin (inside the move) and the reference path
 (scikit-learn DBSCAN + SciPy) count the same surface. ``--merge-persistence`` and ``--min-object-area``
-override ``perception.segmentation``'s. The logic is ``jaxcls.experiments.counting``.
+override ``perception.segmentation``'s.
+
+``--episodes KNOWN_DIR ESTIMATED_DIR``: no scene is fused here; two ``experiments/table1.py`` output folders
+whose configs differ only in ``perception.shapes.num_objects`` (``known``, then ``estimated``) and
+``num_segments`` are read (their stores) and compared row by row on the episodes both ran: the share of episodes
+whose live segment count equals the scene's objects after ``--moves`` (past a row's last move: its last), with a
+scene-bootstrap interval, the share of scenes right in every run, the mean absolute count error; and F1 after the
+last move with N estimated (each phantom segment a false positive of its class) minus F1 with N given, paired by
+scene, with its scene-bootstrap interval. The logic is ``jaxcls.experiments.counting``.
 """
 
 from __future__ import annotations
@@ -38,8 +47,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--kinds", default=",".join(counting.KINDS), help="comma-separated scene kinds")
     parser.add_argument("--merge-persistence", type=float, help="perception.segmentation.merge_persistence")
     parser.add_argument("--min-object-area", type=float, help="perception.segmentation.min_object_area, m^2")
+    parser.add_argument("--episodes", nargs=2, metavar=("KNOWN_DIR", "ESTIMATED_DIR"),
+                        help="compare two Table 1 runs' episodes, N given then N estimated (no scene fused)")
+    parser.add_argument("--moves", type=int, nargs="+", default=list(counting.EPISODE_MOVES),
+                        help="with --episodes: the moves after which the counts are read")
+    parser.add_argument("--resamples", type=int, default=2000, help="with --episodes: bootstrap resamples")
     parser.add_argument("--out", help="append the table to this Markdown file")
     args = parser.parse_args(argv)
+    if args.episodes:
+        compare_episodes(args, argv)
+        return
     mode = type(TrackingConfig().mode)(args.tracking)
     seg = perception.SegmentConfig()
     overrides = {k: v for k, v in (("merge_persistence", args.merge_persistence),
@@ -62,6 +79,25 @@ def main(argv: list[str] | None = None) -> None:
         intro=f"`shapes.num_objects: estimated`, {args.slots} slots, merge_persistence {seg.merge_persistence}, "
               f"min_object_area {seg.min_object_area} m^2; tracking {args.tracking}; {wall:.0f} s on the CPU."),
         args.out)
+
+
+def compare_episodes(args: argparse.Namespace, argv: list[str] | None) -> None:
+    """``--episodes``: the two runs' count and F1 tables (``counting.compare_runs``), published as one section."""
+    if any(m < 1 for m in args.moves):
+        raise SystemExit(f"--moves: moves are 1-based, got {args.moves}")
+    count_rows, f1_rows, facts = counting.compare_runs(*args.episodes, args.moves, args.resamples)
+    known, estimated = args.episodes
+    intro = (f"Table 1's episodes on `{facts['dataset']}` ({facts['runs']} runs a scene, T = {facts['moves']}): "
+             f"`{known}` with N given (`perception.shapes.num_objects: known`, {facts['given_slots']} segments), "
+             f"`{estimated}` with N estimated (`estimated`, at most {facts['slots']} segments); the episodes both "
+             "ran, paired by (scene, run). A count is the episode's live segments after the move; scenes right in "
+             "every run: every run of the scene counted its objects. F1 after move T; phantoms counted: each "
+             "live segment matched to no object is a false positive of its refined class. Differences are paired "
+             f"by scene, 95% intervals resample whole scenes ({args.resamples} resamples).")
+    markdown = report.section(f"N given against N estimated in Table 1's episodes, {datetime.date.today()}", argv,
+                              counting.COUNT_HEADER, count_rows, intro=intro)
+    markdown += "\n" + report.table(counting.F1_HEADER, f1_rows) + "\n"
+    report.publish(markdown, args.out)
 
 
 if __name__ == "__main__":

@@ -14,12 +14,15 @@ counts as missed). Kinds: ``synthetic`` (5 objects, footprint gaps 3 mm - 3 cm),
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
 
 import jax
 import numpy as np
 
-from jaxcls import perception
+from jaxcls import metrics, perception
+from jaxcls.episode import protocol
 from jaxcls.experiments import segmentation
 from jaxcls.perception import segment
 from jaxcls.world import scenes
@@ -97,3 +100,184 @@ def count_rows(records: list[dict]) -> list[tuple]:
             rows.append((kind, views, "agreement", len(sel), f"{same:.3f}", "", "",
                          f"mean ARI {ari:.3f}, same noise {noise:.3f}"))
     return rows
+
+
+# --- Counting in the episode loop: two Table 1 runs, N given against N estimated --------------------------------
+
+EPISODE_MOVES = (1, 3, 10)  # moves after which an episode's count is read (past an episode's last move: its last)
+# The settings two compared runs may differ in: how the objects are counted and the slots they may fill.
+COUNT_SETTINGS = ("num_objects", "num_segments")
+
+
+def count_errors(records: Sequence[dict[str, Any]], move: int) -> np.ndarray:
+    """[E] i64: each episode's live segments after ``move`` (1-based; an episode of fewer moves, its last)
+    minus its scene's objects (``protocol.episode_records``' ``segments`` and ``objects``): < 0 objects merged
+    or missed, > 0 objects split or phantoms."""
+    return np.array([r["segments"][min(move, len(r["segments"])) - 1] - r["objects"] for r in records], np.int64)
+
+
+def _share_interval(right: np.ndarray, total: np.ndarray, resamples: int, seed: int = 0
+                    ) -> tuple[float, float, float]:
+    """(share, low, high): sum(right) / sum(total) over scenes ([S] each: a scene's episodes right and in all)
+    and its 95% percentile bootstrap interval, resampling whole scenes (``metrics.scene_interval``'s rule)."""
+    from scipy.stats import bootstrap
+
+    share = float(right.sum() / total.sum())
+    if len(right) < 2:
+        return share, share, share
+    result = bootstrap((np.arange(len(right)),), lambda picks, axis: right[picks].sum(-1) / total[picks].sum(-1),
+                       vectorized=True, axis=-1, confidence_level=0.95, n_resamples=resamples, method="percentile",
+                       rng=np.random.default_rng(seed))
+    return share, float(result.confidence_interval.low), float(result.confidence_interval.high)
+
+
+def count_summary(records: Sequence[dict[str, Any]], move: int, resamples: int = 2000) -> dict[str, Any]:
+    """One row's counts after ``move``: ``episodes`` right (share, with ``low``/``high`` its scene-bootstrap
+    interval), ``scenes`` right in every run (share of scenes whose every episode counted its objects),
+    ``abs`` the mean |count - objects|, ``mean`` the signed mean, ``spread`` {error: episodes}, ``n`` episodes
+    and ``scene_count`` scenes."""
+    error = count_errors(records, move)
+    scene = np.array([int(r["scene"]) for r in records], np.int64)
+    scenes, at = np.unique(scene, return_inverse=True)
+    right = np.bincount(at, weights=error == 0, minlength=len(scenes))
+    total = np.bincount(at, minlength=len(scenes)).astype(np.float64)
+    share, low, high = _share_interval(right, total, resamples)
+    values, counts = np.unique(error, return_counts=True)
+    return {"episodes": share, "low": low, "high": high, "scenes": float(np.mean(right == total)),
+            "abs": float(np.abs(error).mean()), "mean": float(error.mean()),
+            "spread": dict(zip(values.tolist(), counts.tolist(), strict=True)), "n": len(records),
+            "scene_count": len(scenes)}
+
+
+def paired_runs(known: Sequence[dict[str, Any]], estimated: Sequence[dict[str, Any]]
+                ) -> dict[tuple[str, str], tuple[list[dict[str, Any]], list[dict[str, Any]]]]:
+    """(classifier, row) -> (its episodes with N given, with N estimated): the (scene, run) episodes both runs
+    stored, in the same order (scene, then run), each once; rows either run lacks are left out."""
+    def index(records):
+        out: dict[tuple[str, str, int, int], dict[str, Any]] = {}
+        for r in records:
+            out.setdefault((r["classifier"], r["row"], int(r["scene"]), int(r["run"])), r)
+        return out
+
+    a, b = index(known), index(estimated)
+    pairs: dict[tuple[str, str], tuple[list, list]] = {}
+    for key in sorted(a.keys() & b.keys(), key=lambda k: (k[0], k[1], k[2], k[3])):
+        x, y = pairs.setdefault(key[:2], ([], []))
+        x.append(a[key])
+        y.append(b[key])
+    return pairs
+
+
+def f1_comparison(known: Sequence[dict[str, Any]], estimated: Sequence[dict[str, Any]], classes: int,
+                  resamples: int = 2000) -> dict[str, Any]:
+    """F1 of one row's paired episodes (``paired_runs``) after its last move (T): each run's F1 (``given``,
+    ``estimated``) and with every phantom segment a false positive of its class (``given_phantoms``,
+    ``estimated_phantoms``: ``protocol.scene_labels(..., phantoms=True)``), and three differences paired by scene
+    with their 95% scene-bootstrap intervals, (estimate, low, high) each, from one bootstrap
+    (``metrics.paired_differences``): ``difference`` estimated with phantoms counted - given without (the
+    phantoms exist where N is estimated; with N given every slot is a segment, the paper's F1),
+    ``difference_phantoms`` both with phantoms counted, ``difference_plain`` neither."""
+    T = max(len(r["refined"]) for r in [*known, *estimated])
+    sets = {"given": protocol.scene_labels(known).at(T),
+            "given_phantoms": protocol.scene_labels(known, phantoms=True).at(T),
+            "estimated": protocol.scene_labels(estimated).at(T),
+            "estimated_phantoms": protocol.scene_labels(estimated, phantoms=True).at(T)}
+    if len(sets["given"]) != len(sets["estimated"]):
+        raise ValueError(f"f1_comparison: {len(sets['given'])} and {len(sets['estimated'])} scenes; pair the runs "
+                         "first (paired_runs)")
+    out: dict[str, Any] = {k: metrics.classification_scores(np.concatenate([t for t, _ in v]),
+                                                            np.concatenate([p for _, p in v]), classes).f1
+                           for k, v in sets.items()}
+    found = metrics.paired_differences(
+        [(sets["estimated_phantoms"], sets["given"]), (sets["estimated_phantoms"], sets["given_phantoms"]),
+         (sets["estimated"], sets["given"])], classes, resamples=resamples)
+    out.update(zip(("difference", "difference_phantoms", "difference_plain"), found, strict=True))
+    out["moves"] = T
+    return out
+
+
+def episode_tables(known: Sequence[dict[str, Any]], estimated: Sequence[dict[str, Any]], classes: int,
+                   moves: Sequence[int] = EPISODE_MOVES, resamples: int = 2000, labels: dict[str, str] | None = None
+                   ) -> tuple[list[tuple], list[tuple]]:
+    """The comparison's two tables from the stores of two Table 1 runs alike but for how N is set, their
+    episodes paired (``paired_runs``): (count rows, F1 rows). A count row a (classifier, row, N, move):
+    episodes, episodes right [95% scene-bootstrap interval], scenes right in every run, mean |error|, mean
+    error, the errors' spread; ``moves`` past a row's last move read its last (PointNetSingle: its one move).
+    An F1 row a (classifier, row): scenes, episodes, T, each run's F1 plain and with phantoms counted, and the
+    three paired differences (``f1_comparison``). ``labels``: row name -> its printed label."""
+    labels = labels or {}
+    count_rows, f1_rows = [], []
+    for (classifier, row), (k, e) in paired_runs(known, estimated).items():
+        T = max(len(r["segments"]) for r in [*k, *e])
+        label = labels.get(row, row)
+        for name, records in (("given", k), ("estimated", e)):
+            for move in dict.fromkeys(min(m, T) for m in moves):
+                s = count_summary(records, move, resamples)
+                spread = " ".join(f"{v:+d}:{c}" for v, c in s["spread"].items())
+                count_rows.append((classifier, label, name, move, s["n"],
+                                   f"{s['episodes']:.3f} [{s['low']:.3f}, {s['high']:.3f}]", f"{s['scenes']:.3f}",
+                                   f"{s['abs']:.3f}", f"{s['mean']:+.3f}", spread))
+        f = f1_comparison(k, e, classes, resamples)
+        f1_rows.append((classifier, label, len({r["scene"] for r in k}), len(k), f["moves"], f"{f['given']:.3f}",
+                        f"{f['given_phantoms']:.3f}", f"{f['estimated']:.3f}", f"{f['estimated_phantoms']:.3f}",
+                        *(metrics.format_difference(*f[d])
+                          for d in ("difference", "difference_phantoms", "difference_plain"))))
+    return count_rows, f1_rows
+
+
+COUNT_HEADER = ("classifier", "method", "N", "after move", "episodes", "N right: episodes [95% CI, scenes]",
+                "scenes right in every run", "mean abs error", "mean error", "errors (count - objects: episodes)")
+F1_HEADER = ("classifier", "method", "scenes", "episodes", "T", "F1, N given", "F1, N given, phantoms counted",
+             "F1, N estimated", "F1, N estimated, phantoms counted",
+             "estimated (phantoms counted) - given [95% CI]", "both with phantoms counted", "neither")
+
+
+def run_settings_differ(known: Any, estimated: Any) -> list[str]:
+    """The keys (dotted) in which two ``Table1Config``s' results-defining settings differ, besides how N is set
+    (``perception.shapes``' ``COUNT_SETTINGS``): [] where the runs are comparable."""
+    def flat(tree, prefix=""):
+        out = {}
+        for k, v in tree.items():
+            if isinstance(v, dict):
+                out.update(flat(v, f"{prefix}{k}."))
+            else:
+                out[f"{prefix}{k}"] = v
+        return out
+
+    skip = {f"perception.shapes.{k}" for k in COUNT_SETTINGS}
+    a, b = flat(known.results_defining()), flat(estimated.results_defining())
+    return sorted(k for k in a.keys() | b.keys() if k not in skip and a.get(k) != b.get(k))
+
+
+def compare_runs(known_dir: str | Path, estimated_dir: str | Path, moves: Sequence[int] = EPISODE_MOVES,
+                 resamples: int = 2000, classes: int | None = None
+                 ) -> tuple[list[tuple], list[tuple], dict[str, Any]]:
+    """``episode_tables`` of two Table 1 output folders (``experiments/table1.py``'s ``out_dir``: its
+    ``config.yaml`` and every process's episode store), the first with N given, the second with N estimated;
+    their configs must agree but for ``COUNT_SETTINGS`` (ValueError naming the keys otherwise). ``classes``:
+    the classifier's class count (default: the dataset's object set's). Also returns facts for the intro:
+    ``dataset``, ``slots`` (the estimated run's num_segments), ``runs``, ``moves``."""
+    from jaxcls.config import load_config
+    from jaxcls.experiments.table1 import data
+    from jaxcls.experiments.table1.config import Table1Config
+    from jaxcls.perception.settings import ObjectCount
+
+    folders = Path(known_dir), Path(estimated_dir)
+    configs = [load_config(Table1Config, f / "config.yaml") for f in folders]
+    for folder, config, want in zip(folders, configs, (ObjectCount.known, ObjectCount.estimated), strict=True):
+        if config.perception.shapes.num_objects != want:
+            raise ValueError(f"{folder}: perception.shapes.num_objects is {config.perception.shapes.num_objects}, "
+                             f"expected {want} (give the run with N given first, then the one with N estimated)")
+    differ = run_settings_differ(*configs)
+    if differ:
+        raise ValueError(f"{folders[0]} and {folders[1]}: the runs differ in {differ}, not only in how N is set")
+    known, estimated = (data.stored_records(c, f / "episodes.jsonl") for c, f in zip(configs, folders, strict=True))
+    if classes is None:
+        from jaxcls.world.objects import object_set_from_config
+
+        classes = len(object_set_from_config(data.dataset_config(configs[0]).objects).classes)
+    count_rows, f1_rows = episode_tables(known, estimated, classes, moves, resamples,
+                                         {name: row.label for name, row in protocol.ROWS.items()})
+    return count_rows, f1_rows, {"dataset": configs[0].dataset, "slots": configs[1].perception.shapes.num_segments,
+                                 "given_slots": configs[0].perception.shapes.num_segments,
+                                 "runs": configs[0].runs, "moves": configs[0].moves}

@@ -1,0 +1,213 @@
+"""Counting objects in Table 1's episodes (issue 35): the comparison of a run with N given and one with N
+estimated on hand-made records (count shares by hand, a phantom's cost by hand, identical runs differ by
+exactly 0, the pairing, two run folders read and refused where they differ in more than N), and an episode
+with N estimated and empty segment slots, whose slots stay NaN-free and are ignored."""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+import json
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+from jaxcls import cli, io
+from jaxcls.config import load_config, save_config
+from jaxcls.episode import active, protocol, scoring, setup
+from jaxcls.experiments import counting
+from jaxcls.experiments.table1.config import Table1Config
+from jaxcls.geometry import CameraConfig
+from jaxcls.perception.settings import ObjectCount, PerceptionConfig, ShapeConfig
+from jaxcls.world.scenes import SceneConfig
+from jaxcls.world.setup import WorldConfig, make_world
+
+
+def _record(scene: int, run: int, segments: list[int], objects: int = 5, row: str = "random_gr",
+            refined: list[list[int]] | None = None, true: list[int] | None = None,
+            phantom: list[list[int]] | None = None) -> dict:
+    """A hand-made Table 1 record (``protocol.episode_records``' keys that the comparison reads)."""
+    T = len(segments)
+    true = true if true is not None else [0, 1]
+    refined = refined if refined is not None else [list(true)] * T
+    return {"classifier": "shipped", "row": row, "scene": scene, "run": run, "true": true, "prior": refined,
+            "refined": refined, "phantom": phantom if phantom is not None else [[] for _ in range(T)],
+            "segments": segments, "objects": objects}
+
+
+# Two scenes x two runs; the last episode made 3 moves of 4 (it stopped: its later counts are its last).
+COUNTS = [_record(0, 0, [4, 5, 5, 5]), _record(0, 1, [5, 5, 6, 5]),
+          _record(1, 0, [3, 4, 4, 4], objects=4), _record(1, 1, [4, 4, 4], objects=4)]
+
+
+def test_count_shares_and_errors_by_hand():
+    np.testing.assert_array_equal(counting.count_errors(COUNTS, 1), [-1, 0, -1, 0])
+    np.testing.assert_array_equal(counting.count_errors(COUNTS, 4), [0, 0, 0, 0])  # past the last: its last
+    first = counting.count_summary(COUNTS, 1, resamples=200)
+    assert first["episodes"] == 0.5 and first["scenes"] == 0.0  # no scene right in both runs
+    assert first["abs"] == 0.5 and first["mean"] == -0.5 and first["spread"] == {-1: 2, 0: 2}
+    assert first["low"] <= 0.5 <= first["high"] and first["n"] == 4 and first["scene_count"] == 2
+    third = counting.count_summary(COUNTS, 3, resamples=200)
+    assert third["episodes"] == 0.75 and third["scenes"] == 0.5  # scene 1 right in both runs, scene 0 in one
+    assert third["abs"] == 0.25 and third["mean"] == 0.25
+    # Resampling scenes: scene 0 alone 1/2 right, scene 1 alone all right.
+    assert third["low"] == pytest.approx(0.5) and third["high"] == pytest.approx(1.0)
+    last = counting.count_summary(COUNTS, 4, resamples=200)
+    assert (last["episodes"], last["low"], last["high"], last["scenes"], last["abs"]) == (1.0, 1.0, 1.0, 1.0, 0.0)
+
+
+def _random_records(seed: int, scenes: int = 4, runs: int = 3, moves: int = 3, classes: int = 4) -> list[dict]:
+    rng = np.random.default_rng(seed)
+    out = []
+    for s in range(scenes):
+        true = rng.integers(0, classes, 5).tolist()
+        for r in range(runs):
+            refined = [rng.integers(-1, classes, 5).tolist() for _ in range(moves)]
+            phantom = [rng.integers(0, classes, rng.integers(0, 3)).tolist() for _ in range(moves)]
+            out.append(_record(s, r, [5 + len(p) for p in phantom], refined=refined, true=true, phantom=phantom))
+    return out
+
+
+def test_identical_runs_differ_by_exactly_zero():
+    records = _random_records(0)
+    f = counting.f1_comparison(records, records, 4, resamples=200)
+    assert f["difference_phantoms"] == (0.0, 0.0, 0.0) and f["difference_plain"] == (0.0, 0.0, 0.0)
+    assert f["given"] == f["estimated"] and f["given_phantoms"] == f["estimated_phantoms"]
+    # The headline counts phantoms in the estimated run only: these records have some, so it is negative.
+    assert f["estimated_phantoms"] < f["given"] and f["difference"][0] == pytest.approx(f["estimated_phantoms"]
+                                                                                         - f["given"])
+    count_rows, f1_rows = counting.episode_tables(records, records, 4, resamples=200)
+    assert len(f1_rows) == 1 and f1_rows[0][-2:] == ("+0.000 [+0.000, +0.000]",) * 2
+    assert len(count_rows) == 2 * 2  # (given, estimated) x moves 1 and 3 (T = 3: move 10 reads the last, once)
+
+
+def test_a_phantom_costs_what_it_costs_by_hand():
+    """Two scenes, both objects right in both runs; with N estimated one phantom (class 1) in scene 0. Pooled:
+    class 1 has 2 of 3 detections right (precision 2/3, recall 1, F1 0.8), class 0 F1 1: macro 0.9, so the
+    difference is -0.1; scene 0 alone -1/6 (F1 of class 1: 2 * 0.5 / 1.5), scene 1 alone 0: the interval."""
+    given = [_record(0, 0, [2], objects=2), _record(1, 0, [2], objects=2)]
+    estimated = [_record(0, 0, [3], objects=2, phantom=[[1]]), _record(1, 0, [2], objects=2)]
+    f = counting.f1_comparison(given, estimated, 2, resamples=500)
+    estimate, low, high = f["difference"]
+    assert estimate == pytest.approx(-0.1) and low == pytest.approx(-1 / 6) and high == pytest.approx(0.0)
+    assert f["difference_plain"] == (0.0, 0.0, 0.0) and f["estimated_phantoms"] == pytest.approx(0.9)
+    assert counting.count_summary(estimated, 1, 200)["episodes"] == 0.5
+
+
+def test_runs_are_paired_by_scene_and_run():
+    known = [_record(0, 0, [5]), _record(1, 1, [5]), _record(0, 1, [5]), _record(2, 0, [5]),
+             _record(0, 0, [5], row="single_gr"), _record(0, 0, [4])]  # (a repeat: the first kept)
+    estimated = [_record(0, 1, [6]), _record(0, 0, [4]), _record(1, 1, [5]), _record(3, 0, [5])]
+    pairs = counting.paired_runs(known, estimated)
+    assert list(pairs) == [("shipped", "random_gr")]  # single_gr: only in the known run
+    k, e = pairs["shipped", "random_gr"]
+    assert [(r["scene"], r["run"]) for r in k] == [(0, 0), (0, 1), (1, 1)] == [(r["scene"], r["run"]) for r in e]
+    assert [r["segments"] for r in k] == [[5], [5], [5]] and [r["segments"] for r in e] == [[4], [6], [5]]
+
+
+def _run_folder(folder: Path, records: list[dict], **settings) -> Path:
+    shapes = ShapeConfig(**settings)
+    config = Table1Config(out_dir=str(folder), rows=("random_gr",), runs=3, moves=3, classifiers={"shipped": ""},
+                          perception=dataclasses.replace(setup.episode_perception(), shapes=shapes))
+    save_config(config, folder / "config.yaml")
+    io.append_jsonl(folder / "episodes.jsonl", records)
+    return folder
+
+
+def test_two_run_folders_compared_and_other_settings_refused(tmp_path, capsys):
+    records = _random_records(1, classes=8)
+    known = _run_folder(tmp_path / "known", records, num_segments=5)
+    estimated = _run_folder(tmp_path / "estimated", records, num_segments=8, num_objects=ObjectCount.estimated)
+    count_rows, f1_rows, facts = counting.compare_runs(known, estimated, resamples=200)
+    assert len(count_rows) == 2 * 2  # (given, estimated) x moves 1 and 3 (T = 3: 10 reads the last, once)
+    assert facts["slots"] == 8 and facts["given_slots"] == 5 and len(f1_rows) == 1 and f1_rows[0][1] == "RandomGR"
+    assert f1_rows[0][-2:] == ("+0.000 [+0.000, +0.000]",) * 2
+    with pytest.raises(ValueError, match="expected known"):
+        counting.compare_runs(estimated, known)
+    other = _run_folder(tmp_path / "other", records, num_segments=8, num_objects=ObjectCount.estimated,
+                        points_per_segment=512)
+    with pytest.raises(ValueError, match=r"perception\.shapes\.points_per_segment"):
+        counting.compare_runs(known, other)
+    # The command line: the section with both tables (the classes from the dataset's object set).
+    spec = importlib.util.spec_from_file_location("counting_script", Path(__file__).parents[1] / "experiments"
+                                                  / "counting.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    out = tmp_path / "results.md"
+    script.main(["--episodes", str(known), str(estimated), "--moves", "1", "3", "--resamples", "200",
+                 "--out", str(out)])
+    text = out.read_text()
+    assert "N given against N estimated" in text and "| shipped | RandomGR | estimated | 3 | 12 |" in text
+    assert text.strip() == capsys.readouterr().out.strip()  # printed and appended
+
+
+def test_the_shipped_estimated_config_is_the_synthetic_one_but_for_n():
+    given, estimated = (load_config(Table1Config, name) for name in ("table1_synthetic", "table1_synthetic_estimated"))
+    assert counting.run_settings_differ(given, estimated) == [] and given.rows == estimated.rows
+    assert estimated.perception.shapes.num_objects == ObjectCount.estimated
+    assert estimated.perception.shapes.num_segments == 8 and given.classifiers == estimated.classifiers
+    assert given.out_dir != estimated.out_dir  # (a store holds one config's episodes)
+
+
+# --- An episode with N estimated: empty slots through PointNet, GR, visibility and the records -------------
+
+CAMERA = CameraConfig.kinect_v1(0.5)
+WORLD = WorldConfig(camera=CAMERA, scene=SceneConfig(num_objects=3), backend="mujoco",
+                    viewpoints=dataclasses.replace(WorldConfig().viewpoints, count=40))
+SMALL = [*(f"camera.{f.name}={getattr(CAMERA, f.name)}" for f in dataclasses.fields(CAMERA)),
+         "perception.shapes.surface_points=8192", "perception.shapes.points_per_segment=256", "scene.num_objects=3",
+         "viewpoints.count=40", "backend=mujoco"]
+
+
+def _estimated_episode(world, slots: int, policy: str = "vis_occl_hist") -> active.Episode:
+    shapes = ShapeConfig(surface_points=8192, points_per_segment=256, num_segments=slots,
+                         num_objects=ObjectCount.estimated)
+    settings = setup.ActiveConfig(episode=active.EpisodeConfig(moves=3, policy=policy),
+                                  perception=PerceptionConfig(shapes=shapes))
+    return setup.make_episode(settings, world.object_set, world.intrinsics, world.table_height)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    world = make_world(WORLD, seed=1)
+    depth, T_wc, _, _ = world.measure(jax.random.PRNGKey(0), np.arange(len(world.viewpoints)))
+    return world, depth, T_wc
+
+
+def test_empty_slots_stay_finite_and_are_ignored(scene):
+    """Three objects in 8 slots and in 5: every float of the traces finite, an empty slot neither live, nor a
+    model, nor a phantom; the records (paths, labels, counts, phantoms) the same with 3 more empty slots."""
+    world, depth, T_wc = scene
+    truth = scoring.Truth.from_scene(world.scene, world.object_set)
+    starts, keys = np.array([5, 11, 30]), protocol.run_keys(0, 0, 3)
+    records = {}
+    for slots in (8, 5):
+        trace = jax.device_get(protocol.rollouts(_estimated_episode(world, slots), depth, T_wc, starts, keys))
+        for path, x in jax.tree_util.tree_leaves_with_path(trace):
+            x = np.asarray(x)
+            assert x.dtype.kind != "f" or np.isfinite(x).all(), jax.tree_util.keystr(path)
+        valid, points = np.asarray(trace.refinement.valid), np.asarray(trace.points)
+        np.testing.assert_array_equal(valid, points > 0)  # live: a slot with points
+        live = valid.sum(-1)
+        # Found, slots left empty; never more than 5 (else the 5-slot run must merge where the 8-slot one need not).
+        assert live.max() <= 5 and (live[:, -1] >= 2).all() and (live < slots).all()
+        assert (np.asarray(trace.refinement.model)[~valid] == -1).all()
+        assert (np.asarray(trace.refinement.rho)[~valid] == 0).all()
+        records[slots] = protocol.episode_records(trace, [truth] * 3, [{"run": r} for r in range(3)])
+        for r, lv in zip(records[slots], live, strict=True):
+            assert r["segments"] == lv.tolist() and r["objects"] == 3
+            assert all(len(p) <= s for p, s in zip(r["phantom"], r["segments"], strict=True))
+    assert json.dumps(records[8]) == json.dumps(records[5])
+
+
+def test_jaxcls_run_with_n_estimated(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert cli.main(["run", *SMALL, "episode.moves=2", "perception.shapes.num_objects=estimated",
+                     "perception.shapes.num_segments=8", f"out_dir={out}"]) == 0
+    printed = capsys.readouterr()
+    assert "move  2" in printed.out and "phantom(s), F1 with phantoms counted" in printed.err  # (the summary)
+    log = json.loads((out / "episode.json").read_text())
+    assert all(1 <= len(m["segments"]) <= 8 for m in log["moves"])
+    assert "num_objects: estimated" in (out / "config.yaml").read_text()
