@@ -197,11 +197,18 @@ def test_a_stopped_episode_comes_back_unchanged(episode, frames):
 
 
 def test_gr_off_keeps_the_prior_and_the_adaptive_stop_ends_early(world, frames):
-    off = setup.make_episode(_settings(refinement=False), world.object_set, world.intrinsics, world.table_height)
+    """(Both episodes fuse their frames at the poses given: tracking is not the subject here, and each episode's
+    programs compile in about half the time.)"""
+    untracked = PerceptionConfig(shapes=SHAPES, tracking=TrackingConfig(mode="reported"))
+
+    def settings(**episode) -> setup.ActiveConfig:
+        return dataclasses.replace(_settings(**episode), perception=untracked)
+
+    off = setup.make_episode(settings(refinement=False), world.object_set, world.intrinsics, world.table_height)
     log = runner.run(off, frames, 2, jax.random.PRNGKey(0))
     assert all(s["prior"] == s["refined"] and s["rho"] == [0.0] * len(s["rho"]) for m in log.moves
                for s in m["segments"])
-    stop = setup.make_episode(_settings(stop=active.StopConfig(stable_moves=1, min_rho=0.0)), world.object_set,
+    stop = setup.make_episode(settings(stop=active.StopConfig(stable_moves=1, min_rho=0.0)), world.object_set,
                               world.intrinsics, world.table_height)
     log = runner.run(stop, frames, 2, jax.random.PRNGKey(0))
     assert len(log.moves) == 1 and log.moves[0]["stop"]  # every class has held for one move: stop at once
@@ -247,9 +254,10 @@ def test_an_episode_recorded_for_rerun(tmp_path, episode, world, frames):
 
     recorder = EpisodeRecording(episode, frames.T_wc, episode.spec.classifier.classes, world.scene, world.object_set)
     chosen = []
+    utilities = jax.jit(active.candidate_utilities)  # (one compiled program, not its operations one by one)
 
     def on_move(record, state, depth, T_wc):
-        index, ok, U = (np.asarray(x) for x in active.candidate_utilities(episode, state))
+        index, ok, U = (np.asarray(x) for x in utilities(episode, state))
         assert np.isfinite(U).all() and ok.any()
         chosen.append((int(index[np.argmax(np.where(ok, U, -np.inf))]), int(state.next_view)))
         recorder.move(record, state, depth, T_wc)

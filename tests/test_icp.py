@@ -98,7 +98,8 @@ def test_icp_agrees_with_open3d_on_rendered_partial_views():
     cases = _rendered()
     rng = np.random.default_rng(1)
     inits = [_perturb(rng, pose, 15.0, 0.02, "full") for _, pose, _ in cases]
-    targets = {id(m): icp.model_target(m, config) for m, _, _ in cases}
+    models = {id(m): m for m, _, _ in cases}  # each model's target built once (the views repeat models)
+    targets = {key: icp.model_target(m, config) for key, m in models.items()}
     sources = [_pad(seen) for _, _, seen in cases]
     out = _batched(config)(np.stack([s for s, _ in sources]), np.stack([m for _, m in sources]),
                            _stack([targets[id(m)] for m, _, _ in cases]), np.stack(inits).astype(np.float32))

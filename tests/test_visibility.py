@@ -124,6 +124,7 @@ def test_soft_count_tends_to_the_hard_one_and_has_true_gradients():
 
     config = vis.VisibilityConfig(scale=0.25)
 
+    @jax.jit  # (one compiled program for the four differences, not their operations dispatched one by one)
     def total(angles):  # the soft count of all boxes seen from (azimuth, elevation) at 0.9 m
         a, e = angles[0], angles[1]
         eye = 0.9 * jnp.stack([jnp.cos(e) * jnp.cos(a), jnp.cos(e) * jnp.sin(a), jnp.sin(e)])
@@ -135,7 +136,7 @@ def test_soft_count_tends_to_the_hard_one_and_has_true_gradients():
         return jnp.sum(vis.soft_counts(corners, poses, live, T[None], K, config))
 
     x = jnp.array([0.7, 0.6])
-    grad = np.asarray(jax.grad(total)(x))
+    grad = np.asarray(jax.jit(jax.grad(total))(x))
     assert np.all(np.isfinite(grad)) and np.abs(grad).max() > 0
     h = 1e-3
     numeric = [(float(total(x + h * e)) - float(total(x - h * e))) / (2 * h) for e in np.eye(2)]
