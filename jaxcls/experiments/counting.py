@@ -9,6 +9,12 @@ count is its live segments (a slot whose mask has points); the reference path (s
 segments the same surface. A scene's truth is the number of objects placed on it (an object not yet seen
 counts as missed). Kinds: ``synthetic`` (5 objects, footprint gaps 3 mm - 3 cm), ``touching`` (5 objects,
 1-5 mm), ``mixed`` (1 + seed % 8 objects, gaps as ``synthetic``: a scene set where N is not always 5).
+
+In the episode loop (``experiments/counting.py --episodes``: ``compare_runs``, ``episode_tables``): two Table 1 runs
+alike but for ``perception.shapes.num_objects`` (and ``num_segments``), read from their stores and paired episode by
+episode ((classifier, row, scene, run), ``paired_runs``): each run's count after moves 1, 3 and 10 (the records'
+``segments`` against ``objects``: ``count_summary``) and F1 after T with N estimated minus F1 with N given, paired by
+scene (``f1_comparison``: ``protocol.scene_labels`` per run, ``metrics.paired_differences``).
 """
 
 from __future__ import annotations
