@@ -312,6 +312,7 @@ def test_the_oracle_splits_its_calls_not_its_scenes():
                           oracle_scenes=5, oracle_runs_per_call=4, scene_chunk=3)
     keys = [k for k in runner.episode_keys(config, 6) if k[1] == "oracle_gr"]
     calls = runner.oracle_calls(config, keys)
+    assert runner.oracle_call_size(config) == 4  # (every call padded to it, a resumed run's last one too)
     assert [len(call) for call in calls] == [4, 4, 4, 3] * 2 and sorted(k for c in calls for k in c) == sorted(keys)
     assert calls[1] == [("a", "oracle_gr", 1, 1), ("a", "oracle_gr", 1, 2), ("a", "oracle_gr", 2, 0),
                         ("a", "oracle_gr", 2, 1)]

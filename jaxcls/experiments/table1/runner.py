@@ -299,12 +299,18 @@ def oracle_calls(config: Table1Config, keys: list[tuple[str, str, int, int]]) ->
     count, and process i of N runs calls i, i + N, ...: on a GPU an oracle episode's records depend on which
     episodes share its call (its candidates' labels, in the last bits: measured, BENCHMARKS.md "Several GPUs"),
     so a split by scene, as the other rows', would change them."""
-    size = config.oracle_runs_per_call or (1 if jax.default_backend() == "cpu" else ORACLE_EPISODES_PER_CALL)
+    size = oracle_call_size(config)
     calls = []
     for program in dict.fromkeys(k[:2] for k in keys):
         ordered = sorted((k for k in keys if k[:2] == program), key=operator.itemgetter(2, 3))
         calls += [ordered[i:i + size] for i in range(0, len(ordered), size)]
     return calls
+
+
+def oracle_call_size(config: Table1Config) -> int:
+    """Episodes in each of the oracle's calls: ``oracle_runs_per_call``, or (0) one on a CPU and
+    ``ORACLE_EPISODES_PER_CALL`` elsewhere."""
+    return config.oracle_runs_per_call or (1 if jax.default_backend() == "cpu" else ORACLE_EPISODES_PER_CALL)
 
 
 def oracle_frames(config: Table1Config, calls: list[list[tuple[str, str, int, int]]]) -> int:
@@ -324,14 +330,16 @@ def run_oracle(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     padded with copies of the first scene's, never used). A call runs whole, as every process count and an
     uninterrupted run have it; its episodes not in ``done`` are appended to ``store`` and returned."""
     calls = [call for call in calls if any(k not in done for k in call)]
-    size = max((len(call) for call in calls), default=0)
+    size = oracle_call_size(config)  # (every call padded to it: a resumed run's last, shorter call too)
     episodes: dict[tuple[str, str], active.Episode] = {}
     made: list[dict[str, Any]] = []
-    while calls:
+    at = 0
+    while at < len(calls):
         group, scenes = [], set()  # consecutive calls whose scenes' frames fit in ``frames``
-        while calls and len(scenes | {k[2] for k in calls[0]}) <= frames:
-            scenes |= {k[2] for k in calls[0]}
-            group.append(calls.pop(0))
+        while at < len(calls) and len(scenes | {k[2] for k in calls[at]}) <= frames:
+            scenes |= {k[2] for k in calls[at]}
+            group.append(calls[at])
+            at += 1
         chunk_scenes = sorted(scenes)
         with clock("frames (rendered or read)"):
             chunk = scene_set.chunk(chunk_scenes)
