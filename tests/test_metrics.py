@@ -232,6 +232,11 @@ def test_resampled_sums_equal_the_gathered_ones_and_no_scenes_score_zero():
     for shape in [(9,), (5, 9), (2, 3, 9)]:
         picks = rng.integers(0, 9, shape)
         assert np.array_equal(metrics._resampled_sum(cms, picks), cms[picks].sum(axis=-3))
+    # counts near float32's last exact integer (2^24), below it (float32) and above it (float64): still exact
+    for top in (16_000, 17_000):
+        big = rng.integers(top - 50, top + 1, (1000, 2, 2))
+        picks = rng.integers(0, 1000, (3, 1000))
+        assert np.array_equal(metrics._resampled_sum(big, picks), big[picks].sum(axis=-3))
     assert metrics.scene_interval([], 4) == (0.0, 0.0, 0.0)
     assert metrics.paired_difference([], [], 4) == (0.0, 0.0, 0.0)
 

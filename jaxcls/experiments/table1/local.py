@@ -66,6 +66,8 @@ def run(command_lines: list[list[str]], gpus: list[str], out: Path, store_paths,
             logs.append(open(log_path(out, i), "w"))  # (closed below, once it ended)
             processes.append(subprocess.Popen(line, stdout=logs[-1], stderr=subprocess.STDOUT,
                                               env={**os.environ, "CUDA_VISIBLE_DEVICES": gpu}))
+        # The tables' bootstrap needs SciPy's stats (1-3 s to import): imported while the processes run, not after.
+        import scipy.stats  # noqa: F401
         with tqdm(total=total, initial=done, desc=f"episodes ({len(processes)} processes)", unit="episode",
                   disable=not show_progress) as bar:
             while True:
