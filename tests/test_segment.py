@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -339,6 +341,77 @@ def test_estimated_count_static_shapes_for_one_to_all_slots():
     np.testing.assert_array_equal(np.asarray(one.labels), np.asarray(batched.labels[2]))
 
 
+def _box(cx, cy, length, width, height, yaw=0.0, spacing=0.006):
+    """A closed upright box (m) standing on the table (z = 0), turned by ``yaw`` (rad): four side faces with
+    outward normals, the top with normals up, points about ``spacing`` m apart. Returns (points [M, 3] f32,
+    normals [M, 3] f32, mask [M] bool)."""
+    z = np.arange(SPEC.floor + spacing, height, spacing)
+    pts, nrm = [], []
+    for axis, sign in ((0, 1), (0, -1), (1, 1), (1, -1)):
+        half, span = (length, width)[axis] / 2, (width, length)[axis]
+        t, zz = (a.ravel() for a in np.meshgrid(np.arange(-span / 2, span / 2 + 1e-9, spacing), z))
+        face = np.zeros((len(t), 3))
+        face[:, axis], face[:, 1 - axis], face[:, 2] = sign * half, t, zz
+        normal = np.zeros(3)
+        normal[axis] = sign
+        pts.append(face)
+        nrm.append(np.tile(normal, (len(t), 1)))
+    gx, gy = (a.ravel() for a in np.meshgrid(np.arange(-length / 2, length / 2 + 1e-9, spacing),
+                                            np.arange(-width / 2, width / 2 + 1e-9, spacing)))
+    pts.append(np.c_[gx, gy, np.full(len(gx), height)])
+    nrm.append(np.tile([0.0, 0.0, 1.0], (len(gx), 1)))
+    c, s = np.cos(yaw), np.sin(yaw)
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    p = np.concatenate(pts) @ R.T + [cx, cy, 0.0]
+    return p.astype(np.float32), (np.concatenate(nrm) @ R.T).astype(np.float32), np.ones(len(p), bool)
+
+
+def _with_segmentation(spec: Spec, **changes) -> Spec:
+    return spec.replace(config=dataclasses.replace(
+        spec.config, segmentation=dataclasses.replace(spec.config.segmentation, **changes)))
+
+
+def test_flush_rule_merges_one_box_top_and_both_paths_agree():
+    """A long box (24 x 8 cm, 8 cm tall) holds two basins along its top's ridge whose relative persistence is
+    above ``merge_persistence``: without the flush rule (``flush_persistence = merge_persistence``) both paths
+    count two objects, with it one (the two basins reach one height and the top runs on across their boundary);
+    the twin's partition is the reference's. Touching objects of one height stay apart (``_HAND_MADE``'s
+    touching pair, counted with the rule on)."""
+    pts, nrm, m = _box(0.0, 0.0, 0.24, 0.08, 0.08, yaw=0.3)
+    off = _with_segmentation(COUNTING, flush_persistence=COUNTING.segmentation.merge_persistence)
+    for spec, objects in ((off, 2), (COUNTING, 1)):
+        ref, twin = segment.segment(spec, pts, nrm, m), segment.segment_jax(spec, pts, nrm, m)
+        assert _live(ref) == _live(twin) == objects, (spec.segmentation.flush_persistence, _live(ref), _live(twin))
+        a, b = np.asarray(ref.labels), np.asarray(twin.labels)
+        either = (a >= 0) | (b >= 0)
+        assert adjusted_rand_score(a[either], b[either]) > 0.95 and np.mean(a >= 0) > 0.95
+
+
+def test_flush_inputs_twin_equals_reference():
+    """The flush rule's inputs on a random basin map and heightmap: each basin's top, the cell pairs across two
+    basins' boundary with points on both sides, and those within the height tolerance, equal in both paths."""
+    from jaxcls.perception.segment import reference, twin
+
+    rng = np.random.default_rng(3)
+    G, K = 24, 5
+    basin = np.repeat(np.repeat(rng.integers(-1, K, (6, 6)), 4, axis=0), 4, axis=1)  # blocks of 4 x 4 cells
+    height = np.where(rng.random((G, G)) < 0.8, rng.choice([0.05, 0.051, 0.08], (G, G)), -np.inf)
+    want = reference._flush_inputs_np(basin, height, K, 0.003)
+    got = twin._flush_inputs(jnp.asarray(basin, jnp.int32), jnp.asarray(height, jnp.float32), K, 0.003)
+    for name, a, b in zip(("top", "across", "smooth"), want, got, strict=True):
+        np.testing.assert_allclose(np.asarray(b), a, rtol=1e-6, err_msg=name)
+    assert want[1].sum() > want[2].sum() > 0 and np.array_equal(want[1], want[1].T)
+
+
+def test_known_count_ignores_the_estimated_count_rules():
+    """With N known the flush and fragment settings change nothing: the same labels, both paths."""
+    pts, nrm, m = _box(0.0, 0.0, 0.24, 0.08, 0.08, yaw=0.3)
+    other = _with_segmentation(SPEC, flush_persistence=1.0, flush_height=0.05, min_object_area=0.05)
+    for fn in PATHS.values():
+        a, b = fn(SPEC, pts, nrm, m), fn(other, pts, nrm, m)
+        np.testing.assert_array_equal(np.asarray(a.labels), np.asarray(b.labels))
+
+
 def test_known_count_is_the_default_and_a_bad_choice_names_the_key():
     assert ShapeConfig().num_objects is ObjectCount.known
     assert ShapeConfig(num_objects="estimated").num_objects is ObjectCount.estimated
@@ -348,6 +421,8 @@ def test_known_count_is_the_default_and_a_bad_choice_names_the_key():
         PerceptionConfig(segmentation=segment.SegmentConfig(merge_persistence=1.5))
     with pytest.raises(ValueError, match="min_object_area"):
         PerceptionConfig(segmentation=segment.SegmentConfig(min_object_area=-1.0))
+    with pytest.raises(ValueError, match="flush_persistence"):
+        segment.SegmentConfig(merge_persistence=0.3, flush_persistence=0.2)
 
 
 def test_fused_scenes_estimated_count_and_twin_agreement(fused_scenes):

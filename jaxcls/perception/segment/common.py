@@ -82,26 +82,55 @@ _PAIR_SHIFTS = ((0, 1), (1, 0), (1, 1), (1, -1))  # each 8-neighbour pair once
 
 class _Merging(NamedTuple):
     """The persistence merge's state over K basins: alive [K] bool; saddle [K, K] the highest saddle between
-    two basins (-inf: none); centre [K, 2] cells; size [K] cells; group [K] the basin each one has joined."""
+    two basins (-inf: none); centre [K, 2] cells; size [K] cells; group [K] the basin each one has joined.
+
+    With the count estimated (``_count_rule`` not None), what the flush rule reads, else None: top [K] the
+    highest point of each basin above the table, m (-inf: no point); across [K, K] i32 adjacent cell pairs of
+    two basins that both hold points; smooth [K, K] i32 those of them whose highest points differ by less than
+    ``flush_height``."""
 
     alive: np.ndarray | jax.Array
     saddle: np.ndarray | jax.Array
     centre: np.ndarray | jax.Array
     size: np.ndarray | jax.Array
     group: np.ndarray | jax.Array
+    top: np.ndarray | jax.Array | None = None
+    across: np.ndarray | jax.Array | None = None
+    smooth: np.ndarray | jax.Array | None = None
 
 
-def _merge_costs(xp, state: _Merging, peak, relative: bool = False):
+class _CountRule(NamedTuple):
+    """The merge rule with the count estimated (``segmentation``'s settings; ``_count_rule``): two touching
+    basins merge while the lower one's relative persistence is below ``persistence``, or below
+    ``flush_persistence`` where they are flush: their highest points within ``flush_height`` m of each other
+    and at least half of the cell pairs across their boundary within ``flush_height`` too (one surface, not
+    two objects side by side)."""
+
+    persistence: float
+    flush_persistence: float
+    flush_height: float
+
+
+def _count_rule(spec: Spec) -> _CountRule | None:
+    """The estimated count's merge rule (``_CountRule``), None with N known."""
+    if not _estimated(spec):
+        return None
+    cfg = spec.segmentation
+    return _CountRule(cfg.merge_persistence, cfg.flush_persistence, cfg.flush_height)
+
+
+def _merge_costs(xp, state: _Merging, peak, rule: _CountRule | None = None):
     """What merging each basin would cost: ([K] cost, inf for a basin that cannot merge; [K] i32 the basin it
     would join).
 
     A live basin joins the higher live basin it shares the highest saddle with. A basin with no saddle to a
     higher one (a separate DBSCAN cluster) is separated from it by empty space, where the field is 0: its
-    saddle is 0 and it joins the nearest higher basin (the paper's merge of cluster centres). ``relative``
-    False (a known N): the cost is the persistence peak - saddle (field units), so that fragments go early
-    and separate objects last. ``relative`` True (the count estimated): (peak - saddle) / peak, in [0, 1],
-    comparable across object sizes; a basin apart on the table costs 1 + peak / the highest live peak, above
-    every touching merge, smallest first.
+    saddle is 0 and it joins the nearest higher basin (the paper's merge of cluster centres). ``rule`` None (a
+    known N): the cost is the persistence peak - saddle (field units), so that fragments go early and separate
+    objects last. With the count estimated (``rule``): (peak - saddle) / peak, in [0, 1], comparable across
+    object sizes, scaled by ``persistence / flush_persistence`` where the two basins are flush (``_CountRule``),
+    so that a cost below ``persistence`` is the rule's merge; a basin apart on the table costs 1 + peak / the
+    highest live peak, above every touching merge, smallest first.
     """
     alive, saddle, centre = state.alive, state.saddle, state.centre
     K = peak.shape[0]
@@ -114,61 +143,84 @@ def _merge_costs(xp, state: _Merging, peak, relative: bool = False):
     d2 = xp.where(higher, xp.sum((centre[:, None] - centre[None]) ** 2, axis=-1), xp.inf)
     near = xp.argmin(d2, axis=1)
     linked = top > -xp.inf
-    if relative:
+    if rule is not None:
         scale = xp.maximum(peak, 1e-12)
         highest = xp.maximum(xp.max(xp.where(alive, peak, 0.0)), 1e-12)
-        cost = xp.where(linked, (peak - xp.where(linked, top, 0.0)) / scale, 1.0 + peak / highest)
+        relative = (peak - xp.where(linked, top, 0.0)) / scale
+        relative = relative * xp.where(_flush(xp, state, up, rule), rule.persistence / rule.flush_persistence, 1.0)
+        cost = xp.where(linked, relative, 1.0 + peak / highest)
     else:
         cost = xp.where(linked, peak - top, peak)  # no saddle: the empty space between, where the field is 0
     cost = xp.where(alive & xp.any(higher, axis=1), cost, xp.inf)
     return cost, xp.where(linked, up, near)
 
 
-def _merge_more(xp, state: _Merging, peak, slots: int, persistence: float | None):
+def _flush(xp, state: _Merging, up, rule: _CountRule):
+    """[K] bool: each basin flush with basin ``up`` [K] (``_CountRule``): highest points within
+    ``flush_height`` and at least half of the cell pairs across their boundary too (none across: not flush)."""
+    rows = xp.arange(up.shape[0])
+    across, smooth = state.across[rows, up], state.smooth[rows, up]
+    top = xp.maximum(state.top, -1e9)  # a basin without points (-inf) has none across either
+    same_top = xp.abs(top - top[up]) < rule.flush_height
+    return same_top & (across > 0) & (2 * smooth >= across)
+
+
+def _merge_more(xp, state: _Merging, peak, slots: int, rule: _CountRule | None):
     """[] bool whether the persistence merge goes on: while more than ``slots`` basins live, and, with the count
-    estimated (``persistence`` not None), while the cheapest merge's relative persistence is below
-    ``persistence``. Shared by both paths."""
+    estimated (``rule`` not None), while the cheapest merge's cost is below ``rule.persistence``. Shared by both
+    paths."""
     more = xp.sum(state.alive) > slots
-    if persistence is None:
+    if rule is None:
         return more
-    cost, _ = _merge_costs(xp, state, peak, relative=True)
-    return more | (xp.min(cost) < persistence)
+    cost, _ = _merge_costs(xp, state, peak, rule)
+    return more | (xp.min(cost) < rule.persistence)
 
 
-def _merge_step(xp, state: _Merging, peak, relative: bool = False) -> _Merging:
+def _merge_step(xp, state: _Merging, peak, rule: _CountRule | None = None) -> _Merging:
     """One persistence merge: the live basin with the lowest cost (``_merge_costs``) joins its target basin;
-    the target's saddles become the higher of the two rows, its centre the size-weighted mean.
-    Shared by both paths (``xp`` = numpy or jax.numpy)."""
-    alive, saddle, centre, size, group = state
-    cost, target = _merge_costs(xp, state, peak, relative)
+    the target's saddles become the higher of the two rows, its centre the size-weighted mean (with the count
+    estimated: its top the higher, its boundary counts the sums). Shared by both paths (``xp`` = numpy or
+    jax.numpy)."""
+    cost, target = _merge_costs(xp, state, peak, rule)
     ar = xp.arange(peak.shape[0])
     i = xp.argmin(cost)
     t = target[i]
-    row = xp.maximum(saddle[t], saddle[i])
+    row = xp.maximum(state.saddle[t], state.saddle[i])
     row = xp.where(ar == t, -xp.inf, row)
+    size, centre = state.size, state.centre
+    joined = (centre[t] * size[t] + centre[i] * size[i]) / (size[t] + size[i])
+    new = {"saddle": _set_cross(xp, state.saddle, t, row), "centre": _set_row(xp, centre, t, joined),
+           "size": _set_row(xp, size, t, size[t] + size[i]), "alive": _set_row(xp, state.alive, i, False),
+           "group": xp.where(state.group == i, t, state.group)}
+    if state.top is not None:
+        new["top"] = _set_row(xp, state.top, t, xp.maximum(state.top[t], state.top[i]))
+        for name in ("across", "smooth"):
+            m = getattr(state, name)
+            new[name] = _set_cross(xp, m, t, xp.where(ar == t, 0, m[t] + m[i]))
+    return state._replace(**new)
+
+
+def _set_row(xp, a, i, value):
+    """``a`` with ``a[i] = value`` (a copy with NumPy, ``.at`` with JAX)."""
     if xp is np:
-        saddle = saddle.copy()
-        saddle[t], saddle[:, t] = row, row
-        centre, size, alive = centre.copy(), size.copy(), alive.copy()
-        centre[t] = (centre[t] * size[t] + centre[i] * size[i]) / (size[t] + size[i])
-        size[t] += size[i]
-        alive[i] = False
-    else:
-        saddle = saddle.at[t].set(row).at[:, t].set(row)
-        centre = centre.at[t].set((centre[t] * size[t] + centre[i] * size[i]) / (size[t] + size[i]))
-        size = size.at[t].add(size[i])
-        alive = alive.at[i].set(False)
-    return _Merging(alive, saddle, centre, size, xp.where(group == i, t, group))
+        a = a.copy()
+        a[i] = value
+        return a
+    return a.at[i].set(value)
+
+
+def _set_cross(xp, m, i, row):
+    """Symmetric ``m [K, K]`` with row and column ``i`` set to ``row [K]``."""
+    if xp is np:
+        m = m.copy()
+        m[i], m[:, i] = row, row
+        return m
+    return m.at[i].set(row).at[:, i].set(row)
 
 
 def _estimated(spec: Spec) -> bool:
     """Whether the number of objects is estimated (``shapes.num_objects``), not given as ``num_segments``."""
     return spec.config.shapes.num_objects is ObjectCount.estimated
-
-
-def _merge_persistence(spec: Spec) -> float | None:
-    """The relative persistence below which basins merge with the count estimated; None with N known."""
-    return spec.segmentation.merge_persistence if _estimated(spec) else None
 
 
 def _too_small(state: _Merging, spec: Spec, xp=np):

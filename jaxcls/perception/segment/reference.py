@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -14,11 +15,11 @@ from jaxcls.perception.segment.common import (
     Segments,
     _basin_centres,
     _cell_of,
+    _count_rule,
     _estimated,
     _gaussian_kernel,
     _grid_size,
     _merge_more,
-    _merge_persistence,
     _merge_step,
     _Merging,
     _order_segments,
@@ -111,12 +112,91 @@ def _saddles_np(basin: np.ndarray, field: np.ndarray, K: int) -> np.ndarray:
     return saddle
 
 
+def _heightmap_np(spec: Spec, y: np.ndarray) -> np.ndarray:
+    """[G, G] f64 the highest z (m) of the points ``y: [M, 3]`` in each footprint cell, -inf where none."""
+    G = _grid_size(spec)
+    ij = _cell_of(y, spec)
+    height = np.full((G, G), -np.inf)
+    np.maximum.at(height, (ij[:, 0], ij[:, 1]), y[:, 2])
+    return height
+
+
+def _flush_inputs_np(basin: np.ndarray, height: np.ndarray, K: int, tolerance: float
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What the flush rule reads (``_Merging``'s ``top``, ``across``, ``smooth``) of the basins ``basin: [G, G]``
+    (-1 = none) over the heightmap ``height: [G, G]`` (``_heightmap_np``): ([K] each basin's highest z, m, -inf
+    without points; [K, K] i64 adjacent cell pairs of two basins both holding points; [K, K] i64 those whose
+    heights differ by less than ``tolerance`` m)."""
+    G = basin.shape[0]
+    top = np.full(K, -np.inf)
+    cells = basin >= 0
+    np.maximum.at(top, basin[cells], height[cells])
+    across, smooth = np.zeros((K, K), np.int64), np.zeros((K, K), np.int64)
+    bp, hp = np.pad(basin, 1, constant_values=-1), np.pad(height, 1, constant_values=-np.inf)
+    for di, dj in _PAIR_SHIFTS:
+        lb, hb = bp[1 + di:1 + di + G, 1 + dj:1 + dj + G], hp[1 + di:1 + di + G, 1 + dj:1 + dj + G]
+        sel = (basin >= 0) & (lb >= 0) & (basin != lb) & np.isfinite(height) & np.isfinite(hb)
+        a, b = basin[sel], lb[sel]
+        close = np.abs(height[sel] - hb[sel]) < tolerance
+        for m, w in ((across, np.ones(len(a), np.int64)), (smooth, close.astype(np.int64))):
+            np.add.at(m, (a, b), w)
+            np.add.at(m, (b, a), w)
+    return top, across, smooth
+
+
 def _principal_split(x: np.ndarray) -> np.ndarray:
     """[2, 3] initial centres for splitting ``x: [M, 3]``: its mean -/+ one std along its main axis."""
     centre = x.mean(0)
     w, v = np.linalg.eigh(np.cov((x - centre).T, bias=True))
     step = np.sqrt(max(w[-1], 0.0)) * v[:, -1]
     return np.stack([centre - step, centre + step])
+
+
+class _ReferenceParts(NamedTuple):
+    """The reference path's footprint watershed after the persistence merge, before fragments are dropped or
+    parts split (``cluster_reference`` reads it; ``experiments.counting.explain_segments`` too).
+
+    good: [M] bool the points DBSCAN keeps; occ: [G, G] bool footprint; field: [G, G] f64 the watershed's
+    field; basin: [G, G] i64 each cell's basin, -1 off; peak: [K] f64 each basin's peak height; merged: the
+    ``_Merging`` state at the end (``group`` [K] the basin each joined, ``alive`` the surviving groups);
+    group: [len(y)] i64 the group of each kept point (``y = x[good]``)."""
+
+    good: np.ndarray
+    occ: np.ndarray
+    field: np.ndarray
+    basin: np.ndarray
+    peak: np.ndarray
+    merged: _Merging
+    group: np.ndarray
+
+
+def _watershed_reference(spec: Spec, x: np.ndarray, normals: np.ndarray) -> _ReferenceParts | None:
+    """DBSCAN's noise removal, the footprint field's watershed and the persistence merge (``_merge_step``,
+    while ``_merge_more``) of foreground points ``x: [M, 3]`` m with unit ``normals: [M, 3]``; None when
+    fewer than one point (N estimated) or N points (N known) remain."""
+    from sklearn.cluster import DBSCAN
+
+    N = spec.num_segments
+    least = 1 if _estimated(spec) else N  # fewer points than this: no segment
+    if len(x) < least:
+        return None
+    cfg = spec.segmentation
+    good = DBSCAN(eps=cfg.dbscan_eps, min_samples=cfg.dbscan_min_samples).fit_predict(x) >= 0
+    y = x[good]
+    if len(y) < least:
+        return None
+    occ, field = footprint_field_reference(spec, y, normals[good])
+    basin, peak = _basins_np(field, occ)
+    K = len(peak)
+    state = _Merging(np.ones(K, bool), _saddles_np(basin, field, K), *_basin_centres(basin, K), np.arange(K))
+    rule = _count_rule(spec)
+    if rule is not None:
+        flush = _flush_inputs_np(basin, _heightmap_np(spec, y), K, rule.flush_height)
+        state = state._replace(**dict(zip(("top", "across", "smooth"), flush, strict=True)))
+    while _merge_more(np, state, peak, N, rule):
+        state = _merge_step(np, state, peak, rule)
+    ij = _cell_of(y, spec)
+    return _ReferenceParts(good, occ, field, basin, peak, state, state.group[basin[ij[:, 0], ij[:, 1]]])
 
 
 def cluster_reference(spec: Spec, x: np.ndarray, normals: np.ndarray) -> np.ndarray:
@@ -128,29 +208,18 @@ def cluster_reference(spec: Spec, x: np.ndarray, normals: np.ndarray) -> np.ndar
     relative persistence below ``merge_persistence``, or more parts than the ``num_segments`` slots), parts
     with a footprint under ``min_object_area`` dropped (-1), never split: 0 to ``num_segments`` parts.
     """
-    from sklearn.cluster import DBSCAN, KMeans
+    from sklearn.cluster import KMeans
 
-    N, M = spec.num_segments, len(x)
+    N = spec.num_segments
     estimated = _estimated(spec)
-    least = 1 if estimated else N  # fewer points than this: no segment
-    labels = np.full(M, -1, np.int64)
-    if M < least:
+    labels = np.full(len(x), -1, np.int64)
+    parts = _watershed_reference(spec, x, normals)
+    if parts is None:
         return labels
     cfg = spec.segmentation
-    good = DBSCAN(eps=cfg.dbscan_eps, min_samples=cfg.dbscan_min_samples).fit_predict(x) >= 0
+    good, group = parts.good, parts.group
     y = x[good]
-    if len(y) < least:
-        return labels
-    occ, field = footprint_field_reference(spec, y, normals[good])
-    basin, peak = _basins_np(field, occ)
-    K = len(peak)
-    state = _Merging(np.ones(K, bool), _saddles_np(basin, field, K), *_basin_centres(basin, K), np.arange(K))
-    persistence = _merge_persistence(spec)
-    while _merge_more(np, state, peak, N, persistence):
-        state = _merge_step(np, state, peak, relative=estimated)
-    ij = _cell_of(y, spec)
-    group = state.group[basin[ij[:, 0], ij[:, 1]]]
-    keep = ~_too_small(state, spec)[group]
+    keep = ~_too_small(parts.merged, spec)[group]
     part = np.full(len(y), -1, np.int64)
     if keep.any():
         part[keep] = np.unique(group[keep], return_inverse=True)[1]

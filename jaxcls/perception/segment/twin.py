@@ -15,10 +15,10 @@ from jaxcls.perception.segment.common import (
     Segments,
     _basin_centres,
     _cell_of,
+    _count_rule,
     _estimated,
     _grid_size,
     _merge_more,
-    _merge_persistence,
     _merge_step,
     _Merging,
     _order_segments,
@@ -133,6 +133,32 @@ def _saddles(basin: jax.Array, field: jax.Array, K: int) -> jax.Array:
     return saddle.reshape(K, K)
 
 
+def _heightmap(x: jax.Array, kept: jax.Array, spec: Spec) -> jax.Array:
+    """``_heightmap_np`` in JAX: [G, G] f32 the highest z (m) of the kept points in each cell, -inf where none."""
+    G = _grid_size(spec)
+    ij = _cell_of(x, spec, xp=jnp)
+    target = jnp.where(kept, ij[:, 0] * G + ij[:, 1], G * G)  # dropped points out of bounds
+    return jnp.full(G * G, -jnp.inf, x.dtype).at[target].max(x[:, 2], mode="drop").reshape(G, G)
+
+
+def _flush_inputs(basin: jax.Array, height: jax.Array, K: int, tolerance: float
+                  ) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """``_flush_inputs_np`` in JAX: ([K] f32 top, [K, K] i32 across, [K, K] i32 smooth)."""
+    flat, h = basin.reshape(-1), height.reshape(-1)
+    top = jax.ops.segment_max(jnp.where(flat >= 0, h, -jnp.inf), jnp.where(flat >= 0, flat, K), num_segments=K + 1)[:K]
+    across = jnp.zeros(K * K, jnp.int32)
+    smooth = jnp.zeros(K * K, jnp.int32)
+    for di, dj in _PAIR_SHIFTS:
+        lb, hb = _shifted(basin, di, dj, -1), _shifted(height, di, dj, -jnp.inf)
+        sel = ((basin >= 0) & (lb >= 0) & (basin != lb) & jnp.isfinite(height) & jnp.isfinite(hb)).reshape(-1)
+        close = sel & (jnp.abs(height - hb) < tolerance).reshape(-1)
+        a, b = flat, lb.reshape(-1)
+        for pair in (a * K + b, b * K + a):
+            across = across.at[jnp.where(sel, pair, K * K)].add(1, mode="drop")
+            smooth = smooth.at[jnp.where(close, pair, K * K)].add(1, mode="drop")
+    return top, across.reshape(K, K), smooth.reshape(K, K)
+
+
 class _Lloyd(NamedTuple):
     """K-means' loop state: label [M] i32, centres [K, D], changed [] bool (a label moved), rounds [] i32."""
 
@@ -221,10 +247,13 @@ def cluster_jax(spec: Spec, x: jax.Array, normals: jax.Array, valid: jax.Array) 
     basin, peak, exists = _basins(field, occ, K)
     centre, size = _basin_centres(basin, K, xp=jnp)
 
-    estimated, persistence = _estimated(spec), _merge_persistence(spec)
+    estimated, rule = _estimated(spec), _count_rule(spec)
     state = _Merging(exists, _saddles(basin, field, K), centre, size, jnp.arange(K))
-    state = jax.lax.while_loop(lambda s: _merge_more(jnp, s, peak, N, persistence),
-                               lambda s: _merge_step(jnp, s, peak, relative=estimated), state)
+    if rule is not None:
+        flush = _flush_inputs(basin, _heightmap(x, kept, spec), K, rule.flush_height)
+        state = state._replace(**dict(zip(("top", "across", "smooth"), flush, strict=True)))
+    state = jax.lax.while_loop(lambda s: _merge_more(jnp, s, peak, N, rule),
+                               lambda s: _merge_step(jnp, s, peak, rule), state)
     ij = _cell_of(x, spec, xp=jnp)
     group = state.group[jnp.maximum(basin[ij[:, 0], ij[:, 1]], 0)]
     kept = kept & ~_too_small(state, spec, xp=jnp)[group]
