@@ -17,9 +17,12 @@ With fewer than N basins the part with the largest sum of squares is split by 2-
 Without a known N (``shapes.num_objects: estimated``; ``num_segments`` is then the number of slots, the most
 objects that can be found), the merge orders basins by their persistence relative to their own peak,
 (peak - saddle) / peak, and stops once the cheapest is at least ``merge_persistence`` and no more basins live
-than slots; basins apart on the table (no saddle) merge only to fit the slots. Nothing is split; parts whose
-footprint covers less than ``min_object_area`` are dropped as fragments. Slots beyond the count are empty
-(their masks all False), ordered last.
+than slots; basins apart on the table (no saddle) merge only to fit the slots. Two touching basins that are
+flush (their highest points within ``flush_height`` of each other, and at least half of the adjacent cell pairs
+across their boundary too: one object's top surface running on, as a box's whose footprint ridge holds two
+peaks) merge up to the higher ``flush_persistence`` (their cost scaled by merge_persistence / flush_persistence).
+Nothing is split; parts whose footprint covers less than ``min_object_area`` are dropped as fragments. Slots
+beyond the count are empty (their masks all False), ordered last.
 
 Two implementations of the same algorithm:
 - ``segment``: the reference path, scikit-learn DBSCAN + SciPy grid operations on the host (one episode).
