@@ -2,6 +2,7 @@
 
     python experiments/counting.py [--seeds 30] [--first-seed 0] [--slots 8] [--tracking reported] [--out RESULTS.md]
     python experiments/counting.py --episodes KNOWN_DIR ESTIMATED_DIR [--moves 1 3 10] [--out RESULTS.md]
+    python experiments/counting.py --explain ESTIMATED_DIR [--moves 3 10] [--limit 0] [--json FILE] [--out RESULTS.md]
 
 Perception with ``perception.shapes.num_objects = estimated`` and ``--slots`` segment slots
 (``shapes.num_segments``). Scenes: the builtin set, ``synthetic`` (5 objects, footprint gaps 3 mm - 3 cm),
@@ -18,6 +19,14 @@ whose live segment count equals the scene's objects after ``--moves`` (past a ro
 scene-bootstrap interval, the share of scenes right in every run, the mean absolute count error; and F1 after the
 last move with N estimated (each phantom segment a false positive of its class) minus F1 with N given, paired by
 scene, with its scene-bootstrap interval. The logic is ``jaxcls.experiments.counting``.
+
+``--explain ESTIMATED_DIR``: why a run with N estimated miscounts. Its episodes whose live segments were not
+their objects after one of ``--moves`` are replayed (their recorded views fused again through the run's
+perception) and the surface is described against the scene's posed objects (``counting.explain_surface``: each
+segment's majority object, area, height, persistence; each object's fate): the table counts the segments that
+are not their object's largest (``second``) or belong to no object (``ghost``), by move, touching another
+segment or apart on the table, and the class, and the objects without a segment of their own (merged into
+another's, dropped, unseen); ``--json`` keeps every description.
 """
 
 from __future__ import annotations
@@ -49,13 +58,25 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--min-object-area", type=float, help="perception.segmentation.min_object_area, m^2")
     parser.add_argument("--episodes", nargs=2, metavar=("KNOWN_DIR", "ESTIMATED_DIR"),
                         help="compare two Table 1 runs' episodes, N given then N estimated (no scene fused)")
-    parser.add_argument("--moves", type=int, nargs="+", default=list(counting.EPISODE_MOVES),
-                        help="with --episodes: the moves after which the counts are read")
+    parser.add_argument("--explain", metavar="ESTIMATED_DIR",
+                        help="describe the extra segments of a Table 1 run with N estimated (its episodes replayed)")
+    parser.add_argument("--limit", type=int, default=0, help="with --explain: at most this many episodes (0 = all)")
+    parser.add_argument("--json", help="with --explain: write every segment's description to this JSON file")
+    parser.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE",
+                        help="with --explain: settings laid over the run's config for the replay (e.g. the "
+                             "value of a segmentation setting the run was stored without)")
+    parser.add_argument("--moves", type=int, nargs="+",
+                        help="with --episodes: the moves after which the counts are read (default 1 3 10); "
+                             "with --explain: the moves whose over-counts are explained (default 3 10)")
     parser.add_argument("--resamples", type=int, default=2000, help="with --episodes: bootstrap resamples")
     parser.add_argument("--out", help="append the table to this Markdown file")
     args = parser.parse_args(argv)
     if args.episodes:
+        args.moves = args.moves or list(counting.EPISODE_MOVES)
         compare_episodes(args, argv)
+        return
+    if args.explain:
+        explain(args, argv)
         return
     mode = type(TrackingConfig().mode)(args.tracking)
     seg = perception.SegmentConfig()
@@ -79,6 +100,34 @@ def main(argv: list[str] | None = None) -> None:
         intro=f"`shapes.num_objects: estimated`, {args.slots} slots, merge_persistence {seg.merge_persistence}, "
               f"min_object_area {seg.min_object_area} m^2; tracking {args.tracking}; {wall:.0f} s on the CPU."),
         args.out)
+
+
+def explain(args: argparse.Namespace, argv: list[str] | None) -> None:
+    """``--explain``: the over-counted episodes replayed, their extra segments described and summed up."""
+    import json
+
+    moves = tuple(args.moves or (3, 10))
+    start = time.perf_counter()
+    explained = counting.explain_episodes(args.explain, moves, args.limit, overrides=args.set)
+    wall = time.perf_counter() - start
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(explained, f)
+    episodes = len({(e["classifier"], e["row"], e["scene"], e["run"]) for e in explained})
+    agree = sum(len(e["segments"]) == e["recorded"] for e in explained)
+    laid = f" (replayed with {', '.join(args.set)})" if args.set else ""
+    intro = (f"`{args.explain}`{laid}: {episodes} episodes counted other than their objects after move "
+             f"{' or '.join(map(str, moves))}; replayed (their views fused again, {wall:.0f} s on the CPU), the "
+             f"reference path counts what the episode recorded on {agree} of {len(explained)} surfaces. A segment "
+             "is `second` when its points' majority object has a larger segment, `ghost` when most of its "
+             "points belong to no object (farther than 1 cm from every posed surface); persistence: the cost of its "
+             "cheapest merge (touching: the relative persistence, scaled where flush, < 1; apart on the table: 1 + "
+             "its peak / the highest). A missed object has no segment of its own: `merged` (the segment holding "
+             "most of its points is another object's), `dropped` (in no live segment), `unseen` (fewer than "
+             f"{counting.MISSED_POINTS} surface points).")
+    report.publish(report.section(f"Extra segments in Table 1's episodes with N estimated, {datetime.date.today()}",
+                                  argv, counting.EXPLAIN_HEADER, counting.explain_rows(explained), intro=intro),
+                   args.out)
 
 
 def compare_episodes(args: argparse.Namespace, argv: list[str] | None) -> None:

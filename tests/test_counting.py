@@ -152,6 +152,55 @@ def test_the_shipped_estimated_config_is_the_synthetic_one_but_for_n():
     assert given.out_dir != estimated.out_dir  # (a store holds one config's episodes)
 
 
+def _cylinder(cx: float, cy: float, radius: float, height: float, spacing: float = 0.006
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """An upright closed cylinder on the table (z = 0), m: side wall (outward normals) and top (normals up),
+    points about ``spacing`` apart: (points [M, 3] f32, normals [M, 3] f32)."""
+    a = np.linspace(0, 2 * np.pi, int(2 * np.pi * radius / spacing), endpoint=False)
+    z = np.arange(0.015, height, spacing)
+    u = np.repeat(np.c_[np.cos(a), np.sin(a)], len(z), axis=0)
+    side = np.c_[cx + radius * u[:, 0], cy + radius * u[:, 1], np.tile(z, len(a))]
+    g = np.arange(-radius, radius + 1e-9, spacing)
+    gx, gy = (v.ravel() for v in np.meshgrid(g, g))
+    inside = gx**2 + gy**2 <= radius**2
+    top = np.c_[cx + gx[inside], cy + gy[inside], np.full(inside.sum(), height)]
+    normals = np.r_[np.c_[u, np.zeros(len(u))], np.tile([0.0, 0.0, 1.0], (len(top), 1))]
+    return np.r_[side, top].astype(np.float32), normals.astype(np.float32)
+
+
+def test_extra_segments_explained_against_their_objects():
+    """``explain_surface`` on a hand-made surface of three cylinders apart: two owned by object 0 (the smaller
+    is its ``second`` segment), one by none (a ``ghost``); areas, heights and persistences as built (apart on
+    the table: >= 1, the highest basin inf); object 0 found, object 1 (no points) unseen; ``explain_rows``
+    counts the two extras and the missed object."""
+    from jaxcls.geometry import Intrinsics
+    from jaxcls.perception.settings import Spec
+
+    spec = Spec.create(PerceptionConfig(shapes=ShapeConfig(num_segments=6, num_objects=ObjectCount.estimated)),
+                       Intrinsics.kinect_v1(0.5))
+    parts = [((-0.12, 0.0, 0.035, 0.06), 0), ((0.12, 0.0, 0.025, 0.09), 0), ((0.0, 0.15, 0.03, 0.05), -1)]
+    clouds = [_cylinder(*shape) for shape, _ in parts]
+    points, normals = np.concatenate([c[0] for c in clouds]), np.concatenate([c[1] for c in clouds])
+    owners = np.concatenate([np.full(len(c[0]), o) for c, (_, o) in zip(clouds, parts, strict=True)])
+    surface = counting.explain_surface(spec, points, normals, np.ones(len(points), bool), owners, objects=2)
+    described = surface["segments"]
+    assert [(o["fate"], o["points"] > 0) for o in surface["objects"]] == [("found", True), ("unseen", False)]
+    by_kind = {d["kind"]: d for d in described}
+    assert sorted(by_kind) == ["ghost", "object", "second"], described
+    for (cx, cy, radius, height), _ in parts:
+        d = min(described, key=lambda d: np.hypot(d["centre"][0] - cx, d["centre"][1] - cy))
+        assert abs(d["area"] / (np.pi * radius**2) - 1) < 0.3 and abs(d["height"] - height) < 0.005, d
+        assert d["persistence"] >= 1.0 and d["basins"] >= 1 and d["purity"] in (0.0, 1.0)
+    assert by_kind["second"]["object"] == by_kind["object"]["object"] == 0 and by_kind["ghost"]["object"] == -1
+    assert by_kind["second"]["points"] < by_kind["object"]["points"] and by_kind["ghost"]["unowned"] == 1.0
+    named = [{**d, "name": "box_test_000" if d["object"] == 0 else ""} for d in described]
+    rows = counting.explain_rows([{"move": 3, "segments": named,
+                                   "fates": [{**o, "name": f"can_test_00{o['object']}"} for o in surface["objects"]]}])
+    assert sorted((r[1], r[2], r[3], r[4]) for r in rows) == [("ghost", "apart", "none", 1),
+                                                              ("missed: unseen", "", "can", 1),
+                                                              ("second", "apart", "box", 1)]
+
+
 # --- An episode with N estimated: empty slots through PointNet, GR, visibility and the records -------------
 
 CAMERA = CameraConfig.kinect_v1(0.5)

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from jaxcls import metrics, perception
@@ -287,3 +288,168 @@ def compare_runs(known_dir: str | Path, estimated_dir: str | Path, moves: Sequen
     return count_rows, f1_rows, {"dataset": configs[0].dataset, "slots": configs[1].perception.shapes.num_segments,
                                  "given_slots": configs[0].perception.shapes.num_segments,
                                  "runs": configs[0].runs, "moves": configs[0].moves}
+
+
+# --- Why a count is wrong: each segment of a fused surface described against the scene's objects ---------------
+
+MISSED_POINTS = 20  # an object with fewer surface points than this is unseen
+
+
+def explain_surface(spec: perception.Spec, points: np.ndarray, normals: np.ndarray, mask: np.ndarray,
+                    owners: np.ndarray, objects: int) -> dict[str, list[dict[str, Any]]]:
+    """The reference path's estimated-count segmentation of a surface described against the truth:
+    ``segments``, one dict a live segment (``segment.reference._watershed_reference``'s groups after the merge,
+    fragments under ``min_object_area`` left out as the path drops them), and ``objects``, one a scene object.
+
+    points, normals: [P, 3] (m, unit); mask: [P] bool; owners: [P] i64 each point's object (``metrics.PointOwners``:
+    the nearest posed object within 1 cm, -1 = none); objects: the scene's object count. A segment's ``object`` is
+    its points' majority owner (-1 when most points belong to none), ``purity`` that owner's share, ``unowned`` the
+    share owned by none; ``area`` its footprint (closed, filled cells), m^2; ``height`` its highest point above the
+    table, m; ``points``; ``basins`` merged into it; ``persistence`` the cost of its cheapest merge
+    (``_merge_costs``: the relative persistence (peak - saddle) / peak, scaled where flush; >= 1: apart on the
+    table; inf: the highest basin); ``kind``: ``object`` (the largest segment of its object), ``second`` (another
+    segment of an object that has a larger one), ``ghost`` (mostly no object's points). An object's ``points`` on
+    the surface and ``fate``: ``found`` (the segment holding most of its points is its own), ``merged`` (that
+    segment is another object's; ``into`` names it), ``dropped`` (seen, but in no live segment: noise or a
+    fragment) or ``unseen`` (fewer than ``MISSED_POINTS`` points).
+    """
+    from jaxcls.perception.foreground import foreground_mask
+    from jaxcls.perception.segment import common, reference
+
+    fg = np.asarray(foreground_mask(spec, jnp.asarray(points), jnp.asarray(mask)))
+    x, n, own = np.asarray(points, np.float64)[fg], np.asarray(normals, np.float64)[fg], np.asarray(owners)[fg]
+    parts = reference._watershed_reference(spec, x, n)
+    segments: list[dict[str, Any]] = []
+    group = np.full(len(x), -1, np.int64)
+    if parts is not None:
+        merged = parts.merged
+        cost, _ = common._merge_costs(np, merged, parts.peak, common._count_rule(spec))
+        live = merged.alive & ~common._too_small(merged, spec)
+        group[parts.good] = np.where(live[parts.group], parts.group, -1)
+        for g in np.flatnonzero(live):
+            sel = group == g
+            o = own[sel]
+            found, votes = np.unique(o[o >= 0], return_counts=True)
+            best = int(found[np.argmax(votes)]) if len(found) else -1
+            unowned = float(np.mean(o < 0))
+            segments.append({"group": int(g), "object": best if unowned < 0.5 else -1,
+                             "purity": float(np.mean(o == best)) if best >= 0 else 0.0, "unowned": unowned,
+                             "area": float(merged.size[g] * spec.segmentation.footprint_cell ** 2),
+                             "height": float(x[sel, 2].max() - spec.table_height), "points": int(sel.sum()),
+                             "basins": int(np.sum(merged.group == g)), "persistence": float(cost[g]),
+                             "centre": x[sel].mean(0).round(3).tolist()})
+    for seg in segments:
+        rivals = [t["points"] for t in segments if t is not seg and t["object"] == seg["object"]]
+        seg["kind"] = "ghost" if seg["object"] < 0 else "second" if rivals and max(rivals) > seg["points"] else "object"
+    owner_of = {seg["group"]: seg["object"] for seg in segments}
+    fates = []
+    for k in range(objects):
+        mine = own == k
+        held = group[mine & (group >= 0)]
+        if mine.sum() < MISSED_POINTS:
+            fate, into = "unseen", -1
+        elif not len(held):
+            fate, into = "dropped", -1
+        else:
+            into = owner_of[int(np.bincount(held).argmax())]
+            fate = "found" if into == k else "merged"
+        fates.append({"object": k, "points": int(mine.sum()), "fate": fate, "into": into if fate == "merged" else -1})
+    return {"segments": segments, "objects": fates}
+
+
+def explain_segments(spec: perception.Spec, points: np.ndarray, normals: np.ndarray, mask: np.ndarray,
+                     owners: np.ndarray) -> list[dict[str, Any]]:
+    """``explain_surface``'s ``segments``: each live segment of the surface described against the truth."""
+    return explain_surface(spec, points, normals, mask, owners, 0)["segments"]
+
+
+def explain_episodes(run_dir: str | Path, moves: Sequence[int] = (3, 10), limit: int = 0,
+                     twin: bool = True, overrides: Sequence[str] = ()) -> list[dict[str, Any]]:
+    """The miscounted episodes of a Table 1 run with N estimated (``run_dir``: its ``config.yaml`` and
+    episode store), replayed: each episode's recorded views fused again through the run's perception (tracking
+    included) and, after each of ``moves`` at which its live segments were not its objects, the surface
+    described (``explain_surface``). One record a (episode, move): its keys, ``recorded`` the store's count,
+    ``twin`` the JAX twin's count on the replayed surface (``twin``), ``objects`` the scene's count, ``segments``
+    and ``fates`` (``explain_surface``'s ``segments`` and ``objects``, each with its object's instance ``name``).
+    ``limit``: at most this many episodes (0 = all). ``overrides``: dotted settings laid over the run's config
+    for the replay (a run stored before a segmentation setting existed: its value then, e.g.
+    ``perception.segmentation.flush_persistence=0.15``). Progress on stderr."""
+    from jaxcls.config import load_config
+    from jaxcls.experiments.table1 import data
+    from jaxcls.experiments.table1.config import Table1Config
+    from jaxcls.perception import observation
+    from jaxcls.world.scenes import scene_models
+
+    folder = Path(run_dir)
+    config = load_config(Table1Config, folder / "config.yaml", overrides)
+    records = data.stored_records(config, folder / "episodes.jsonl")
+    wrong = [r for r in records if any(count_errors([r], m)[0] != 0 for m in moves)]
+    wrong = wrong[:limit] if limit else wrong
+    _, scene_set = data.open_scenes(config)
+    reconstruct = jax.jit(observation.reconstruct)
+    out: list[dict[str, Any]] = []
+    cache: dict[int, Any] = {}
+    for r in wrong:
+        i = int(r["scene"])
+        if i not in cache:
+            cache.clear()
+            frames = scene_set.load([i])[0]
+            cache[i] = frames, metrics.PointOwners(frames.scene, scene_models(frames.scene))
+        frames, owners = cache[i]
+        names = [o.name for o in frames.scene.objects]
+        spec = perception.Spec.create(config.perception, frames.intrinsics, frames.table_height)
+        state = perception.init_state(spec)
+        for t, view in enumerate(r["path"][:max(moves)], start=1):
+            depth, T_wc = frames.frame(view)
+            state = reconstruct(spec, state, jnp.asarray(depth, jnp.float32), jnp.asarray(T_wc, jnp.float32))
+            if t not in moves or count_errors([r], t)[0] == 0:
+                continue
+            s = state.surface
+            p, nrm, m = np.asarray(s.points), np.asarray(s.normals), np.asarray(s.mask)
+            described = explain_surface(spec, p, nrm, m, owners(p, m), len(names))
+            for d in [*described["segments"], *described["objects"]]:
+                d["name"] = names[d["object"]] if d["object"] >= 0 else ""
+            count = live_count(segment.segment_jax(spec, p, nrm, m)) if twin else -1
+            out.append({**{k: r[k] for k in ("classifier", "row", "scene", "run")}, "move": t,
+                        "recorded": r["segments"][t - 1], "twin": count, "objects": r["objects"],
+                        "segments": described["segments"], "fates": described["objects"]})
+            print(r["row"], i, r["run"], t, out[-1]["recorded"], count, len(out[-1]["segments"]),
+                  [d["kind"] for d in out[-1]["segments"] if d["kind"] != "object"],
+                  [d["fate"] for d in out[-1]["fates"] if d["fate"] != "found"], file=sys.stderr, flush=True)
+    return out
+
+
+EXPLAIN_HEADER = ("after move", "segment or object", "touching or apart", "class", "count",
+                  "median persistence", "median area (cm^2)", "median height (cm)")
+
+
+def explain_rows(explained: Sequence[dict[str, Any]]) -> list[tuple]:
+    """``explain_episodes``' miscounts summed up, one row a (move, what, touching or apart, class), most first
+    within a move: the segments that are not their object's largest (``second``, ``ghost``: over-counts), with
+    the median cost of their cheapest merge (< 1: touching another segment; >= 1: apart on the table), area and
+    height; and the objects without a segment of their own (``missed: merged`` into another's, ``missed:
+    dropped``, ``missed: unseen``: under-counts)."""
+    groups: dict[tuple, list[dict[str, Any]]] = {}
+    for e in explained:
+        for s in e["segments"]:
+            if s["kind"] == "object":
+                continue
+            where = "touching" if s["persistence"] < 1.0 else "apart"
+            groups.setdefault((e["move"], s["kind"], where, _class(s)), []).append(s)
+        for o in e.get("fates", []):
+            if o["fate"] != "found":
+                groups.setdefault((e["move"], f"missed: {o['fate']}", "", _class(o)), []).append(o)
+    rows = []
+    for key, items in sorted(groups.items(), key=lambda kv: (kv[0][0], -len(kv[1]), kv[0][1:])):
+        if "persistence" in items[0]:
+            rows.append((*key, len(items), f"{np.median([s['persistence'] for s in items]):.2f}",
+                         f"{np.median([s['area'] for s in items]) * 1e4:.0f}",
+                         f"{np.median([s['height'] for s in items]) * 100:.1f}"))
+        else:
+            rows.append((*key, len(items), "", "", ""))
+    return rows
+
+
+def _class(item: dict[str, Any]) -> str:
+    """The class of a described segment's or object's instance (its name's prefix), ``none`` without one."""
+    return item.get("name", "").split("_")[0] or "none"
