@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from jaxcls.geometry import CameraConfig, ViewpointConfig
-from jaxcls.world.bank import PARK, SceneBank
+from jaxcls.world.bank import PARK, SceneBank, launches
 from jaxcls.world.render import make_renderer
 from jaxcls.world.render.types import NO_OBJECT
 from jaxcls.world.scenes import SceneConfig
@@ -63,3 +63,16 @@ def test_a_scene_that_does_not_fit_the_bank_is_refused():
     twice = dataclasses.replace(world.scene, objects=(world.scene.objects[0],) * 2)
     with pytest.raises(ValueError, match="more often than the bank has slots"):
         bank.slots(twice)
+
+
+def test_every_batch_render_call_has_the_same_number_of_worlds():
+    """``launches``: calls of exactly ``batch`` frames (MuJoCo Warp's frames depend on a call's world count), in
+    order, the last padded with copies of the last frame; together every frame once."""
+    for frames, batch in [(1400, 1024), (5000, 1024), (100, 1024), (2048, 1024), (1, 1)]:
+        calls = launches(frames, batch)
+        assert all(c.shape == (batch,) for c in calls)
+        flat = np.concatenate(calls)
+        np.testing.assert_array_equal(flat[:frames], np.arange(frames))
+        assert (flat[frames:] == frames - 1).all() and len(flat) - frames < batch
+    with pytest.raises(ValueError, match="batch >= 1"):
+        launches(10, 0)

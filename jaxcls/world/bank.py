@@ -35,6 +35,19 @@ if TYPE_CHECKING:
 PARK = 1000.0  # m below the table top where the slots a scene does not use wait
 
 
+def launches(frames: int, batch: int) -> list[np.ndarray]:
+    """The batch renderer's calls for ``frames`` frames: index arrays [batch] each, in order, the last padded
+    with copies of the last frame (dropped after). Every call renders ``batch`` worlds because MuJoCo Warp's
+    frames depend, in their last bits, on how many worlds a call renders (measured on an H200: a scene's frames
+    rendered partly in a last call of 376 worlds differed from the same frames in calls of 1,024, and Table 1's
+    oracle records with them): so a scene's frames are the same whichever scenes share its chunk, and one
+    render program serves every chunk."""
+    if frames < 1 or batch < 1:
+        raise ValueError(f"bank: launches need frames >= 1 and batch >= 1, got {frames} and {batch}")
+    index = np.minimum(np.arange(-(-frames // batch) * batch), frames - 1)
+    return list(index.reshape(-1, batch))
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class SceneBank:
     """One MuJoCo model for every scene of an object set and a table (see the module docstring).
@@ -118,8 +131,8 @@ class SceneBank:
                batch: int = 512) -> DepthFrames:
         """Frames of S scenes, each from its own V cameras ``T_wc: [S, V, 4, 4]``: depth [S, V, H, W] m (0 = no
         return) and object ids (the scene's object index, -1 table or nothing). ``warp``: every frame from the
-        bank in batched calls of at most ``batch`` frames on the GPU (JAX arrays); ``mujoco`` (the CPU): each
-        scene from ``posed`` by MuJoCo's C caster (NumPy)."""
+        bank in calls of ``batch`` frames on the GPU (``launches``: the last padded; JAX arrays); ``mujoco`` (the
+        CPU): each scene from ``posed`` by MuJoCo's C caster (NumPy)."""
         T_wc = np.asarray(T_wc, np.float64)
         S = len(scene_list)
         if T_wc.ndim != 4 or T_wc.shape[0] != S or T_wc.shape[2:] != (4, 4):
@@ -142,13 +155,13 @@ class SceneBank:
         scene_of = np.repeat(np.arange(S), V)
         flat = T_wc.reshape(S * V, 4, 4)
         depth, slot = [], []
-        for first in range(0, S * V, batch):
-            worlds = scene_of[first:first + batch]
-            f = renderer.render(flat[first:first + batch], jnp.asarray(pos[worlds], jnp.float32),
+        for frames in launches(S * V, batch):
+            worlds = scene_of[frames]
+            f = renderer.render(flat[frames], jnp.asarray(pos[worlds], jnp.float32),
                                 jnp.asarray(quat[worlds], jnp.float32))
             depth.append(f.depth)
             slot.append(f.object_id)
-        depth, slot = jnp.concatenate(depth), jnp.concatenate(slot)  # [S * V, H, W]
+        depth, slot = jnp.concatenate(depth)[:S * V], jnp.concatenate(slot)[:S * V]  # [S * V, H, W]
         table = jnp.asarray(objects)[jnp.asarray(scene_of)]  # [S * V, J]
         ids = jnp.where(slot >= 0, jnp.take_along_axis(table, jnp.maximum(slot, 0).reshape(S * V, -1), axis=1)
                         .reshape(slot.shape), NO_OBJECT)
