@@ -296,9 +296,8 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
 def oracle_calls(config: Table1Config, keys: list[tuple[str, str, int, int]]) -> list[list[tuple[str, str, int, int]]]:
     """The oracle's calls: each (classifier, row)'s episodes ``keys`` in (scene, run) order, ``oracle_runs_per_call``
     a call (0: one on a CPU, ``ORACLE_EPISODES_PER_CALL`` elsewhere). The calls are the same for every process
-    count, and process i of N runs calls i, i + N, ...: on a GPU an oracle episode's records depend on which
-    episodes share its call (its candidates' labels, in the last bits: measured, BENCHMARKS.md "Several GPUs"),
-    so a split by scene, as the other rows', would change them."""
+    count, and process i of N runs calls i, i + N, ...: a call's episodes and its shape do not depend on N, and
+    the processes' shares differ by at most a call."""
     size = oracle_call_size(config)
     calls = []
     for program in dict.fromkeys(k[:2] for k in keys):
