@@ -9,8 +9,8 @@ Perception with ``perception.shapes.num_objects = estimated`` and ``--slots`` se
 ``touching`` (5 objects, 1-5 mm) and ``mixed`` (1 + seed % 8 objects), seeds 0..n-1, depth from the ``mujoco``
 backend at five hemisphere views from low to high elevation, fused into the default 0.6 m / 128^3 volume
 through ``perception.observe``; after 1, 3 and 5 views the JAX twin (inside the move) and the reference path
-(scikit-learn DBSCAN + SciPy) count the same surface. ``--merge-persistence`` and ``--min-object-area``
-override ``perception.segmentation``'s.
+(scikit-learn DBSCAN + SciPy) count the same surface. ``--merge-persistence``, ``--flush-persistence``,
+``--flush-height`` and ``--min-object-area`` override ``perception.segmentation``'s.
 
 ``--episodes KNOWN_DIR ESTIMATED_DIR``: no scene is fused here; two ``experiments/table1.py`` output folders
 whose configs differ only in ``perception.shapes.num_objects`` (``known``, then ``estimated``) and
@@ -56,6 +56,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--kinds", default=",".join(counting.KINDS), help="comma-separated scene kinds")
     parser.add_argument("--merge-persistence", type=float, help="perception.segmentation.merge_persistence")
     parser.add_argument("--min-object-area", type=float, help="perception.segmentation.min_object_area, m^2")
+    parser.add_argument("--flush-persistence", type=float, help="perception.segmentation.flush_persistence")
+    parser.add_argument("--flush-height", type=float, help="perception.segmentation.flush_height, m")
     parser.add_argument("--episodes", nargs=2, metavar=("KNOWN_DIR", "ESTIMATED_DIR"),
                         help="compare two Table 1 runs' episodes, N given then N estimated (no scene fused)")
     parser.add_argument("--explain", metavar="ESTIMATED_DIR",
@@ -81,7 +83,9 @@ def main(argv: list[str] | None = None) -> None:
     mode = type(TrackingConfig().mode)(args.tracking)
     seg = perception.SegmentConfig()
     overrides = {k: v for k, v in (("merge_persistence", args.merge_persistence),
-                                   ("min_object_area", args.min_object_area)) if v is not None}
+                                   ("min_object_area", args.min_object_area),
+                                   ("flush_persistence", args.flush_persistence),
+                                   ("flush_height", args.flush_height)) if v is not None}
     seg = dataclasses.replace(seg, **overrides)
     settings = perception.PerceptionConfig(
         segmentation=seg, tracking=TrackingConfig(mode=mode),
@@ -98,7 +102,8 @@ def main(argv: list[str] | None = None) -> None:
         ("scenes", "views", "path", "n", "N right", "mean abs error", "mean error", "errors (count - objects: scenes)"),
         counting.count_rows(records),
         intro=f"`shapes.num_objects: estimated`, {args.slots} slots, merge_persistence {seg.merge_persistence}, "
-              f"min_object_area {seg.min_object_area} m^2; tracking {args.tracking}; {wall:.0f} s on the CPU."),
+              f"flush_persistence {seg.flush_persistence}, flush_height {seg.flush_height} m, min_object_area "
+              f"{seg.min_object_area} m^2; tracking {args.tracking}; {wall:.0f} s on the CPU."),
         args.out)
 
 

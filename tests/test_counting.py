@@ -221,6 +221,11 @@ def _estimated_episode(world, slots: int, policy: str = "vis_occl_hist") -> acti
     return setup.make_episode(settings, world.object_set, world.intrinsics, world.table_height)
 
 
+# The rollouts compiled with LLVM's optimisation off (XLA's own passes as ever): the same program, its records the
+# same as the default compile's (checked when this was written), in a third of the compile time on the 2-core CPU.
+_ROLLOUTS = jax.jit(protocol.rollouts, compiler_options={"xla_backend_optimization_level": 0})
+
+
 @pytest.fixture(scope="module")
 def scene():
     world = make_world(WORLD, seed=1)
@@ -236,7 +241,7 @@ def test_empty_slots_stay_finite_and_are_ignored(scene):
     starts, keys = np.array([5, 11, 30]), protocol.run_keys(0, 0, 3)
     records = {}
     for slots in (8, 5):
-        trace = jax.device_get(protocol.rollouts(_estimated_episode(world, slots), depth, T_wc, starts, keys))
+        trace = jax.device_get(_ROLLOUTS(_estimated_episode(world, slots), depth, T_wc, starts, keys))
         for path, x in jax.tree_util.tree_leaves_with_path(trace):
             x = np.asarray(x)
             assert x.dtype.kind != "f" or np.isfinite(x).all(), jax.tree_util.keystr(path)
@@ -256,8 +261,9 @@ def test_empty_slots_stay_finite_and_are_ignored(scene):
 
 def test_jaxcls_run_with_n_estimated(tmp_path, capsys):
     out = tmp_path / "run"
+    # Frames fused at the poses given: N estimated through the CLI is the subject, not tracking (18 -> 7 s).
     assert cli.main(["run", *SMALL, "episode.moves=2", "perception.shapes.num_objects=estimated",
-                     "perception.shapes.num_segments=8", f"out_dir={out}"]) == 0
+                     "perception.shapes.num_segments=8", "perception.tracking.mode=reported", f"out_dir={out}"]) == 0
     printed = capsys.readouterr()
     assert "move  2" in printed.out and "phantom(s), F1 with phantoms counted" in printed.err  # (the summary)
     log = json.loads((out / "episode.json").read_text())
