@@ -371,9 +371,7 @@ def run_oracle(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
             io.append_jsonl(store, records)
             made.extend(records)
             bar.update(len(records))
-    if jax.default_backend() == "cpu":
-        jax.clear_caches()  # (its programs' memory maps: see CPU_PROGRAMS_PER_PASS)
-    return made
+    return made  # (its one program a classifier is kept: a second run in this process, e.g. a share, reuses it)
 
 
 def chosen_episodes(config: Table1Config, chosen: list[str]) -> list[tuple[str, str, int, int]]:
