@@ -131,6 +131,7 @@ def main(argv: list[str] | None = None, command_line: bool = False) -> None:
     timing_file = out / "timing.json"
     timing = json.loads(timing_file.read_text()) if timing_file.exists() else None
     others = None  # process 0 of several: the other processes' episodes, read while they run
+    early = None  # --local-processes: rows tabulated while the processes still run (tables.EarlyRows)
     if args.tables_only:
         dataset = data.dataset_config(config)
         records = data.stored_records(config, store)
@@ -139,12 +140,15 @@ def main(argv: list[str] | None = None, command_line: bool = False) -> None:
         save_config(config, out / "config.yaml")
         every = runner.episode_keys(config, scene_set.count)
         stored = {data.record_key(r) for r in data.read_stores(store)} & set(every)
+        # The batched rows' tables made while the processes run the oracle (each runs it after its batched rows).
+        early = tables.EarlyRows(config, len(object_set_from_config(dataset.objects).classes), every,
+                                 select=lambda so_far: data.of_config(config, so_far))
         with clock(f"episodes ({args.local_processes} processes)"):
             records = local.run(
                 local.commands(Path(__file__).resolve(), ["--config", args.config, *args.overrides],
                                args.local_processes),
                 local.visible_gpus(args.local_processes), out, lambda: data.store_paths(store), len(every),
-                len(stored))
+                len(stored), offer=early.offer)
         records = data.of_config(config, records)
         clock.episodes = len(records) - len(stored)
         timing = json.loads(timing_file.read_text()) if timing_file.exists() else None  # (process 0's)
@@ -188,7 +192,8 @@ def main(argv: list[str] | None = None, command_line: bool = False) -> None:
         io.write_json(timing_file, timing)
     with clock("tables and figure"):
         classes = len(object_set_from_config(dataset.objects).classes)
-        markdown, csv_rows, curves = tables.tables(config, records, classes, timing, argv)
+        markdown, csv_rows, curves = tables.tables(config, records, classes, timing, argv,
+                                                   early.result() if early is not None else None)
         io.write_text(out / "table.md", markdown)
         io.write_text(out / "table.csv", tables.csv_text(csv_rows))
         if curves:

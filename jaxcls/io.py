@@ -221,6 +221,11 @@ class JsonlFollower:
         """How many records have been read so far (a progress count while the writers work)."""
         return sum(len(records) for _, records in list(self._read.values()))
 
+    def records(self) -> list[dict[str, Any]]:
+        """Every record read so far, file by file (the order ``finish`` returns them in), the writers still at work."""
+        read = dict(self._read)
+        return [r for path in self._paths() for r in read.get(path, (0, []))[1]]
+
     def finish(self) -> list[dict[str, Any]]:
         self._stop.set()
         self._thread.join()

@@ -369,6 +369,34 @@ def test_table_and_csv_against_hand_made_episodes():
     assert cells[-1] == "-0.50 (abs 0.50)"
 
 
+def test_rows_tabulated_while_the_oracle_runs_are_those_tabulated_at_the_end():
+    """--local-processes' launcher tabulates the batched rows once all their episodes are stored, while the
+    processes still run the oracle (``tables.EarlyRows``): the tables equal those made at the end; a summary is
+    used only where made of the same episodes in the same order."""
+    config = Table1Config(moves=2, runs=1, scenes=2, oracle_scenes=2, rows=("single_gr", "vis_occl_hist_gr",
+                          "oracle_gr"), classifiers={"c": ""}, resamples=100)
+    batched = [_record("vis_occl_hist_gr", 0, 0, [0, 1, 2], [[0, 2, 2], [0, 1, 2]]),
+               _record("single_gr", 0, 0, [0, 1, 2], [[0, 2, 2]]),
+               _record("vis_occl_hist_gr", 1, 0, [1, 2, 3], [[1, 2, 0], [1, 2, 0]]),
+               _record("single_gr", 1, 0, [1, 2, 3], [[1, 2, -1]])]
+    oracle = [_record("oracle_gr", 0, 0, [0, 1, 2], [[0, 2, 2], [0, 1, 2]]),
+              _record("oracle_gr", 1, 0, [1, 2, 3], [[1, 2, 0], [1, 2, 3]])]
+    early = tables.EarlyRows(config, 4, runner.episode_keys(config, 2))
+    early.offer(batched[:3] + oracle)  # (a batched episode still missing)
+    assert early.result() == {}
+    early.offer(batched + oracle[:1])
+    made = early.result()
+    assert set(made) == {("c", "single_gr"), ("c", "vis_occl_hist_gr")}
+    records = batched + oracle
+    assert tables.tables(config, records, 4, None, ["x"], made) == tables.tables(config, records, 4, None, ["x"])
+    marked = {k: dataclasses.replace(v, cells=(f"made early: {v.cells[0]}", *v.cells[1:])) for k, v in made.items()}
+    markdown = tables.tables(config, records, 4, None, ["x"], marked)[0]
+    assert "| made early: VisOcclHistGR |" in markdown and "| made early: PointNetSingleGR |" in markdown
+    policy_swapped = [batched[2], batched[1], batched[0], batched[3]]  # (VisOcclHistGR's scenes in another order)
+    markdown = tables.tables(config, policy_swapped + oracle, 4, None, ["x"], marked)[0]
+    assert "| VisOcclHistGR |" in markdown and "| made early: PointNetSingleGR |" in markdown
+
+
 def test_protocol_rows_and_starts():
     assert protocol.PAPER_ROWS == ("single", "single_gr", "full", "full_gr", "random", "random_gr", "vis_no_occl",
                                    "vis_no_occl_gr", "vis_occl", "vis_occl_gr", "vis_occl_hist", "vis_occl_hist_gr")

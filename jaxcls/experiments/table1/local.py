@@ -18,7 +18,7 @@ import os
 import subprocess
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from tqdm.auto import tqdm
@@ -53,10 +53,12 @@ def log_path(out: Path, index: int) -> Path:
 
 
 def run(command_lines: list[list[str]], gpus: list[str], out: Path, store_paths, total: int, done: int,
-        show_progress: bool = True, poll_seconds: float = 0.5) -> list[dict]:
+        show_progress: bool = True, poll_seconds: float = 0.5,
+        offer: Callable[[list[dict]], None] | None = None) -> list[dict]:
     """Start every command (process i on GPU ``gpus[i]``, its output to ``log_path(out, i)``), show the episodes
     stored by all of them (``store_paths()``: the stores; ``total`` episodes wanted, ``done`` of them stored
-    before) and wait for them. Returns every stored record (read while they ran: ``io.JsonlFollower``).
+    before) and wait for them. Returns every stored record (read while they ran: ``io.JsonlFollower``);
+    ``offer``: given the records stored so far at every poll while they run (``tables.EarlyRows.offer``).
     RuntimeError naming the process, its exit status and the end of its log if one fails (the others are
     stopped); an interrupt stops them all."""
     follower = io.JsonlFollower(store_paths, interval=poll_seconds)
@@ -80,6 +82,8 @@ def run(command_lines: list[list[str]], gpus: list[str], out: Path, store_paths,
                     raise RuntimeError(f"process {i} of {len(processes)} failed (exit status {codes[i]}); the others "
                                        f"were stopped. The end of its log, {log_path(out, i)}:\n{tail}")
                 bar.update(max(0, min(total, follower.count()) - bar.n))
+                if offer is not None:
+                    offer(follower.records())
                 if all(c == 0 for c in codes):
                     break
                 time.sleep(poll_seconds)

@@ -4,8 +4,10 @@ times), and every row x move as CSV."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io as _io
-from collections.abc import Sequence
+import threading
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -19,14 +21,56 @@ from jaxcls.experiments.table1.scoring import STATISTICS, differences, row_score
 PAPER_TIMES_MS = {"reconstruction": 120, "segmentation": 60, "refinement": 880, "planning": 190}
 
 
-def tables(config: Table1Config, records: list[dict[str, Any]], classes: int, timing: dict | None,
-           argv: Sequence[str] | None) -> tuple[str, list[dict[str, Any]], dict[str, dict[str, list]]]:
-    """(Markdown, CSV rows, curves for Figure 4) of the stored episodes."""
+@dataclasses.dataclass(frozen=True, eq=False)
+class RowSummary:
+    """One (classifier, row)'s part of the tables (``row_summary``): ``episodes`` the (scene, run) of the records
+    it was made of, in their order; ``labels`` their ``protocol.scene_labels``; ``per_move`` the scores after each
+    move (``row_scores``); ``cells`` the row's cells of the Markdown table."""
+
+    episodes: tuple[tuple[int, int], ...]
+    labels: protocol.SceneLabels
+    per_move: list[dict[str, Any]]
+    cells: tuple
+
+
+def episodes_of(records: list[dict[str, Any]]) -> tuple[tuple[int, int], ...]:
+    """(scene, run) of each record, in order: what a ``RowSummary`` was made of."""
+    return tuple((int(r["scene"]), int(r["run"])) for r in records)
+
+
+def row_summary(config: Table1Config, name: str, records: list[dict[str, Any]], classes: int) -> RowSummary:
+    """A row's scores after every move with their intervals, and its cells of the table, from its ``records``
+    (one classifier's; the row's every episode)."""
+    row = protocol.ROWS[name]
     T = config.moves
     half = max(1, T // 2)
+    moves = T if row.kind in (protocol.Kind.POLICY, protocol.Kind.ORACLE) else 1
+    labels = protocol.scene_labels(records)
+    per_move = row_scores(records, classes, range(1, moves + 1), config.resamples, labels)
+    last, mid = per_move[-1], per_move[min(half, moves) - 1]["f1"]
+    steps, right = protocol.moves_to_correct(records, labels=labels)
+    cells = (row.label, *(f"{last[k]:.3f}" for k in STATISTICS), f"[{last['f1_low']:.3f}, {last['f1_high']:.3f}]",
+             f"{mid:.3f}", f"{steps:.2f}" if moves > 1 else "-", f"{right:.2f}", last["scenes"], last["episodes"],
+             *detections(records, classes, moves, config.resamples))
+    return RowSummary(episodes=episodes_of(records), labels=labels, per_move=per_move, cells=cells)
+
+
+def by_row(records: list[dict[str, Any]]) -> dict[tuple[str, str], list[dict[str, Any]]]:
+    """(classifier, row) -> its records, in their order."""
     by: dict[tuple[str, str], list[dict]] = {}
     for r in records:
         by.setdefault((r["classifier"], r["row"]), []).append(r)
+    return by
+
+
+def tables(config: Table1Config, records: list[dict[str, Any]], classes: int, timing: dict | None,
+           argv: Sequence[str] | None, summaries: Mapping[tuple[str, str], RowSummary] | None = None
+           ) -> tuple[str, list[dict[str, Any]], dict[str, dict[str, list]]]:
+    """(Markdown, CSV rows, curves for Figure 4) of the stored episodes. ``summaries``: rows made before (e.g.
+    while the oracle still ran, ``EarlyRows``), used where made of the same episodes in the same order."""
+    T = config.moves
+    half = max(1, T // 2)
+    by = by_row(records)
     sections, csv_rows, curves = [], [], {}
     for c in config.classifiers:
         table_rows, notes, labels = [], [], {}
@@ -35,20 +79,15 @@ def tables(config: Table1Config, records: list[dict[str, Any]], classes: int, ti
             recs = by.get((c, name), [])
             if not recs:
                 continue
+            summary = (summaries or {}).get((c, name))
+            if summary is None or summary.episodes != episodes_of(recs):
+                summary = row_summary(config, name, recs, classes)
             row = protocol.ROWS[name]
-            moves = T if row.kind in (protocol.Kind.POLICY, protocol.Kind.ORACLE) else 1
-            labels[name] = protocol.scene_labels(recs)
-            per_move = row_scores(recs, classes, range(1, moves + 1), config.resamples, labels[name])
-            for t, sc in enumerate(per_move, 1):
+            labels[name] = summary.labels
+            for t, sc in enumerate(summary.per_move, 1):
                 csv_rows.append({"classifier": c, "row": name, "label": row.label, "move": t, **sc})
-            curves[c][row.label] = per_move
-            last = per_move[-1]
-            mid = per_move[min(half, moves) - 1]["f1"]
-            steps, right = protocol.moves_to_correct(recs, labels=labels[name])
-            table_rows.append((row.label, *(f"{last[k]:.3f}" for k in STATISTICS),
-                               f"[{last['f1_low']:.3f}, {last['f1_high']:.3f}]", f"{mid:.3f}",
-                               f"{steps:.2f}" if moves > 1 else "-", f"{right:.2f}", last["scenes"], last["episodes"],
-                               *detections(recs, classes, moves, config.resamples)))
+            curves[c][row.label] = summary.per_move
+            table_rows.append(summary.cells)
         notes += differences(config, by, c, classes, labels)
         sections.append(report.table(
             ("method", "accuracy", "precision", "recall", "F1", "F1 95% CI (scenes)", f"F1 after {half} moves",
@@ -64,6 +103,44 @@ def tables(config: Table1Config, records: list[dict[str, Any]], classes: int, ti
     markdown = (f"### Table 1 on `{config.dataset}`\n\n`{report.command_line(argv)}`\n\n{intro}\n\n"
                 + "\n\n".join(sections) + timing_md + "\n")
     return markdown, csv_rows, curves
+
+
+class EarlyRows:
+    """The summaries of the rows whose episodes are all stored, made on a thread while the rest still run
+    (``--local-processes``' launcher: every process runs its batched rows before the oracle, so those rows'
+    tables are made while the oracle runs). ``offer(records)``: the records stored so far (every store's, in
+    order), offered as often as convenient; ``select``: the records of these that the tables use (e.g.
+    ``data.of_config``); ``result()``: the summaries made (waits for the thread)."""
+
+    def __init__(self, config: Table1Config, classes: int, keys: Sequence[tuple[str, str, int, int]],
+                 select: Callable[[list[dict[str, Any]]], list[dict[str, Any]]] = list) -> None:
+        self._config, self._classes, self._select = config, classes, select
+        self._wanted: dict[tuple[str, str], int] = {}  # (classifier, row) -> its episodes
+        for c, name, _, _ in keys:
+            if protocol.ROWS[name].kind is not protocol.Kind.ORACLE:
+                self._wanted[c, name] = self._wanted.get((c, name), 0) + 1
+        self._total = sum(self._wanted.values())
+        self._summaries: dict[tuple[str, str], RowSummary] = {}
+        self._thread: threading.Thread | None = None
+
+    def offer(self, records: list[dict[str, Any]]) -> None:
+        if self._thread is not None or len(records) < self._total:
+            return
+        by = by_row(self._select(records))
+        if any(len(by.get(k, ())) < n for k, n in self._wanted.items()):
+            return
+        rows = {k: by[k] for k in self._wanted}
+        self._thread = threading.Thread(target=self._make, args=(rows,), name="table1-early-rows", daemon=True)
+        self._thread.start()
+
+    def _make(self, rows: dict[tuple[str, str], list[dict[str, Any]]]) -> None:
+        for (c, name), recs in rows.items():
+            self._summaries[c, name] = row_summary(self._config, name, recs, self._classes)
+
+    def result(self) -> dict[tuple[str, str], RowSummary]:
+        if self._thread is not None:
+            self._thread.join()
+        return dict(self._summaries)
 
 
 def detections(records: list[dict[str, Any]], classes: int, moves: int, resamples: int) -> tuple[str, str]:
