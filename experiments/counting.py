@@ -3,6 +3,8 @@
     python experiments/counting.py [--seeds 30] [--first-seed 0] [--slots 8] [--tracking reported] [--out RESULTS.md]
     python experiments/counting.py --episodes KNOWN_DIR ESTIMATED_DIR [--moves 1 3 10] [--out RESULTS.md]
     python experiments/counting.py --explain ESTIMATED_DIR [--moves 3 10] [--limit 0] [--json FILE] [--out RESULTS.md]
+    python experiments/counting.py --walks [--config table1_synthetic_estimated] [--set KEY=VALUE ...] [--runs 3]
+        [--variant NAME:FIELD=VALUE,... ...] [--out RESULTS.md]
 
 Perception with ``perception.shapes.num_objects = estimated`` and ``--slots`` segment slots
 (``shapes.num_segments``). Scenes: the builtin set, ``synthetic`` (5 objects, footprint gaps 3 mm - 3 cm),
@@ -27,6 +29,12 @@ segment's majority object, area, height, persistence; each object's fate): the t
 are not their object's largest (``second``) or belong to no object (``ghost``), by move, touching another
 segment or apart on the table, and the class, and the objects without a segment of their own (merged into
 another's, dropped, unseen); ``--json`` keeps every description.
+
+``--walks``: for choosing segmentation settings on scenes apart from the evaluation's (``counting.walk_counts``):
+the scenes of a Table 1 config (``--config``, ``--set`` its overrides, e.g. a dataset drawn with another seed),
+``--runs`` random walks a scene of 10 views within 0.5 m of each other (RandomGR's candidates) fused through its
+perception; after moves 1, 3 and 10 the reference path counts each surface under every ``--variant`` (a name,
+then ``perception.segmentation`` fields, e.g. ``off:flush_persistence=0.15``).
 """
 
 from __future__ import annotations
@@ -64,9 +72,15 @@ def main(argv: list[str] | None = None) -> None:
                         help="describe the extra segments of a Table 1 run with N estimated (its episodes replayed)")
     parser.add_argument("--limit", type=int, default=0, help="with --explain: at most this many episodes (0 = all)")
     parser.add_argument("--json", help="with --explain: write every segment's description to this JSON file")
+    parser.add_argument("--walks", action="store_true", help="count random walks' surfaces under --variant settings")
+    parser.add_argument("--config", default="table1_synthetic_estimated", help="with --walks: the Table 1 config")
+    parser.add_argument("--runs", type=int, default=3, help="with --walks: walks a scene")
+    parser.add_argument("--variant", nargs="+", default=["default:"], metavar="NAME:FIELD=VALUE,...",
+                        help="with --walks: segmentation settings to count with")
     parser.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE",
                         help="with --explain: settings laid over the run's config for the replay (e.g. the "
-                             "value of a segmentation setting the run was stored without)")
+                             "value of a segmentation setting the run was stored without); with --walks: the "
+                             "config's overrides")
     parser.add_argument("--moves", type=int, nargs="+",
                         help="with --episodes: the moves after which the counts are read (default 1 3 10); "
                              "with --explain: the moves whose over-counts are explained (default 3 10)")
@@ -79,6 +93,9 @@ def main(argv: list[str] | None = None) -> None:
         return
     if args.explain:
         explain(args, argv)
+        return
+    if args.walks:
+        walks(args, argv)
         return
     mode = type(TrackingConfig().mode)(args.tracking)
     seg = perception.SegmentConfig()
@@ -107,6 +124,24 @@ def main(argv: list[str] | None = None) -> None:
         args.out)
 
 
+def walks(args: argparse.Namespace, argv: list[str] | None) -> None:
+    """``--walks``: random walks' counts under each ``--variant`` (``counting.walk_counts``), as one table."""
+    variants = {}
+    for v in args.variant:
+        name, _, fields = v.partition(":")
+        variants[name] = {k: float(x) for k, x in (f.split("=") for f in fields.split(",") if f)}
+    start = time.perf_counter()
+    records = counting.walk_counts(args.config, args.set, args.runs, variants)
+    wall = time.perf_counter() - start
+    scenes = len({r["scene"] for r in records})
+    intro = (f"`{args.config}` with {', '.join(args.set) or 'no overrides'}: {scenes} scenes x {args.runs} random "
+             "walks of 10 views within 0.5 m of each other, fused through its perception, counted by the reference "
+             f"path; variants: {'; '.join(args.variant)}. {wall:.0f} s on the CPU.")
+    report.publish(report.section(f"Counting random walks, {datetime.date.today()}", argv,
+                                  ("variant", "after move", "walks", "N right", "over", "under"),
+                                  counting.walk_rows(records), intro=intro), args.out)
+
+
 def explain(args: argparse.Namespace, argv: list[str] | None) -> None:
     """``--explain``: the over-counted episodes replayed, their extra segments described and summed up."""
     import json
@@ -130,7 +165,7 @@ def explain(args: argparse.Namespace, argv: list[str] | None) -> None:
              "its peak / the highest). A missed object has no segment of its own: `merged` (the segment holding "
              "most of its points is another object's), `dropped` (in no live segment), `unseen` (fewer than "
              f"{counting.MISSED_POINTS} surface points).")
-    report.publish(report.section(f"Extra segments in Table 1's episodes with N estimated, {datetime.date.today()}",
+    report.publish(report.section(f"Miscounts in Table 1's episodes with N estimated, {datetime.date.today()}",
                                   argv, counting.EXPLAIN_HEADER, counting.explain_rows(explained), intro=intro),
                    args.out)
 

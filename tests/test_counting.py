@@ -201,6 +201,15 @@ def test_extra_segments_explained_against_their_objects():
                                                               ("second", "apart", "box", 1)]
 
 
+def test_walk_rows_by_hand():
+    """``walk_rows``: a variant's walks right, over and under after each move, counted by hand."""
+    records = [{"variant": v, "move": m, "objects": 5, "count": c, "scene": 0, "run": r}
+               for v, m, r, c in (("off", 3, 0, 6), ("off", 3, 1, 5), ("off", 10, 0, 4), ("off", 10, 1, 5),
+                                  ("rule", 3, 0, 5), ("rule", 3, 1, 5), ("rule", 10, 0, 5), ("rule", 10, 1, 5))]
+    assert counting.walk_rows(records) == [("off", 3, 2, "0.500", 1, 0), ("off", 10, 2, "0.500", 0, 1),
+                                           ("rule", 3, 2, "1.000", 0, 0), ("rule", 10, 2, "1.000", 0, 0)]
+
+
 # --- An episode with N estimated: empty slots through PointNet, GR, visibility and the records -------------
 
 CAMERA = CameraConfig.kinect_v1(0.5)

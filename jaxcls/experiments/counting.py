@@ -15,6 +15,11 @@ alike but for ``perception.shapes.num_objects`` (and ``num_segments``), read fro
 episode ((classifier, row, scene, run), ``paired_runs``): each run's count after moves 1, 3 and 10 (the records'
 ``segments`` against ``objects``: ``count_summary``) and F1 after T with N estimated minus F1 with N given, paired by
 scene (``f1_comparison``: ``protocol.scene_labels`` per run, ``metrics.paired_differences``).
+
+Why a run with N estimated miscounts (``--explain``: ``explain_episodes``, ``explain_surface``, ``explain_rows``):
+its miscounted episodes replayed and each surface described against the posed objects. Choosing segmentation
+settings apart from the evaluation's scenes (``--walks``: ``walk_counts``, ``walk_rows``): random walks of
+RandomGR's kind on another dataset's scenes, counted under settings variants.
 """
 
 from __future__ import annotations
@@ -453,3 +458,73 @@ def explain_rows(explained: Sequence[dict[str, Any]]) -> list[tuple]:
 def _class(item: dict[str, Any]) -> str:
     """The class of a described segment's or object's instance (its name's prefix), ``none`` without one."""
     return item.get("name", "").split("_")[0] or "none"
+
+
+# --- Tuning on random walks: Table 1's perception along RandomGR-like paths, counted with settings variants -----
+
+WALK_MOVES = (1, 3, 10)  # moves after which a walk's surface is counted
+
+
+def walk_counts(config_path: str | Path, overrides: Sequence[str], runs: int,
+                variants: dict[str, dict[str, float]], moves: Sequence[int] = WALK_MOVES, seed: int = 7
+                ) -> list[dict[str, Any]]:
+    """Counts of random walks, for choosing segmentation settings on scenes apart from the evaluation's.
+
+    The Table 1 config at ``config_path`` with ``overrides`` (its dataset, e.g. another seed) gives the scenes and
+    the perception; each scene gets ``runs`` walks of max(``moves``) views, each view drawn at random among the
+    unvisited ones within 0.5 m of the last (RandomGR's candidates; any unvisited one where none is near), from a
+    random start (``numpy`` seeded by ``seed``, the scene and the run), fused through the perception (tracking
+    included). After each of ``moves`` the reference path counts the surface under every variant (name ->
+    ``perception.segmentation`` fields laid over the config's). One record a (scene, run, move, variant):
+    ``objects`` and ``count``. Progress on stderr."""
+    import dataclasses
+
+    from jaxcls.config import load_config
+    from jaxcls.experiments.table1 import data
+    from jaxcls.experiments.table1.config import Table1Config
+    from jaxcls.perception import observation
+    from jaxcls.perception.foreground import foreground_mask
+    from jaxcls.perception.segment import reference
+
+    config = load_config(Table1Config, config_path, overrides)
+    _, scene_set = data.open_scenes(config)
+    reconstruct = jax.jit(observation.reconstruct)
+    out: list[dict[str, Any]] = []
+    for i in range(scene_set.count):
+        frames = scene_set.load([i])[0]
+        spec = perception.Spec.create(config.perception, frames.intrinsics, frames.table_height)
+        specs = {name: spec.replace(config=dataclasses.replace(
+            config.perception, segmentation=dataclasses.replace(config.perception.segmentation, **fields)))
+            for name, fields in variants.items()}
+        where = frames.T_wc[:, :3, 3]
+        for run in range(runs):
+            rng = np.random.default_rng([seed, i, run])
+            view, visited = int(rng.integers(len(where))), []
+            state = perception.init_state(spec)
+            for t in range(1, max(moves) + 1):
+                visited.append(view)
+                depth, T_wc = frames.frame(view)
+                state = reconstruct(spec, state, jnp.asarray(depth, jnp.float32), jnp.asarray(T_wc, jnp.float32))
+                if t in moves:
+                    s = state.surface
+                    p, n, m = np.asarray(s.points), np.asarray(s.normals), np.asarray(s.mask)
+                    fg = np.asarray(foreground_mask(spec, jnp.asarray(p), jnp.asarray(m)))
+                    for name, sp in specs.items():
+                        labels = reference.cluster_reference(sp, p[fg].astype(np.float64), n[fg].astype(np.float64))
+                        out.append({"scene": i, "run": run, "move": t, "variant": name,
+                                    "objects": len(frames.scene.objects), "count": len(np.unique(labels[labels >= 0]))})
+                free = [v for v in range(len(where)) if v not in visited]
+                near = [v for v in free if np.linalg.norm(where[v] - where[view]) < 0.5] or free
+                view = int(rng.choice(near))
+        print("walks: scene", i, file=sys.stderr, flush=True)
+    return out
+
+
+def walk_rows(records: Sequence[dict[str, Any]]) -> list[tuple]:
+    """``walk_counts``' table: one row a (variant, move): walks, share right, over- and under-counted walks."""
+    rows = []
+    for name in dict.fromkeys(r["variant"] for r in records):
+        for move in sorted({r["move"] for r in records}):
+            err = np.array([r["count"] - r["objects"] for r in records if r["variant"] == name and r["move"] == move])
+            rows.append((name, move, len(err), f"{np.mean(err == 0):.3f}", int(np.sum(err > 0)), int(np.sum(err < 0))))
+    return rows
