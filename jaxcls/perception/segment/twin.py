@@ -144,8 +144,9 @@ def _heightmap(x: jax.Array, kept: jax.Array, spec: Spec) -> jax.Array:
 def _flush_inputs(basin: jax.Array, height: jax.Array, K: int, tolerance: float
                   ) -> tuple[jax.Array, jax.Array, jax.Array]:
     """``_flush_inputs_np`` in JAX: ([K] f32 top, [K, K] i32 across, [K, K] i32 smooth)."""
-    flat, h = basin.reshape(-1), height.reshape(-1)
-    top = jax.ops.segment_max(jnp.where(flat >= 0, h, -jnp.inf), jnp.where(flat >= 0, flat, K), num_segments=K + 1)[:K]
+    flat = basin.reshape(-1)
+    # Cells of no basin out of bounds, dropped (never a sink slot: on a GPU its updates would serialise).
+    top = jnp.full(K, -jnp.inf, height.dtype).at[jnp.where(flat >= 0, flat, K)].max(height.reshape(-1), mode="drop")
     across = jnp.zeros(K * K, jnp.int32)
     smooth = jnp.zeros(K * K, jnp.int32)
     for di, dj in _PAIR_SHIFTS:
