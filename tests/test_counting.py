@@ -144,8 +144,11 @@ def test_two_run_folders_compared_and_other_settings_refused(tmp_path, capsys):
     assert text.strip() == capsys.readouterr().out.strip()  # printed and appended
 
 
-def test_the_shipped_estimated_config_is_the_synthetic_one_but_for_n():
-    given, estimated = (load_config(Table1Config, name) for name in ("table1_synthetic", "table1_synthetic_estimated"))
+@pytest.mark.parametrize("dataset", ["synthetic", "real_like"])
+def test_the_shipped_estimated_config_is_the_given_one_but_for_n(dataset):
+    given, estimated = (load_config(Table1Config, name)
+                        for name in (f"table1_{dataset}", f"table1_{dataset}_estimated"))
+    assert given.dataset == estimated.dataset == dataset
     assert counting.run_settings_differ(given, estimated) == [] and given.rows == estimated.rows
     assert estimated.perception.shapes.num_objects == ObjectCount.estimated
     assert estimated.perception.shapes.num_segments == 8 and given.classifiers == estimated.classifiers
@@ -199,6 +202,74 @@ def test_extra_segments_explained_against_their_objects():
     assert sorted((r[1], r[2], r[3], r[4]) for r in rows) == [("ghost", "apart", "none", 1),
                                                               ("missed: unseen", "", "can", 1),
                                                               ("second", "apart", "box", 1)]
+
+
+def test_clutter_is_an_object_to_count_and_no_phantom():
+    """A real-like scene's records count every object on the table, the 2 clutter objects with the 3 targets:
+    ``objects`` 5, ``true`` the targets only; a live segment on a clutter object is matched (no phantom), one on
+    nothing is a phantom; the count errors read against 5 (one clutter object missed, then one phantom)."""
+    from types import SimpleNamespace
+
+    from jaxcls.perception.tracking import Status
+
+    K, N, T = 5, 8, 2
+    at = np.c_[np.arange(K) * 0.15, np.zeros(K), np.full(K, 0.05)]  # objects 15 cm apart; 3, 4 clutter
+    truth = scoring.Truth(centroid=at, label=np.arange(K), target=np.arange(K) < 3, surface=(), names=())
+    centroid, valid = np.zeros((1, T, N, 3)), np.zeros((1, T, N), bool)
+    centroid[0, 0, :4], valid[0, 0, :4] = at[:4], True  # move 1: clutter object 4 not found
+    centroid[0, 1, :5], valid[0, 1, :6] = at, True  # move 2: all 5, and a segment where no object stands
+    centroid[0, 1, 5] = (0.3, 0.4, 0.05)
+    refined = np.broadcast_to(np.r_[np.arange(5), 6, 6, 6], (1, T, N)).copy()
+    trace = SimpleNamespace(refinement=SimpleNamespace(prior=refined, refined=refined, valid=valid),
+                            centroid=centroid, done=np.zeros((1, T), bool), view=np.array([[3, 7]]),
+                            tracking=np.full((1, T), int(Status.ACCEPTED)), hand_eye=np.broadcast_to(np.eye(4),
+                                                                                                      (1, T, 4, 4)))
+    record = protocol.episode_records(trace, [truth], [{"scene": 0, "run": 0}])[0]
+    assert record["objects"] == 5 and record["true"] == [0, 1, 2] and record["segments"] == [4, 6]
+    assert record["refined"] == [[0, 1, 2], [0, 1, 2]] and record["phantom"] == [[], [6]]
+    assert counting.count_errors([record], 1).tolist() == [-1] and counting.count_errors([record], 2).tolist() == [1]
+
+
+def test_explain_rows_name_clutter():
+    """``explain_rows`` on a real-like scene's descriptions: a clutter object's second segment and its missed
+    fate name the class ``(clutter)``; a target merged into a clutter object's segment reads ``missed: merged
+    into clutter``, a clutter object merged into a target's ``missed: merged``; records without ``target`` (the
+    synthetic runs') read as before."""
+    second = {"kind": "second", "persistence": 0.3, "area": 2e-3, "height": 0.05}
+    explained = [{"move": 3,
+                  "segments": [{**second, "name": "bowl_test_000", "target": False},
+                               {**second, "name": "box_test_001", "target": True}, {**second, "name": "mug_test_002"}],
+                  "fates": [{"fate": "merged", "name": "can_test_000", "target": True, "into_target": False},
+                            {"fate": "merged", "name": "jug_test_001", "target": False, "into_target": True},
+                            {"fate": "dropped", "name": "lamp_test_002", "target": False},
+                            {"fate": "merged", "name": "drill_test_003"}]}]
+    rows = {(r[1], r[3]): r[4] for r in counting.explain_rows(explained)}
+    assert rows == {("second", "bowl (clutter)"): 1, ("second", "box"): 1, ("second", "mug"): 1,
+                    ("missed: merged into clutter", "can"): 1, ("missed: merged", "jug (clutter)"): 1,
+                    ("missed: dropped", "lamp (clutter)"): 1, ("missed: merged", "drill"): 1}
+
+
+def test_the_real_like_kind_is_measured_through_its_sensor():
+    """``fused_real_like``: the ``real_like`` config's scene (5 objects of which 2 clutter), its frames through
+    the sensor model (depth unlike the ideal render) and fused at the poses reported (the hand-eye error: unlike
+    the poses rendered); the same seed, the same frames."""
+    seen = []
+
+    def observe(spec, state, depth, T_wc):
+        seen.append((np.asarray(depth), np.asarray(T_wc)))
+        return state
+
+    world, _, _, states = counting.fused_real_like("real_like", 3, 0.25, PerceptionConfig(), observe, (1, 2))
+    assert sorted(states) == [1, 2] and len(seen) == 2
+    assert len(world.scene.objects) == 5 and sum(not o.target for o in world.scene.objects) == 2
+    views = list(counting.segmentation.VIEWS[:2])
+    ideal, rendered = np.asarray(world.render(views).depth), world.poses(views)
+    for (depth, T_wc), d, T in zip(seen, ideal, rendered, strict=True):
+        assert not np.allclose(T_wc, T, atol=1e-5) and np.abs(T_wc - T).max() < 0.05
+        assert not np.allclose(depth, d, atol=1e-4)
+    again = []
+    counting.fused_real_like("real_like", 3, 0.25, PerceptionConfig(), lambda sp, st, d, T: again.append(d) or st, (1,))
+    np.testing.assert_array_equal(again[0], seen[0][0])
 
 
 def test_walk_rows_by_hand():

@@ -8,7 +8,12 @@ hemisphere views from low to high elevation (``segmentation.VIEWS``), each frame
 count is its live segments (a slot whose mask has points); the reference path (scikit-learn DBSCAN + SciPy)
 segments the same surface. A scene's truth is the number of objects placed on it (an object not yet seen
 counts as missed). Kinds: ``synthetic`` (5 objects, footprint gaps 3 mm - 3 cm), ``touching`` (5 objects,
-1-5 mm), ``mixed`` (1 + seed % 8 objects, gaps as ``synthetic``: a scene set where N is not always 5).
+1-5 mm), ``mixed`` (1 + seed % 8 objects, gaps as ``synthetic``: a scene set where N is not always 5), and
+``real_like`` (not among the defaults, ``REAL_KINDS``): the ``real_like`` dataset config's world (3 targets + 2
+clutter, gaps as ``synthetic``) seen through its sensor (Kinect-v1 depth noise, quantisation and dropout, one
+hand-eye pose error per scene: the frames are fused at the poses the robot reports, which tracking corrects),
+its noise drawn with ``real_like_key(seed)``. Every kind's truth is every object on the table: clutter is never
+scored, but it is an object the segmentation should find, as the episode records count it (``objects``).
 
 In the episode loop (``experiments/counting.py --episodes``: ``compare_runs``, ``episode_tables``): two Table 1 runs
 alike but for ``perception.shapes.num_objects`` (and ``num_segments``), read from their stores and paired episode by
@@ -40,7 +45,8 @@ from jaxcls.perception import segment
 from jaxcls.world import scenes
 
 SCORED = (1, 3, 5)  # views fused after which the counts are taken
-KINDS = ("synthetic", "touching", "mixed")
+KINDS = ("synthetic", "touching", "mixed")  # the default kinds: ideal depth at the poses rendered
+REAL_KINDS = ("real_like",)  # a dataset config's world and sensor (noise, hand-eye error): ``fused_real_like``
 PATHS = ("reference", "jax")
 
 
@@ -58,6 +64,37 @@ def _scene_kind(kind: str, seed: int) -> str:
     return name
 
 
+def real_like_key(seed: int) -> jax.Array:
+    """The sensor-noise key of the ``real_like`` kind's scene ``seed`` (depth noise and the hand-eye error)."""
+    return jax.random.fold_in(jax.random.PRNGKey(35), seed)
+
+
+def fused_real_like(kind: str, seed: int, scale: float, settings: perception.PerceptionConfig, observe: Callable,
+                    scored: tuple[int, ...] = SCORED):
+    """``segmentation.fused`` for a ``REAL_KINDS`` kind: scene ``seed`` of the dataset config named ``kind``
+    (its objects, scene with clutter, viewpoints and sensor; the Kinect v1 at ``scale``, the ``mujoco`` backend),
+    measured at ``segmentation.VIEWS`` through its sensor model (``World.measure``, key ``real_like_key``) and
+    fused at the poses it reports (hand-eye error included). (world, spec, None, {views: state})."""
+    import dataclasses
+
+    from jaxcls.config import load_config
+    from jaxcls.geometry import CameraConfig
+    from jaxcls.world import make_world
+    from jaxcls.world.dataset import DatasetConfig
+
+    config = load_config(DatasetConfig, kind).world_config()
+    world = make_world(dataclasses.replace(config, camera=CameraConfig.kinect_v1(scale), backend="mujoco"), seed)
+    depth, T_wc, _, _ = world.measure(real_like_key(seed), list(segmentation.VIEWS))
+    spec = perception.Spec.create(settings, world.intrinsics, world.table_height)
+    state = perception.init_state(spec)
+    states = {}
+    for v in range(max(scored)):
+        state = observe(spec, state, jnp.asarray(depth[v], jnp.float32), jnp.asarray(T_wc[v], jnp.float32))
+        if v + 1 in scored:
+            states[v + 1] = state
+    return world, spec, None, states
+
+
 def live_count(seg: segment.Segments) -> int:
     """Segments with points: a slot is live when its mask has points."""
     return int(np.asarray(seg.mask).any(axis=-1).sum())
@@ -65,7 +102,8 @@ def live_count(seg: segment.Segments) -> int:
 
 def counts(seeds: int, scale: float, settings: perception.PerceptionConfig, kinds: tuple[str, ...] = KINDS,
            observe: Callable | None = None, first_seed: int = 0) -> list[dict]:
-    """One record a (kind, seed, views): ``objects`` on the table, each path's ``count`` and the ARI between
+    """One record a (kind, seed, views): ``objects`` on the table (targets and clutter), each path's ``count``
+    and the ARI between
     the two paths' partitions (``agreement``, on the points both label) and the share of points both keep
     or both drop (``same_noise``). Seeds ``first_seed`` .. + n - 1 of each kind, on the CPU;
     progress on stderr."""
@@ -76,8 +114,11 @@ def counts(seeds: int, scale: float, settings: perception.PerceptionConfig, kind
     with jax.default_device(jax.devices("cpu")[0]):
         for kind in kinds:
             for seed in range(first_seed, first_seed + seeds):
-                world, spec, _, states = segmentation.fused(_scene_kind(kind, seed), seed, scale, settings, observe,
-                                                            SCORED)
+                if kind in REAL_KINDS:
+                    world, spec, _, states = fused_real_like(kind, seed, scale, settings, observe, SCORED)
+                else:
+                    world, spec, _, states = segmentation.fused(_scene_kind(kind, seed), seed, scale, settings,
+                                                                observe, SCORED)
                 for views, state in states.items():
                     p, n, m = (np.asarray(a) for a in (state.surface.points, state.surface.normals,
                                                        state.surface.mask))
@@ -374,8 +415,10 @@ def explain_episodes(run_dir: str | Path, moves: Sequence[int] = (3, 10), limit:
     episode store), replayed: each episode's recorded views fused again through the run's perception (tracking
     included) and, after each of ``moves`` at which its live segments were not its objects, the surface
     described (``explain_surface``). One record a (episode, move): its keys, ``recorded`` the store's count,
-    ``twin`` the JAX twin's count on the replayed surface (``twin``), ``objects`` the scene's count, ``segments``
-    and ``fates`` (``explain_surface``'s ``segments`` and ``objects``, each with its object's instance ``name``).
+    ``twin`` the JAX twin's count on the replayed surface (``twin``), ``objects`` the scene's count (targets and
+    clutter), ``segments`` and ``fates`` (``explain_surface``'s ``segments`` and ``objects``, each with its
+    object's instance ``name`` and ``target``: False for clutter, None for a ghost; a merged object's fate also
+    ``into_target``, whether the object it was merged into is a target).
     ``limit``: at most this many episodes (0 = all). ``overrides``: dotted settings laid over the run's config
     for the replay (a run stored before a segmentation setting existed: its value then, e.g.
     ``perception.segmentation.flush_persistence=0.15``). Progress on stderr."""
@@ -402,6 +445,7 @@ def explain_episodes(run_dir: str | Path, moves: Sequence[int] = (3, 10), limit:
             cache[i] = frames, metrics.PointOwners(frames.scene, scene_models(frames.scene))
         frames, owners = cache[i]
         names = [o.name for o in frames.scene.objects]
+        targets = [bool(o.target) for o in frames.scene.objects]
         spec = perception.Spec.create(config.perception, frames.intrinsics, frames.table_height)
         state = perception.init_state(spec)
         for t, view in enumerate(r["path"][:max(moves)], start=1):
@@ -414,6 +458,10 @@ def explain_episodes(run_dir: str | Path, moves: Sequence[int] = (3, 10), limit:
             described = explain_surface(spec, p, nrm, m, owners(p, m), len(names))
             for d in [*described["segments"], *described["objects"]]:
                 d["name"] = names[d["object"]] if d["object"] >= 0 else ""
+                d["target"] = targets[d["object"]] if d["object"] >= 0 else None
+            for d in described["objects"]:
+                if d["fate"] == "merged":
+                    d["into_target"] = targets[d["into"]] if d["into"] >= 0 else None
             count = live_count(segment.segment_jax(spec, p, nrm, m)) if twin else -1
             out.append({**{k: r[k] for k in ("classifier", "row", "scene", "run")}, "move": t,
                         "recorded": r["segments"][t - 1], "twin": count, "objects": r["objects"],
@@ -433,7 +481,9 @@ def explain_rows(explained: Sequence[dict[str, Any]]) -> list[tuple]:
     within a move: the segments that are not their object's largest (``second``, ``ghost``: over-counts), with
     the median cost of their cheapest merge (< 1: touching another segment; >= 1: apart on the table), area and
     height; and the objects without a segment of their own (``missed: merged`` into another's, ``missed:
-    dropped``, ``missed: unseen``: under-counts)."""
+    dropped``, ``missed: unseen``: under-counts). Where the records say which objects are clutter (``target``
+    False: ``explain_episodes``), a clutter object's class reads ``<class> (clutter)``, and an object merged
+    into a clutter object's segment ``missed: merged into clutter`` (into a target's: ``missed: merged``)."""
     groups: dict[tuple, list[dict[str, Any]]] = {}
     for e in explained:
         for s in e["segments"]:
@@ -443,7 +493,8 @@ def explain_rows(explained: Sequence[dict[str, Any]]) -> list[tuple]:
             groups.setdefault((e["move"], s["kind"], where, _class(s)), []).append(s)
         for o in e.get("fates", []):
             if o["fate"] != "found":
-                groups.setdefault((e["move"], f"missed: {o['fate']}", "", _class(o)), []).append(o)
+                fate = "merged into clutter" if o["fate"] == "merged" and o.get("into_target") is False else o["fate"]
+                groups.setdefault((e["move"], f"missed: {fate}", "", _class(o)), []).append(o)
     rows = []
     for key, items in sorted(groups.items(), key=lambda kv: (kv[0][0], -len(kv[1]), kv[0][1:])):
         if "persistence" in items[0]:
@@ -456,8 +507,10 @@ def explain_rows(explained: Sequence[dict[str, Any]]) -> list[tuple]:
 
 
 def _class(item: dict[str, Any]) -> str:
-    """The class of a described segment's or object's instance (its name's prefix), ``none`` without one."""
-    return item.get("name", "").split("_")[0] or "none"
+    """The class of a described segment's or object's instance (its name's prefix), ``none`` without one;
+    ``<class> (clutter)`` where the item is a clutter object's (``target`` False)."""
+    name = item.get("name", "").split("_")[0] or "none"
+    return f"{name} (clutter)" if item.get("target") is False else name
 
 
 # --- Tuning on random walks: Table 1's perception along RandomGR-like paths, counted with settings variants -----
