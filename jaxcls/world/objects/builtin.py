@@ -110,10 +110,11 @@ def _tube(points: np.ndarray, tangents: np.ndarray, radius: float) -> trimesh.Tr
 
 
 def _handle(body_radius: float, z_bot: float, z_top: float, tube: float, reach: float,
-            corner_frac: float) -> trimesh.Trimesh:
+            corner_frac: float, sink: float = 1.5) -> trimesh.Trimesh:
     """A D-shaped handle on the +x side of a vertical body of radius ``body_radius``: out at ``z_top``,
-    down at ``body_radius + reach``, back in at ``z_bot``; both ends sunk 1.5 tube radii into the body."""
-    x_in, x_out = body_radius - 1.5 * tube, body_radius + reach
+    down at ``body_radius + reach``, back in at ``z_bot``; both ends sunk ``sink`` tube radii into the body
+    (1.5 into a solid body; a hollow one's thin wall takes less, so that the ends stay inside the wall)."""
+    x_in, x_out = body_radius - sink * tube, body_radius + reach
     corner = max(1.6 * tube, corner_frac * min(reach, (z_top - z_bot) / 2))
     arc = np.linspace(0, np.pi / 2, 7)
     pts: list[np.ndarray] = [np.array([x_in, 0, z_top])]
@@ -179,13 +180,26 @@ def _jug(rng: np.random.Generator) -> list[trimesh.Trimesh]:
 
 
 def _bowl(rng: np.random.Generator) -> list[trimesh.Trimesh]:
-    p = _draw(rng, _BOWL)
+    return [_bowl_body(_draw(rng, _BOWL))]
+
+
+def _bowl_walls(p: Mapping[str, float]) -> tuple[list[tuple[float, float]], list[tuple[float, float]]]:
+    """The (radius, z) polylines (metres) of the outer and the inner wall of the bowl of the ``_BOWL``
+    parameters ``p``, both from the bottom up: quarter ellipses from the foot ring (radius
+    ``foot_ratio * radius`` at ``foot_height``) and from the axis at ``foot_height + bottom`` out to the flat
+    rim, ``wall`` wide, at ``height``."""
     r, h, foot, hf, w = p["radius"], p["height"], p["foot_ratio"] * p["radius"], p["foot_height"], p["wall"]
     z_in = hf + p["bottom"]
     alpha = np.linspace(0, np.pi / 2, 9)
     outer = [(foot + (r - foot) * np.sin(a), hf + (h - hf) * (1 - np.cos(a))) for a in alpha]
-    inner = [((r - w) * np.sin(a), z_in + (h - z_in) * (1 - np.cos(a))) for a in alpha[::-1]]
-    return [_revolve([(0, 0), (foot, 0), *outer, *inner])]
+    inner = [((r - w) * np.sin(a), z_in + (h - z_in) * (1 - np.cos(a))) for a in alpha]
+    return outer, inner
+
+
+def _bowl_body(p: Mapping[str, float]) -> trimesh.Trimesh:
+    """The bowl solid of the ``_BOWL`` parameters ``p`` (``_bowl_walls``)."""
+    outer, inner = _bowl_walls(p)
+    return _revolve([(0, 0), (p["foot_ratio"] * p["radius"], 0), *outer, *inner[::-1]])
 
 
 def _box_class(rng: np.random.Generator) -> list[trimesh.Trimesh]:
