@@ -19,10 +19,15 @@ Sources:
   concatenation (each part is watertight with outward winding, so the whole is too, with interior faces).
   Surface samples are taken only where no other part covers the surface, so they lie on the visible
   boundary of the union.
+- ``lookalike_object_set`` (``lookalike.py``): nine procedural classes in lookalike groups for the hard
+  protocol (issue 35): ``bowl, canister, cup, infuser_cup, lug_bowl, mug, spout_bowl, stein, tube_pan``, a cup
+  or a bowl body plus a subset of its family's parts (handle, lid, insert; spout, tube, lug), so that lookalike
+  classes differ in one part that some viewing directions hide (the module docstring has the table).
 - ``load_folder`` (``loaders.py``): one subfolder per class holding instance meshes (.obj/.ply/.stl).
 - ``load_bop`` (``loaders.py``): the BOP layout LINEMOD ships in (``models/obj_000001.ply`` in mm +
   ``models_info.json``).
-- ``load_object_set`` / ``ObjectSetConfig`` (``loaders.py``): pick one of the above by name or folder.
+- ``load_object_set`` / ``ObjectSetConfig`` (``loaders.py``): pick one of the above by name
+  (``ProceduralSet``: ``builtin``, ``lookalike``) or folder.
 
 The model types ``ObjectModel`` and ``ObjectSet`` live in ``model.py``; mesh normalisation and surface
 sampling, shared by every source, in ``mesh.py``. These modules import only NumPy, SciPy, trimesh and each
@@ -44,6 +49,7 @@ from jaxcls.world.objects.loaders import (
     MAX_MODEL_EXTENT,
     MIN_MODEL_EXTENT,
     ObjectSetConfig,
+    ProceduralSet,
     load_bop,
     load_folder,
     load_object_set,
@@ -54,6 +60,7 @@ from jaxcls.world.objects.loaders import _check_models_info as _check_models_inf
 from jaxcls.world.objects.loaders import _is_bop as _is_bop
 from jaxcls.world.objects.loaders import _max_distance as _max_distance
 from jaxcls.world.objects.loaders import _split_by_class as _split_by_class
+from jaxcls.world.objects.lookalike import LOOKALIKE_CLASSES, lookalike_object_set, lookalike_pairs
 from jaxcls.world.objects.mesh import MESH_SUFFIXES, UP_AXES, normalise_mesh
 from jaxcls.world.objects.mesh import _read_mesh as _read_mesh
 from jaxcls.world.objects.mesh import _rest_offset as _rest_offset
@@ -66,6 +73,7 @@ from jaxcls.world.objects.model import ObjectModel, ObjectSet
 
 __all__ = [
     "BUILTIN_CLASSES",
+    "LOOKALIKE_CLASSES",
     "MAX_MODEL_EXTENT",
     "MESH_SUFFIXES",
     "MIN_MODEL_EXTENT",
@@ -73,10 +81,13 @@ __all__ = [
     "ObjectModel",
     "ObjectSet",
     "ObjectSetConfig",
+    "ProceduralSet",
     "builtin_object_set",
     "load_bop",
     "load_folder",
     "load_object_set",
+    "lookalike_object_set",
+    "lookalike_pairs",
     "models_info",
     "normalise_mesh",
     "object_set_from_config",

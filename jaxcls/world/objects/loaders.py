@@ -1,9 +1,11 @@
 """Object sets from files: class folders (``load_folder``), BOP datasets (``load_bop``), and the ``objects:``
-config section (``ObjectSetConfig``) that picks one of them or the builtin set (``load_object_set``)."""
+config section (``ObjectSetConfig``) that picks one of them or a procedural set (``ProceduralSet``: builtin,
+lookalike) (``load_object_set``)."""
 
 from __future__ import annotations
 
 import dataclasses
+import enum
 import json
 import math
 import os
@@ -17,6 +19,7 @@ from scipy.spatial import ConvexHull, QhullError
 from scipy.spatial.distance import pdist
 
 from jaxcls.world.objects.builtin import builtin_object_set
+from jaxcls.world.objects.lookalike import lookalike_object_set
 from jaxcls.world.objects.mesh import (
     MESH_SUFFIXES,
     UP_AXES,
@@ -286,18 +289,40 @@ def _missing_models_info(root: Path) -> Path | None:
 # Dispatch and config
 
 
+class ProceduralSet(enum.StrEnum):
+    """The object sets made from seeds, without files: the names ``objects.source`` may take besides a folder
+    (a folder of the same name is not read). Each builds with ``seed``, ``train_per_class``,
+    ``test_per_class`` and ``surface_samples`` (``ProceduralSet.load``)."""
+
+    builtin = "builtin"  # eight household classes (builtin.py)
+    lookalike = "lookalike"  # nine classes in lookalike groups, the hard protocol's (lookalike.py)
+
+    @classmethod
+    def of(cls, source: str) -> ProceduralSet | None:
+        """The procedural set ``source`` names, None for anything else (a folder)."""
+        return cls(source) if source in cls._value2member_map_ else None
+
+    def load(self, **kwargs) -> ObjectSet:
+        """The set, cached by its builder (the same arguments return the same object)."""
+        builder = {ProceduralSet.builtin: builtin_object_set, ProceduralSet.lookalike: lookalike_object_set}[self]
+        return builder(**kwargs)
+
+
 def load_object_set(source: str, **kwargs) -> ObjectSet:
-    """``"builtin"`` -> ``builtin_object_set(**kwargs)``; a folder with ``models/models_info.json`` (or a
-    ``models`` folder holding it) -> ``load_bop``; any other folder -> ``load_folder``.
+    """A procedural set's name (``ProceduralSet``: ``"builtin"``, ``"lookalike"``) -> that set built with
+    ``kwargs``; a folder with ``models/models_info.json`` (or a ``models`` folder holding it) -> ``load_bop``;
+    any other folder -> ``load_folder``.
 
     A folder that holds BOP models (``obj_*.ply`` in ``models/`` or in itself) without their
     ``models_info.json`` is an error naming the missing file, rather than a class folder named ``models``.
     """
-    if source == "builtin":
-        return builtin_object_set(**kwargs)
+    procedural = ProceduralSet.of(source)
+    if procedural is not None:
+        return procedural.load(**kwargs)
     root = Path(source)
     if not root.is_dir():
-        raise FileNotFoundError(f"object set source is neither 'builtin' nor a folder: {source}")
+        names = ", ".join(repr(str(p)) for p in ProceduralSet)
+        raise FileNotFoundError(f"object set source is neither a procedural set ({names}) nor a folder: {source}")
     if _is_bop(root):
         return load_bop(root, **kwargs)
     missing = _missing_models_info(root)
@@ -313,13 +338,14 @@ def load_object_set(source: str, **kwargs) -> ObjectSet:
 class ObjectSetConfig:
     """Which object set a run uses: the ``objects:`` section of a YAML config, recorded in scene JSON.
 
-    source: ``"builtin"``, a BOP folder or a class-folder layout (``load_object_set``). Fields that the
-    chosen source does not use must keep their defaults, so that a setting is never silently ignored.
+    source: a procedural set (``"builtin"``, ``"lookalike"``: ``ProceduralSet``), a BOP folder or a
+    class-folder layout (``load_object_set``). Fields that the chosen source does not use must keep their
+    defaults, so that a setting is never silently ignored.
     Out-of-range values are a ValueError naming the key (``objects.<field>``) when the config is built.
 
     clutter_source: where a scene's clutter objects (``scene.num_clutter``, never scored) come from. ``""``
     (the default): other instances of the scene's split of this set, as the paper's real scenes did with
-    their own objects; else another object set (``"builtin"``, a BOP folder or class folders, metres, z up,
+    their own objects; else another object set (a procedural set, a BOP folder or class folders, metres, z up,
     its default settings and ``surface_samples``), every instance of which may stand on the table as
     clutter: generic shapes that the classifier never learnt (``ObjectSet.clutter``).
     """
@@ -348,7 +374,7 @@ class ObjectSetConfig:
 
     def loader_kwargs(self) -> dict:
         """Keyword arguments of the loader that ``load_object_set(self.source, ...)`` dispatches to."""
-        if self.source == "builtin":
+        if ProceduralSet.of(self.source) is not None:
             used = ("seed", "train_per_class", "test_per_class", "surface_samples")
         elif _is_bop(Path(self.source)):
             used = ("test_fraction", "surface_samples", "up_axis")
@@ -364,7 +390,7 @@ class ObjectSetConfig:
 
 
 def object_set_from_config(config: ObjectSetConfig) -> ObjectSet:
-    """The object set a config names (the builtin one comes from the cache), with the clutter instances of
+    """The object set a config names (a procedural one comes from the cache), with the clutter instances of
     ``clutter_source`` where one is given (named ``clutter:<instance>``, of class ``clutter:<class>``: a
     clutter box is never the user's class "box")."""
     object_set = load_object_set(config.source, **config.loader_kwargs())
