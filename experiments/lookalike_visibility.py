@@ -139,10 +139,11 @@ def main(argv: list[str] | None = None) -> None:
         ("pair", "the part", "views seeing the part", "views telling them apart (mean)", "over instances",
          "below 30 deg elevation", "at 30 deg and above"),
         rows, intro=f"Each of the first {args.instances} held-out instances of a pair's lookalike (seed "
-                    f"{args.seed}, a random yaw each) alone on the table, rendered by MuJoCo at {args.scale:g} of "
-                    f"640 x 480 from the 100 views of the hemisphere (1 m, around its bounding box's centre), with "
-                    f"and without the part; a view counts when at least {args.min_pixels} pixels (at 640 x 480) "
-                    f"show the part, or differ in depth by more than {args.depth_step * 100:g} cm."), args.out)
+                    f"{args.seed}, a random yaw each) alone on the table, rendered by MuJoCo at "
+                    f"{intrinsics.width} x {intrinsics.height} from the 100 views of the hemisphere (1 m, around its "
+                    f"bounding box's centre), with and without the part; a view counts when at least "
+                    f"{args.min_pixels} pixels (at 640 x 480) show the part, or differ in depth by more than "
+                    f"{args.depth_step * 100:g} cm."), args.out)
     if not args.scenes:
         return
     dataset = load_config(DatasetConfig, "hard")
@@ -161,7 +162,7 @@ def main(argv: list[str] | None = None) -> None:
         ("pair", "the part", "objects", "views seeing the part (mean)", "over objects", "views seeing the object"),
         rows, intro=f"The first {args.scenes} scenes of `configs/hard.yaml` (10 objects of the held-out instances, "
                     f"footprint gaps 2-12 mm), every object's parts their own bodies, rendered by MuJoCo at "
-                    f"{args.scale:g} of 640 x 480 from the scene's 100 views; a view counts when at least "
+                    f"{intrinsics.width} x {intrinsics.height} from the scene's 100 views; a view counts when at least "
                     f"{args.min_pixels} pixels (at 640 x 480) show the lookalike's part (or, last column, the "
                     "object)."), args.out)
 
