@@ -173,6 +173,9 @@ def explain(args: argparse.Namespace, argv: list[str] | None) -> None:
              "its peak / the highest). A missed object has no segment of its own: `merged` (the segment holding "
              "most of its points is another object's), `dropped` (in no live segment), `unseen` (fewer than "
              f"{counting.MISSED_POINTS} surface points).")
+    if any(d.get("target") is False for e in explained for d in [*e["segments"], *e["fates"]]):
+        intro += (" Clutter (objects never scored, counted all the same): `(clutter)` marks a clutter object's class, "
+                  "`merged into clutter` a missed object whose points went to a clutter object's segment.")
     report.publish(report.section(f"Miscounts in Table 1's episodes with N estimated, {datetime.date.today()}",
                                   argv, counting.EXPLAIN_HEADER, counting.explain_rows(explained), intro=intro),
                    args.out)
