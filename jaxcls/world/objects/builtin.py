@@ -267,8 +267,16 @@ def _builtin_model(class_name: str, split: int, index: int, seed: int, surface_s
     """One instance; its generators depend only on (seed, class, split, index), so train and test use
     disjoint seeds and an instance does not change when the number of instances per class does."""
     sequence = np.random.SeedSequence([seed, zlib.crc32(class_name.encode()), split, index])
+    return _procedural_model(class_name, _instance_parts, sequence, surface_samples, name)
+
+
+def _procedural_model(class_name: str, instance_parts: Callable[[str, np.random.Generator], list[trimesh.Trimesh]],
+                      sequence: np.random.SeedSequence, surface_samples: int, name: str) -> ObjectModel:
+    """One procedural instance named ``name``: ``instance_parts(class_name, rng)`` assembled, its shape and its
+    surface samples from their own generators spawned from ``sequence`` (so the samples' count does not change
+    the shape); its largest extent checked against [_MIN_EXTENT, _MAX_EXTENT] m."""
     shape_seq, sample_seq = sequence.spawn(2)
-    mesh, face_part = _assemble(_instance_parts(class_name, np.random.default_rng(shape_seq)))
+    mesh, face_part = _assemble(instance_parts(class_name, np.random.default_rng(shape_seq)))
     extent = float(np.ptp(mesh.vertices, axis=0).max())
     if not _MIN_EXTENT <= extent <= _MAX_EXTENT:
         raise AssertionError(f"{name}: largest extent {extent:.3f} m outside [{_MIN_EXTENT}, {_MAX_EXTENT}]")

@@ -48,20 +48,18 @@ import trimesh
 
 from jaxcls.world.objects.builtin import (
     _BOWL,
-    _MAX_EXTENT,
-    _MIN_EXTENT,
     _MUG_HANDLE,
     _SECTIONS,
     Ranges,
-    _assemble,
     _bowl_body,
     _bowl_walls,
     _draw,
     _handle,
+    _procedural_model,
     _revolve,
     _tube,
 )
-from jaxcls.world.objects.mesh import _rest_offset, _surface_samples
+from jaxcls.world.objects.mesh import _rest_offset
 from jaxcls.world.objects.model import ObjectModel, ObjectSet
 
 # class -> (body, the parts it adds, in draw order)
@@ -221,13 +219,8 @@ def _lookalike_model(class_name: str, split: str, index: int, seed: int, surface
                      name: str) -> ObjectModel:
     """One instance, named ``name``: its shape and its surface samples from their own generators (so the
     samples' count does not change the shape); its largest extent checked against builtin's 5-20 cm."""
-    shape_seq, sample_seq = instance_sequence(seed, class_name, split, index).spawn(2)
-    mesh, face_part = _assemble(_instance_parts(class_name, np.random.default_rng(shape_seq)))
-    extent = float(np.ptp(mesh.vertices, axis=0).max())
-    if not _MIN_EXTENT <= extent <= _MAX_EXTENT:
-        raise AssertionError(f"{name}: largest extent {extent:.3f} m outside [{_MIN_EXTENT}, {_MAX_EXTENT}]")
-    points, normals = _surface_samples(mesh, surface_samples, np.random.default_rng(sample_seq), face_part)
-    return ObjectModel(name, class_name, mesh, points, normals)
+    return _procedural_model(class_name, _instance_parts, instance_sequence(seed, class_name, split, index),
+                             surface_samples, name)
 
 
 @functools.lru_cache(maxsize=8)

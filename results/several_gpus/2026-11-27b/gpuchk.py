@@ -1,17 +1,19 @@
 """Frames of scenes 32-38 rendered in a chunk of scenes 0-49 against a chunk of scenes 6-12 and 32-38 (an oracle
 share's), bit for bit: with every render call of 1,024 worlds (the fix) and with a shorter last call (before)."""
 import time
+
 import numpy as np
+
 from jaxcls.config import load_config, resolve_config
-from jaxcls.experiments.table1 import data as D
+from jaxcls.experiments.table1 import data
 from jaxcls.experiments.table1.config import Table1Config
-from jaxcls.world import bank as B
+from jaxcls.world import bank
 
 config = load_config(Table1Config, resolve_config("table1_real_like_scale"),
                      ["dataset_overrides=[num_scenes=1000,out_dir=/tmp/data/rl]"])
-dataset, scenes = D.open_scenes(config)
+dataset, scenes = data.open_scenes(config)
 share = [*range(6, 13), *range(32, 39)]
-fixed = B.launches
+fixed = bank.launches
 
 
 def before(frames, batch):
@@ -19,7 +21,7 @@ def before(frames, batch):
 
 
 for name, plan in (("fixed (every call 1,024 worlds)", fixed), ("before (a shorter last call)", before)):
-    B.launches = plan
+    bank.launches = plan
     t = time.perf_counter()
     full = np.asarray(scenes.chunk(list(range(50))).depth)
     part = np.asarray(scenes.chunk(share).depth)
