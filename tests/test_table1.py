@@ -84,8 +84,13 @@ def test_local_processes_get_a_gpu_each_and_a_failed_one_stops_them_all(table1, 
     assert local.visible_gpus(2, {"CUDA_VISIBLE_DEVICES": "3,5,6"}) == ["3", "5"]
     with pytest.raises(ValueError, match="CUDA_VISIBLE_DEVICES lists 1 GPU"):
         local.visible_gpus(2, {"CUDA_VISIBLE_DEVICES": "4"})
-    gpu = "import os; print('gpu', os.environ['CUDA_VISIBLE_DEVICES'])"
-    lines = [[sys.executable, "-c", f"{gpu}; raise SystemExit(3)"],
+    gpu = "import os; print('gpu', os.environ['CUDA_VISIBLE_DEVICES'], flush=True)"
+    # Process 0 fails once process 1 has written its line (else, on a loaded machine, process 1 can be stopped
+    # before its interpreter has started, its log empty).
+    started = tmp_path / "process.1.log"
+    wait = (f"import pathlib, time; p = pathlib.Path({str(started)!r}); "
+            "[time.sleep(0.05) for _ in range(400) if not (p.exists() and p.read_text().strip())]")
+    lines = [[sys.executable, "-c", f"{gpu}; {wait}; raise SystemExit(3)"],
              [sys.executable, "-c", f"{gpu}; import time; time.sleep(60)"]]
     began = time.perf_counter()
     with pytest.raises(RuntimeError, match=r"process 0 of 2 failed \(exit status 3\).*process\.0\.log:\ngpu 7"):
