@@ -146,8 +146,7 @@ def walks(args: argparse.Namespace, argv: list[str] | None) -> None:
              "walks of 10 views within 0.5 m of each other, fused through its perception, counted by the reference "
              f"path; variants: {'; '.join(args.variant)}. {wall:.0f} s on the CPU.")
     report.publish(report.section(f"Counting random walks, {datetime.date.today()}", argv,
-                                  ("variant", "after move", "walks", "N right", "over", "under"),
-                                  counting.walk_rows(records), intro=intro), args.out)
+                                  counting.WALK_HEADER, counting.walk_rows(records), intro=intro), args.out)
 
 
 def explain(args: argparse.Namespace, argv: list[str] | None) -> None:

@@ -273,12 +273,30 @@ def test_the_real_like_kind_is_measured_through_its_sensor():
 
 
 def test_walk_rows_by_hand():
-    """``walk_rows``: a variant's walks right, over and under after each move, counted by hand."""
-    records = [{"variant": v, "move": m, "objects": 5, "count": c, "scene": 0, "run": r}
-               for v, m, r, c in (("off", 3, 0, 6), ("off", 3, 1, 5), ("off", 10, 0, 4), ("off", 10, 1, 5),
-                                  ("rule", 3, 0, 5), ("rule", 3, 1, 5), ("rule", 10, 0, 5), ("rule", 10, 1, 5))]
-    assert counting.walk_rows(records) == [("off", 3, 2, "0.500", 1, 0), ("off", 10, 2, "0.500", 0, 1),
-                                           ("rule", 3, 2, "1.000", 0, 0), ("rule", 10, 2, "1.000", 0, 0)]
+    """``walk_rows``: a variant's walks right, over and under after each move, objects found and their points
+    in their segment, counted by hand."""
+    records = [{"variant": v, "move": m, "objects": 5, "count": c, "scene": 0, "run": r, "seen": 5, "found": f,
+                "whole": w}
+               for v, m, r, c, f, w in (("off", 3, 0, 6, 5, 4.5), ("off", 3, 1, 5, 5, 4.5), ("off", 10, 0, 4, 4, 4.0),
+                                        ("off", 10, 1, 5, 5, 5.0), ("rule", 3, 0, 5, 5, 5.0), ("rule", 3, 1, 5, 5, 5.0),
+                                        ("rule", 10, 0, 5, 5, 5.0), ("rule", 10, 1, 5, 5, 5.0))]
+    assert counting.walk_rows(records) == [("off", 3, 2, "0.500", 1, 0, "1.000", "0.900"),
+                                           ("off", 10, 2, "0.500", 0, 1, "0.900", "1.000"),
+                                           ("rule", 3, 2, "1.000", 0, 0, "1.000", "1.000"),
+                                           ("rule", 10, 2, "1.000", 0, 0, "1.000", "1.000")]
+
+
+def test_object_coverage_by_hand():
+    """``object_coverage``: objects seen, found (their points mostly in a segment mostly theirs) and the share
+    of a found object's points in its segment."""
+    MP = counting.MISSED_POINTS
+    owners = np.r_[np.zeros(2 * MP), np.ones(2 * MP), np.full(MP // 2, 2), np.full(10, -1)].astype(np.int64)
+    labels = np.r_[np.zeros(MP + MP // 2), np.full(MP // 2, -1),  # object 0: 3/4 in segment 0, the rest dropped
+                   np.zeros(MP // 4), np.full(2 * MP - MP // 4, 1),  # object 1: mostly segment 1
+                   np.full(MP // 2, 1), np.full(10, 1)].astype(np.int64)  # object 2 unseen; table points in 1
+    assert counting.object_coverage(labels, owners, 3) == {"seen": 2, "found": 2,
+                                                           "whole": 0.75 + (2 * MP - MP // 4) / (2 * MP)}
+    assert counting.object_coverage(np.full(len(owners), -1), owners, 3) == {"seen": 2, "found": 0, "whole": 0.0}
 
 
 # --- An episode with N estimated: empty slots through PointNet, GR, visibility and the records -------------

@@ -319,6 +319,23 @@ def test_estimated_count_is_capped_by_the_slots_and_drops_fragments(path):
     assert _live(seg) == 1 and np.all(labels[owner == 1] == -1) and np.mean(labels[owner == 0] == 0) > 0.95
 
 
+@pytest.mark.parametrize("path", PATHS)
+def test_estimated_count_merges_a_small_touching_part_drops_it_apart(path):
+    """A handle (a 3 cm^2 blob, 3 mm from a 4 cm body: its own footprint basin, more persistent than
+    ``merge_persistence``) joins the body's segment (``absorb_area``), where without the rule it was dropped
+    as a fragment under ``min_object_area``; the same blob 5 cm away, touching nothing, is still dropped."""
+    body, r = (0.0, 0.0, 0.04, 0.10), 0.01
+    assert np.pi * r ** 2 < COUNTING.segmentation.min_object_area <= COUNTING.segmentation.absorb_area
+    off = _with_segmentation(COUNTING, absorb_area=0.0)
+    for x, spec, joined in ((0.053, COUNTING, True), (0.053, off, False), (0.1, COUNTING, False)):
+        pts, nrm, m, owner = _cylinders([body, (x, 0.0, r, 0.07)])
+        seg = PATHS[path](spec, pts, nrm, m)
+        labels = np.asarray(seg.labels)
+        assert _live(seg) == 1 and np.mean(labels[owner == 0] == 0) > 0.95, (x, joined)
+        handle = labels[owner == 1]
+        assert np.mean(handle == 0) > 0.9 if joined else np.all(handle == -1), (x, joined, np.unique(handle))
+
+
 def test_estimated_count_static_shapes_for_one_to_all_slots():
     """The twin's shapes are static whatever the count: 1 up to ``num_segments`` objects in one compiled
     program (and vmapped over clouds of different counts), slots beyond the count empty, nothing NaN."""
@@ -406,7 +423,7 @@ def test_flush_inputs_twin_equals_reference():
 def test_known_count_ignores_the_estimated_count_rules():
     """With N known the flush and fragment settings change nothing: the same labels, both paths."""
     pts, nrm, m = _box(0.0, 0.0, 0.24, 0.08, 0.08, yaw=0.3)
-    other = _with_segmentation(SPEC, flush_persistence=1.0, flush_height=0.05, min_object_area=0.05)
+    other = _with_segmentation(SPEC, flush_persistence=1.0, flush_height=0.05, min_object_area=0.05, absorb_area=0.05)
     for fn in PATHS.values():
         a, b = fn(SPEC, pts, nrm, m), fn(other, pts, nrm, m)
         np.testing.assert_array_equal(np.asarray(a.labels), np.asarray(b.labels))
@@ -423,6 +440,8 @@ def test_known_count_is_the_default_and_a_bad_choice_names_the_key():
         PerceptionConfig(segmentation=segment.SegmentConfig(min_object_area=-1.0))
     with pytest.raises(ValueError, match="flush_persistence"):
         segment.SegmentConfig(merge_persistence=0.3, flush_persistence=0.2)
+    with pytest.raises(ValueError, match="absorb_area"):
+        segment.SegmentConfig(absorb_area=-0.001)
 
 
 def test_fused_scenes_estimated_count_and_twin_agreement(fused_scenes):

@@ -370,7 +370,7 @@ def explain_surface(spec: perception.Spec, points: np.ndarray, normals: np.ndarr
     if parts is not None:
         merged = parts.merged
         cost, _ = common._merge_costs(np, merged, parts.peak, common._count_rule(spec))
-        live = merged.alive & ~common._too_small(merged, spec)
+        live = merged.alive & ~common._too_small(merged, spec, parts.basin)
         group[parts.good] = np.where(live[parts.group], parts.group, -1)
         for g in np.flatnonzero(live):
             sel = group == g
@@ -529,7 +529,9 @@ def walk_counts(config_path: str | Path, overrides: Sequence[str], runs: int,
     random start (``numpy`` seeded by ``seed``, the scene and the run), fused through the perception (tracking
     included). After each of ``moves`` the reference path counts the surface under every variant (name ->
     ``perception.segmentation`` fields laid over the config's). One record a (scene, run, move, variant):
-    ``objects`` and ``count``. Progress on stderr."""
+    ``objects``, ``count``, and against the posed objects (``object_coverage``) ``seen`` (objects with at least
+    ``MISSED_POINTS`` surface points), ``found`` (of them, those with a segment of their own) and ``whole`` (each
+    found object's share of its points in its segment, summed over them). Progress on stderr."""
     import dataclasses
 
     from jaxcls.config import load_config
@@ -538,6 +540,7 @@ def walk_counts(config_path: str | Path, overrides: Sequence[str], runs: int,
     from jaxcls.perception import observation
     from jaxcls.perception.foreground import foreground_mask
     from jaxcls.perception.segment import reference
+    from jaxcls.world.scenes import scene_models
 
     config = load_config(Table1Config, config_path, overrides)
     _, scene_set = data.open_scenes(config)
@@ -545,6 +548,7 @@ def walk_counts(config_path: str | Path, overrides: Sequence[str], runs: int,
     out: list[dict[str, Any]] = []
     for i in range(scene_set.count):
         frames = scene_set.load([i])[0]
+        owners = metrics.PointOwners(frames.scene, scene_models(frames.scene))
         spec = perception.Spec.create(config.perception, frames.intrinsics, frames.table_height)
         specs = {name: spec.replace(config=dataclasses.replace(
             config.perception, segmentation=dataclasses.replace(config.perception.segmentation, **fields)))
@@ -562,10 +566,13 @@ def walk_counts(config_path: str | Path, overrides: Sequence[str], runs: int,
                     s = state.surface
                     p, n, m = np.asarray(s.points), np.asarray(s.normals), np.asarray(s.mask)
                     fg = np.asarray(foreground_mask(spec, jnp.asarray(p), jnp.asarray(m)))
+                    own = owners(p, m)[fg]
+                    objects = len(frames.scene.objects)
                     for name, sp in specs.items():
                         labels = reference.cluster_reference(sp, p[fg].astype(np.float64), n[fg].astype(np.float64))
-                        out.append({"scene": i, "run": run, "move": t, "variant": name,
-                                    "objects": len(frames.scene.objects), "count": len(np.unique(labels[labels >= 0]))})
+                        out.append({"scene": i, "run": run, "move": t, "variant": name, "objects": objects,
+                                    "count": len(np.unique(labels[labels >= 0])),
+                                    **object_coverage(labels, own, objects)})
                 free = [v for v in range(len(where)) if v not in visited]
                 near = [v for v in free if np.linalg.norm(where[v] - where[view]) < 0.5] or free
                 view = int(rng.choice(near))
@@ -573,11 +580,44 @@ def walk_counts(config_path: str | Path, overrides: Sequence[str], runs: int,
     return out
 
 
+def object_coverage(labels: np.ndarray, owners: np.ndarray, objects: int) -> dict[str, float]:
+    """How a partition holds the scene's objects: ``seen`` objects (at least ``MISSED_POINTS`` points), ``found``
+    (of them, those whose points lie mostly in a segment whose points are mostly theirs) and ``whole`` (each found
+    object's share of its points in that segment, summed over the found ones).
+
+    labels: [M] i64 each point's segment, -1 = none; owners: [M] i64 each point's object, -1 = none."""
+    seen = found = 0
+    whole = 0.0
+    for k in range(objects):
+        mine = owners == k
+        if mine.sum() < MISSED_POINTS:
+            continue
+        seen += 1
+        held = labels[mine & (labels >= 0)]
+        if not len(held):
+            continue
+        g = int(np.bincount(held).argmax())
+        members = owners[labels == g]
+        if np.bincount(members[members >= 0], minlength=objects).argmax() == k and np.mean(members >= 0) >= 0.5:
+            found += 1
+            whole += float(np.mean(labels[mine] == g))
+    return {"seen": seen, "found": found, "whole": whole}
+
+
+WALK_HEADER = ("variant", "after move", "walks", "N right", "over", "under", "objects found",
+               "found objects' points in their segment")
+
+
 def walk_rows(records: Sequence[dict[str, Any]]) -> list[tuple]:
-    """``walk_counts``' table: one row a (variant, move): walks, share right, over- and under-counted walks."""
+    """``walk_counts``' table (``WALK_HEADER``): one row a (variant, move): walks, share right, over- and
+    under-counted walks, the share of seen objects found and the mean share of a found object's points in its
+    segment (``object_coverage``)."""
     rows = []
     for name in dict.fromkeys(r["variant"] for r in records):
         for move in sorted({r["move"] for r in records}):
-            err = np.array([r["count"] - r["objects"] for r in records if r["variant"] == name and r["move"] == move])
-            rows.append((name, move, len(err), f"{np.mean(err == 0):.3f}", int(np.sum(err > 0)), int(np.sum(err < 0))))
+            mine = [r for r in records if r["variant"] == name and r["move"] == move]
+            err = np.array([r["count"] - r["objects"] for r in mine])
+            seen, found = sum(r["seen"] for r in mine), sum(r["found"] for r in mine)
+            rows.append((name, move, len(err), f"{np.mean(err == 0):.3f}", int(np.sum(err > 0)), int(np.sum(err < 0)),
+                         f"{found / max(seen, 1):.3f}", f"{sum(r['whole'] for r in mine) / max(found, 1):.3f}"))
     return rows

@@ -219,7 +219,7 @@ def cluster_reference(spec: Spec, x: np.ndarray, normals: np.ndarray) -> np.ndar
     cfg = spec.segmentation
     good, group = parts.good, parts.group
     y = x[good]
-    keep = ~_too_small(parts.merged, spec)[group]
+    keep = ~_too_small(parts.merged, spec, parts.basin)[group]
     part = np.full(len(y), -1, np.int64)
     if keep.any():
         part[keep] = np.unique(group[keep], return_inverse=True)[1]

@@ -257,7 +257,7 @@ def cluster_jax(spec: Spec, x: jax.Array, normals: jax.Array, valid: jax.Array) 
                                lambda s: _merge_step(jnp, s, peak, rule), state)
     ij = _cell_of(x, spec, xp=jnp)
     group = state.group[jnp.maximum(basin[ij[:, 0], ij[:, 1]], 0)]
-    kept = kept & ~_too_small(state, spec, xp=jnp)[group]
+    kept = kept & ~_too_small(state, spec, basin, xp=jnp)[group]
     present = jnp.zeros(K, bool).at[group].max(kept)
     part = (jnp.cumsum(present) - 1)[group].astype(jnp.int32)
     if not estimated:
