@@ -370,7 +370,7 @@ def explain_surface(spec: perception.Spec, points: np.ndarray, normals: np.ndarr
     if parts is not None:
         merged = parts.merged
         cost, _ = common._merge_costs(np, merged, parts.peak, common._count_rule(spec))
-        live = merged.alive & ~common._too_small(merged, spec, parts.basin)
+        live = merged.alive & ~common._too_small(merged, spec)
         group[parts.good] = np.where(live[parts.group], parts.group, -1)
         for g in np.flatnonzero(live):
             sel = group == g

@@ -131,17 +131,14 @@ class SegmentConfig:
     # 100) disjoint from RESULTS.md's (RESULTS.md, "Counting objects without a known N").
     flush_persistence: float = bounded(0.5, ge=0.0, le=1.0)
     flush_height: float = bounded(0.003, ge=0.0)
-    # Estimated count only: a part whose footprint covers less than absorb_area m^2 and that touches another
-    # (shares a saddle with it) merges into the one it shares the highest saddle with before any other merge,
-    # whatever its persistence (0: off). A jug's or mug's handle is such a basin of its own (~3-5 cm^2, relative
-    # persistence ~0.3): dropped under min_object_area, it left a bottle or a cup (RESULTS.md, "Counting objects
-    # without a known N"). Only parts under min_object_area apart from every other are dropped.
-    absorb_area: float = bounded(0.001, ge=0.0)
-    # Estimated count only: a part under min_object_area apart from every other is kept all the same where the
-    # ellipse of its cells' second moments (4 pi sqrt(det cov), cells as unit squares) covers at least
-    # min_object_spread m^2: a wall seen from one side fills a thin arc of few cells though its object is large
-    # (0: off, the cells alone decide).
-    min_object_spread: float = bounded(0.0, ge=0.0)
+    # Estimated count only: after the persistence merge, a part whose footprint covers less than absorb_area m^2
+    # and that touches (shares a saddle with) a larger part of at least min_object_area joins the one it shares
+    # the highest saddle with, whatever its persistence (0: off); parts under min_object_area apart from every
+    # larger part are dropped. A jug's or mug's handle is such a part (~3-5 cm^2, relative persistence ~0.3):
+    # dropped, it left a bottle or a cup; above min_object_area, a bowl's second wall. 15 cm^2 counted best of
+    # 10 / 15 / 20 on the tuning walks (dataset seed 100, both sets; RESULTS.md, "Counting objects without a
+    # known N"); 10 (= min_object_area) would leave every count as it was.
+    absorb_area: float = bounded(0.0015, ge=0.0)
     # JAX twin only: static bounds.
     max_basins: int = bounded(64, ge=1)  # basins kept (highest peaks); the others join the nearest kept one
     max_cc_iters: int = bounded(64, ge=1)  # label-propagation rounds (about log of the diameter suffice)

@@ -104,14 +104,15 @@ class _CountRule(NamedTuple):
     basins merge while the lower one's relative persistence is below ``persistence``, or below
     ``flush_persistence`` where they are flush: their highest points within ``flush_height`` m of each other
     and at least half of the cell pairs across their boundary within ``flush_height`` too (one surface, not
-    two objects side by side). A basin of fewer than ``absorb_cells`` cells that touches another live basin
-merges into the one it shares the highest saddle with before any other merge, whatever its persistence
-(0: never)."""
+    two objects side by side). After that merge (``_absorb_costs``): a part of fewer than ``absorb_cells`` cells
+that touches a larger live part of at least ``object_cells`` (``min_object_area``) joins it, whatever its
+persistence (``absorb_cells`` 0: never)."""
 
     persistence: float
     flush_persistence: float
     flush_height: float
     absorb_cells: float = 0.0
+    object_cells: float = 0.0
 
 
 def _count_rule(spec: Spec) -> _CountRule | None:
@@ -119,8 +120,9 @@ def _count_rule(spec: Spec) -> _CountRule | None:
     if not _estimated(spec):
         return None
     cfg = spec.segmentation
-    return _CountRule(cfg.merge_persistence, cfg.flush_persistence, cfg.flush_height,
-                      cfg.absorb_area / cfg.footprint_cell ** 2)
+    cell = cfg.footprint_cell ** 2
+    return _CountRule(cfg.merge_persistence, cfg.flush_persistence, cfg.flush_height, cfg.absorb_area / cell,
+                      cfg.min_object_area / cell)
 
 
 def _merge_costs(xp, state: _Merging, peak, rule: _CountRule | None = None):
@@ -134,10 +136,7 @@ def _merge_costs(xp, state: _Merging, peak, rule: _CountRule | None = None):
     objects last. With the count estimated (``rule``): (peak - saddle) / peak, in [0, 1], comparable across
     object sizes, scaled by ``persistence / flush_persistence`` where the two basins are flush (``_CountRule``),
     so that a cost below ``persistence`` is the rule's merge; a basin apart on the table costs 1 + peak / the
-    highest live peak, above every touching merge, smallest first. A basin smaller than ``rule.absorb_cells``
-    that touches any live basin (higher or not) costs its relative persistence to the one it shares the highest
-    saddle with, minus 2: below every other merge, and it joins that basin (``_merge_step`` keeps the higher
-    peak's basin as the survivor).
+    highest live peak, above every touching merge, smallest first.
     """
     alive, saddle, centre = state.alive, state.saddle, state.centre
     K = peak.shape[0]
@@ -159,15 +158,7 @@ def _merge_costs(xp, state: _Merging, peak, rule: _CountRule | None = None):
     else:
         cost = xp.where(linked, peak - top, peak)  # no saddle: the empty space between, where the field is 0
     cost = xp.where(alive & xp.any(higher, axis=1), cost, xp.inf)
-    target = xp.where(linked, up, near)
-    if rule is not None and rule.absorb_cells > 0:
-        touch = xp.where(alive[None, :] & (ar[None, :] != ar[:, None]), saddle, -xp.inf)
-        joins = xp.argmax(touch, axis=1)
-        edge = xp.take_along_axis(touch, joins[:, None], axis=1)[:, 0]
-        small = alive & (state.size < rule.absorb_cells) & (edge > -xp.inf)
-        absorb = (peak - xp.where(small, edge, 0.0)) / xp.maximum(peak, 1e-12) - 2.0
-        cost, target = xp.where(small, absorb, cost), xp.where(small, joins, target)
-    return cost, target
+    return cost, xp.where(linked, up, near)
 
 
 def _flush(xp, state: _Merging, up, rule: _CountRule):
@@ -197,12 +188,50 @@ def _merge_step(xp, state: _Merging, peak, rule: _CountRule | None = None) -> _M
     estimated: its top the higher, its boundary counts the sums). Shared by both paths (``xp`` = numpy or
     jax.numpy)."""
     cost, target = _merge_costs(xp, state, peak, rule)
-    ar = xp.arange(peak.shape[0])
     i = xp.argmin(cost)
-    t = target[i]
-    # A small basin absorbed into a lower one (``_CountRule.absorb_cells``): the lower joins the higher, so that
-    # a group's peak stays its highest (never otherwise: a merge's target is higher).
-    i, t = xp.where(peak[i] > peak[t], t, i), xp.where(peak[i] > peak[t], i, t)
+    return _join(xp, state, i, target[i])
+
+
+def _absorb_costs(xp, state: _Merging, peak, rule: _CountRule):
+    """The absorbing step after the persistence merge (``_CountRule.absorb_cells``): ([K] cost, inf for a part
+    that is not absorbed; [K] i32 the part it joins). A live part of fewer than ``absorb_cells`` cells (a jug's
+    handle, a bowl's second wall) joins, of the live parts that touch it (share a saddle) and are larger than it
+    and at least ``object_cells`` (parts that stand as objects), the one it shares the highest saddle with; its
+    cost is its relative persistence to that part, (peak - saddle) / peak, lowest first. A part only grows when
+    it absorbs, so no part reaches ``object_cells`` by absorbing: with ``absorb_cells <= object_cells`` the count
+    is the persistence merge's, only fragments that would be dropped join their neighbour."""
+    K = peak.shape[0]
+    ar = xp.arange(K)
+    size = state.size
+    host = state.alive[None, :] & (ar[None, :] != ar[:, None]) & (size[None, :] > size[:, None]) & (
+        size[None, :] >= rule.object_cells)
+    touch = xp.where(host, state.saddle, -xp.inf)
+    joins = xp.argmax(touch, axis=1)
+    edge = xp.take_along_axis(touch, joins[:, None], axis=1)[:, 0]
+    small = state.alive & (size < rule.absorb_cells) & (edge > -xp.inf)
+    relative = (peak - xp.where(small, edge, 0.0)) / xp.maximum(peak, 1e-12)
+    return xp.where(small, relative, xp.inf), joins
+
+
+def _absorb_more(xp, state: _Merging, peak, rule: _CountRule):
+    """[] bool whether a part is left to absorb (``_absorb_costs``; never with ``absorb_cells`` 0)."""
+    if rule.absorb_cells <= 0:
+        return xp.asarray(False)
+    cost, _ = _absorb_costs(xp, state, peak, rule)
+    return xp.min(cost) < xp.inf
+
+
+def _absorb_step(xp, state: _Merging, peak, rule: _CountRule) -> _Merging:
+    """One absorption (``_absorb_costs``): the part with the lowest cost joins its part (``_join``)."""
+    cost, target = _absorb_costs(xp, state, peak, rule)
+    i = xp.argmin(cost)
+    return _join(xp, state, i, target[i])
+
+
+def _join(xp, state: _Merging, i, t) -> _Merging:
+    """Basin ``i`` joins basin ``t``: the target's saddles become the higher of the two rows, its centre the
+    size-weighted mean (with the count estimated: its top the higher, its boundary counts the sums)."""
+    ar = xp.arange(state.alive.shape[0])
     row = xp.maximum(state.saddle[t], state.saddle[i])
     row = xp.where(ar == t, -xp.inf, row)
     size, centre = state.size, state.centre
@@ -241,41 +270,13 @@ def _estimated(spec: Spec) -> bool:
     return spec.config.shapes.num_objects is ObjectCount.estimated
 
 
-def _too_small(state: _Merging, spec: Spec, basin=None, xp=np):
+def _too_small(state: _Merging, spec: Spec, xp=np):
     """[K] bool: with the count estimated, the live groups whose footprint (cells, closed and filled) covers
-    less than ``min_object_area`` m^2: fragments, dropped (never with N known). With ``min_object_spread`` > 0
-    such a group is kept where the ellipse of its cells' second moments (``_spread``, over ``basin: [G, G]``
-    the watershed's basins, -1 = none) covers at least ``min_object_spread`` m^2."""
+    less than ``min_object_area`` m^2: fragments, dropped (never with N known)."""
     if not _estimated(spec):
         return xp.zeros(state.alive.shape, bool)
-    cfg = spec.segmentation
-    small = state.alive & (state.size * cfg.footprint_cell ** 2 < cfg.min_object_area)
-    if cfg.min_object_spread > 0:
-        small = small & (_spread(basin, state.group, xp) * cfg.footprint_cell ** 2 < cfg.min_object_spread)
-    return small
-
-
-def _spread(basin, group, xp=np):
-    """[K] the area (cells) of the ellipse of each group's cells' second moments, 4 pi sqrt(det cov), a cell a
-    unit square (its own variance 1/12 on the diagonal: a lone cell 1.05, a straight line of L cells ~1.05 L, an
-    arc more than its cells); ``basin: [G, G]`` each cell's basin (-1 = none), ``group: [K]`` the group each
-    basin joined; 0 for a group without cells."""
-    K = group.shape[0]
-    G = basin.shape[0]
-    ii, jj = xp.meshgrid(xp.arange(G) - G / 2, xp.arange(G) - G / 2, indexing="ij")
-    i, j, flat = ii.reshape(-1), jj.reshape(-1), basin.reshape(-1)
-    g = xp.where(flat >= 0, group[xp.maximum(flat, 0)], K)  # cells of no basin: an extra group, left out
-    values = xp.stack([xp.ones_like(i), i, j, i * i, i * j, j * j], axis=-1)
-    if xp is np:
-        sums = np.stack([np.bincount(g, values[:, a], minlength=K + 1) for a in range(6)], axis=-1)[:K]
-    else:
-        sums = jax.ops.segment_sum(values.astype(jnp.float32), g, num_segments=K + 1)[:K]
-    n = xp.maximum(sums[:, 0], 1.0)
-    mi, mj = sums[:, 1] / n, sums[:, 2] / n
-    cii = sums[:, 3] / n - mi * mi + 1.0 / 12
-    cij = sums[:, 4] / n - mi * mj
-    cjj = sums[:, 5] / n - mj * mj + 1.0 / 12
-    return xp.where(sums[:, 0] > 0, 4 * np.pi * xp.sqrt(xp.maximum(cii * cjj - cij * cij, 0.0)), 0.0)
+    area = state.size * spec.segmentation.footprint_cell ** 2
+    return state.alive & (area < spec.segmentation.min_object_area)
 
 
 def _basin_centres(basin: np.ndarray | jax.Array, K: int, xp=np):

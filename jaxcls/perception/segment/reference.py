@@ -13,6 +13,8 @@ from jaxcls.perception.foreground import check_cloud_shape, foreground_mask
 from jaxcls.perception.segment.common import (
     _PAIR_SHIFTS,
     Segments,
+    _absorb_more,
+    _absorb_step,
     _basin_centres,
     _cell_of,
     _count_rule,
@@ -195,6 +197,8 @@ def _watershed_reference(spec: Spec, x: np.ndarray, normals: np.ndarray) -> _Ref
         state = state._replace(**dict(zip(("top", "across", "smooth"), flush, strict=True)))
     while _merge_more(np, state, peak, N, rule):
         state = _merge_step(np, state, peak, rule)
+    while rule is not None and _absorb_more(np, state, peak, rule):
+        state = _absorb_step(np, state, peak, rule)
     ij = _cell_of(y, spec)
     return _ReferenceParts(good, occ, field, basin, peak, state, state.group[basin[ij[:, 0], ij[:, 1]]])
 
@@ -219,7 +223,7 @@ def cluster_reference(spec: Spec, x: np.ndarray, normals: np.ndarray) -> np.ndar
     cfg = spec.segmentation
     good, group = parts.good, parts.group
     y = x[good]
-    keep = ~_too_small(parts.merged, spec, parts.basin)[group]
+    keep = ~_too_small(parts.merged, spec)[group]
     part = np.full(len(y), -1, np.int64)
     if keep.any():
         part[keep] = np.unique(group[keep], return_inverse=True)[1]

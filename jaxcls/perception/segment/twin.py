@@ -13,6 +13,8 @@ from jaxcls.perception.foreground import check_cloud_shape, compact, foreground_
 from jaxcls.perception.segment.common import (
     _PAIR_SHIFTS,
     Segments,
+    _absorb_more,
+    _absorb_step,
     _basin_centres,
     _cell_of,
     _count_rule,
@@ -255,9 +257,12 @@ def cluster_jax(spec: Spec, x: jax.Array, normals: jax.Array, valid: jax.Array) 
         state = state._replace(**dict(zip(("top", "across", "smooth"), flush, strict=True)))
     state = jax.lax.while_loop(lambda s: _merge_more(jnp, s, peak, N, rule),
                                lambda s: _merge_step(jnp, s, peak, rule), state)
+    if rule is not None and rule.absorb_cells > 0:
+        state = jax.lax.while_loop(lambda s: _absorb_more(jnp, s, peak, rule),
+                                   lambda s: _absorb_step(jnp, s, peak, rule), state)
     ij = _cell_of(x, spec, xp=jnp)
     group = state.group[jnp.maximum(basin[ij[:, 0], ij[:, 1]], 0)]
-    kept = kept & ~_too_small(state, spec, basin, xp=jnp)[group]
+    kept = kept & ~_too_small(state, spec, xp=jnp)[group]
     present = jnp.zeros(K, bool).at[group].max(kept)
     part = (jnp.cumsum(present) - 1)[group].astype(jnp.int32)
     if not estimated:
