@@ -7,8 +7,8 @@ episodes of one scene from different start views, as issue 23's larger runs will
 
 Every combination of camera tracking (``perception.tracking.mode``), the volume's storage
 (``perception.volume.storage``) and PointNet's products (``perception.classification_precision``) is a
-variant, all with the batch's memory layout (``--slabs 8 --segments-per-pass 1``: the fusion in slabs, PointNet
-a segment at a time, as the scale configs run it); each batch size runs every variant, their repeats
+variant, and so are the batch's memory layouts (``--slabs``, ``--segments-per-pass``; by default 8 and 1, the fusion in
+slabs and PointNet a segment at a time, as the scale configs run it); each batch size runs every variant, their repeats
 interleaved. Reports episodes/s and moves/s, the first call (compilation), the program's device memory per
 episode (XLA's temporaries of the batch over B: ``compiled.memory_analysis``), the final F1 of the target
 objects pooled over the batch (prior and refined), and the share of episodes whose path and final labels equal
@@ -34,6 +34,7 @@ import numpy as np
 from jaxcls import io, metrics, precision, report
 from jaxcls.episode import active, batched, scoring, setup
 from jaxcls.geometry import Intrinsics
+from jaxcls.precision import MatmulPrecision
 
 
 def save_frames(path: str, seed: int) -> None:
@@ -60,12 +61,14 @@ def main(argv: list[str] | None = None) -> None:
                         help="perception.tracking.mode of the episodes (several: compared, interleaved)")
     parser.add_argument("--storage", nargs="+", default=["float32"], choices=["float32", "compact"],
                         help="perception.volume.storage (several: compared, interleaved)")
-    parser.add_argument("--precision", nargs="+", default=["float32"], choices=["float32", "tf32"],
+    parser.add_argument("--precision", nargs="+", default=["float32"], choices=[p.value for p in MatmulPrecision],
                         help="perception.classification_precision (several: compared, interleaved)")
-    parser.add_argument("--slabs", type=int, default=8,
-                        help="perception.volume.slabs (the batch's memory layout; the library's default is 1)")
-    parser.add_argument("--segments-per-pass", type=int, default=1,
-                        help="perception.shapes.segments_per_pass (PointNet; the library's default is 0: all)")
+    parser.add_argument("--slabs", type=int, nargs="+", default=[8],
+                        help="perception.volume.slabs (the batch's memory layout; the library's default is 1; "
+                             "several: compared, interleaved)")
+    parser.add_argument("--segments-per-pass", type=int, nargs="+", default=[1],
+                        help="perception.shapes.segments_per_pass (PointNet; the library's default is 0: all; "
+                             "several: compared, interleaved)")
     parser.add_argument("--fit", type=int, nargs="*", default=[],
                         help="batch sizes of Table 1's program (episode.batched): its device memory against the "
                              "device's, and one call timed where it fits")
@@ -100,13 +103,17 @@ def main(argv: list[str] | None = None) -> None:
     truth = scoring.Truth.from_scene(scene, object_set)
     perception = setup.episode_perception()
     episodes = {}
-    for mode, storage, product in itertools.product(args.tracking, args.storage, args.precision):
+    for mode, storage, product, slabs, per_pass in itertools.product(args.tracking, args.storage, args.precision,
+                                                                     args.slabs, args.segments_per_pass):
         settings = setup.ActiveConfig(episode=active.EpisodeConfig(moves=args.moves), perception=dataclasses.replace(
             perception, tracking=dataclasses.replace(perception.tracking, mode=mode),
-            volume=dataclasses.replace(perception.volume, storage=storage, slabs=args.slabs),
-            shapes=dataclasses.replace(perception.shapes, segments_per_pass=args.segments_per_pass),
+            volume=dataclasses.replace(perception.volume, storage=storage, slabs=slabs),
+            shapes=dataclasses.replace(perception.shapes, segments_per_pass=per_pass),
             classification_precision=product))
-        episodes[f"{mode}/{storage}/{product}"] = setup.make_episode(settings, object_set, Intrinsics.kinect_v1(),
+        name = f"{mode}/{storage}/{product}"  # (the layout named where several are compared)
+        name += f"/slabs {slabs}" if len(args.slabs) > 1 else ""
+        name += f"/segments a pass {per_pass}" if len(args.segments_per_pass) > 1 else ""
+        episodes[name] = setup.make_episode(settings, object_set, Intrinsics.kinect_v1(),
                                                                      scene.table_height)
     reset = jax.jit(jax.vmap(active.reset, in_axes=(None, None, 0, 0)))
     rollout = jax.jit(jax.vmap(active.rollout, in_axes=(None, 0, None, None)))

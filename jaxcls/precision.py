@@ -19,6 +19,7 @@ import contextlib
 import enum
 
 import jax
+import jax.numpy as jnp
 
 
 def full_float32_matmuls() -> bool:
@@ -34,15 +35,23 @@ class MatmulPrecision(enum.StrEnum):
     """The float32 products of one stage on an accelerator (a CPU runs every one at full float32):
     ``float32``, full precision (the reference; the process's default once ``full_float32_matmuls`` ran);
     ``tf32``, XLA's default precision, which on an H100 or H200 runs float32 products on the tensor cores as
-    TF32 (10-bit mantissa, ~5e-4 relative). Only stages whose outputs are scores, not camera poses, take it
-    (``perception.classification_precision``: PointNet)."""
+    TF32 (10-bit mantissa, ~5e-4 relative); ``bfloat16``, the network's weights, activations and products in
+    bfloat16 (8-bit mantissa, ~4e-3 relative; on a CPU too), its outputs back in float32: half the activations'
+    memory traffic and the tensor cores' bfloat16 rate. Only stages whose outputs are scores, not camera poses,
+    take them (``perception.classification_precision``: PointNet)."""
 
     float32 = "float32"
     tf32 = "tf32"
+    bfloat16 = "bfloat16"
 
     def products(self) -> contextlib.AbstractContextManager:
         """A context in which the products traced take this precision (``jax.default_matmul_precision``)."""
         return jax.default_matmul_precision("highest" if self is MatmulPrecision.float32 else "default")
+
+    @property
+    def dtype(self) -> jnp.dtype:
+        """The type the stage computes in: bfloat16 for ``bfloat16``, else float32."""
+        return jnp.dtype(jnp.bfloat16 if self is MatmulPrecision.bfloat16 else jnp.float32)
 
 
 __all__ = ["MatmulPrecision", "full_float32_matmuls"]

@@ -140,6 +140,17 @@ def test_shipped_weights_classify_held_out_complete_clouds():
     probs = pointnet.classify(classifier, np.stack(points), np.ones((len(points), 1024), bool))
     accuracy = float(np.mean(np.argmax(probs, -1) == np.asarray(labels)))
     assert accuracy >= 0.95, accuracy
+    # The network in bfloat16 (perception.classification_precision: bfloat16): the same labels but near-ties.
+    from jaxcls.precision import MatmulPrecision
+
+    half, _ = pointnet.predict(classifier, np.stack(points), np.ones((len(points), 1024), bool),
+                               MatmulPrecision.bfloat16)
+    assert half.dtype == jnp.float32
+    assert float(np.mean(np.argmax(half, -1) == np.asarray(labels))) >= 0.95
+    top = np.sort(np.asarray(probs), -1)
+    decided = top[:, -1] - top[:, -2] > 0.1
+    np.testing.assert_array_equal(np.argmax(half, -1)[decided], np.argmax(probs, -1)[decided])
+    assert float(np.max(np.abs(np.asarray(half) - np.asarray(probs)))) < 0.05
 
 
 def test_classify_is_deterministic_and_temperature_scales_the_logits():

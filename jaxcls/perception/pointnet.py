@@ -210,8 +210,9 @@ class Classifier:
                              "matching weights")
 
 
-def _forward(classifier: Classifier, points: jax.Array, mask: jax.Array) -> tuple:
-    """The network's outputs (logits, feature transform, yaw head or None) on segments, shapes checked."""
+def _forward(classifier: Classifier, points: jax.Array, mask: jax.Array, dtype: Any = jnp.float32) -> tuple:
+    """The network's outputs (logits, feature transform, yaw head or None; float32) on segments, shapes checked;
+    ``dtype``: the type the network computes in (its weights and the normalised points cast to it)."""
     points_shape, mask_shape = tuple(np.shape(points)), tuple(np.shape(mask))
     if len(points_shape) != 3 or points_shape[-1] != 3:
         raise ValueError(f"classify: points must be [N, P, 3] (N segments of P points), got shape {points_shape}")
@@ -220,7 +221,12 @@ def _forward(classifier: Classifier, points: jax.Array, mask: jax.Array) -> tupl
                          f"{mask_shape}")
     points, mask = normalise(jnp.asarray(points, jnp.float32), jnp.asarray(mask, bool))
     model = make_model(len(classifier.classes), classifier.config)
-    return model.apply(classifier.variables, points, mask, train=False)
+    variables = classifier.variables
+    if jnp.dtype(dtype) != jnp.float32:
+        points = points.astype(dtype)
+        variables = jax.tree.map(lambda a: a.astype(dtype) if jnp.issubdtype(a.dtype, jnp.floating) else a, variables)
+    outputs = model.apply(variables, points, mask, train=False)
+    return jax.tree.map(lambda a: a.astype(jnp.float32), outputs)
 
 
 @jax.jit
@@ -282,9 +288,11 @@ def predict(classifier: Classifier, points: jax.Array, mask: jax.Array,
             precision: MatmulPrecision = MatmulPrecision.float32) -> tuple[jax.Array, jax.Array]:
     """(probs [N, M] as ``classify``, yaw [N, M] rad as ``estimate_yaw``, zeros without a yaw head) from
     ONE forward pass: what a move needs for refinement with learned yaws. ``precision``: the network's
-    products on an accelerator (``MatmulPrecision``; the same on a CPU)."""
-    with MatmulPrecision(precision).products():
-        scores, _, head = _forward(classifier, points, mask)
+    products on an accelerator (``MatmulPrecision``; float32 and tf32 the same on a CPU; bfloat16 computes in
+    bfloat16 everywhere)."""
+    precision = MatmulPrecision(precision)
+    with precision.products():
+        scores, _, head = _forward(classifier, points, mask, precision.dtype)
     yaw = _yaw_angles(classifier, head) if head is not None else jnp.zeros(scores.shape, jnp.float32)
     return _calibrated(classifier, scores, points, mask), yaw
 

@@ -11,7 +11,7 @@ YAML (the ``perception:`` block of a command's config)::
                segments_per_pass: 0}                     # PointNet's segments a pass (0: all)
       segmenter: jax                                       # or reference (scikit-learn, host)
       tracking: {mode: frame_to_model, ...}                # each frame registered to the model before fusion
-      classification_precision: float32                    # or tf32: PointNet on a GPU's tensor cores
+      classification_precision: float32                    # or tf32, bfloat16: PointNet on a GPU's tensor cores
 
 The table height is not here: it belongs to the world (``SceneConfig.table_height``, a dataset's scene, a
 recording's ``meta.json``) and reaches perception through ``Spec.create(..., table_height=...)``. The
@@ -52,8 +52,8 @@ class ObjectCount(enum.StrEnum):
     ``shapes.num_segments`` (the paper: basins merged down to N, the largest part split by 2-means up to N);
     ``estimated``, as many as the data shows, at most ``shapes.num_segments`` (basins merged only while their
     relative persistence is below ``segmentation.merge_persistence`` or there are more than the slots; no
-    splits; parts with a footprint under ``segmentation.min_object_area`` dropped); slots beyond the count have
-    empty masks."""
+    splits; parts under ``segmentation.absorb_area`` joined to a larger touching part, those under
+    ``segmentation.min_object_area`` touching none dropped); slots beyond the count have empty masks."""
 
     known = "known"
     estimated = "estimated"
