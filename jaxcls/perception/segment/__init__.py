@@ -21,8 +21,11 @@ than slots; basins apart on the table (no saddle) merge only to fit the slots. T
 flush (their highest points within ``flush_height`` of each other, and at least half of the adjacent cell pairs
 across their boundary too: one object's top surface running on, as a box's whose footprint ridge holds two
 peaks) merge up to the higher ``flush_persistence`` (their cost scaled by merge_persistence / flush_persistence).
-Nothing is split; parts whose footprint covers less than ``min_object_area`` are dropped as fragments. Slots
-beyond the count are empty (their masks all False), ordered last.
+Then a part whose footprint covers less than ``absorb_area`` and that touches a larger part of at least
+``min_object_area`` joins the one it shares the highest saddle with, whatever its persistence: a jug's or mug's
+handle is a small basin of its own, which dropped left a bottle or a cup. Nothing is split; parts whose footprint
+covers less than ``min_object_area`` that touch no larger part are dropped as fragments. Slots beyond the count
+are empty (their masks all False), ordered last.
 
 Two implementations of the same algorithm:
 - ``segment``: the reference path, scikit-learn DBSCAN + SciPy grid operations on the host (one episode).

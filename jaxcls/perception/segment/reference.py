@@ -174,7 +174,8 @@ class _ReferenceParts(NamedTuple):
 
 def _watershed_reference(spec: Spec, x: np.ndarray, normals: np.ndarray) -> _ReferenceParts | None:
     """DBSCAN's noise removal, the footprint field's watershed and the persistence merge (``_merge_step``,
-    while ``_merge_more``) of foreground points ``x: [M, 3]`` m with unit ``normals: [M, 3]``; None when
+    while ``_merge_more``; with the count estimated then ``_absorb_step`` while ``_absorb_more``) of foreground
+    points ``x: [M, 3]`` m with unit ``normals: [M, 3]``; None when
     fewer than one point (N estimated) or N points (N known) remain."""
     from sklearn.cluster import DBSCAN
 
@@ -209,8 +210,9 @@ def cluster_reference(spec: Spec, x: np.ndarray, normals: np.ndarray) -> np.ndar
     DBSCAN drops noise; the footprint field's watershed basins are merged by persistence (``_merge_step``).
     N known (``shapes.num_objects``): merged down to N; while there are fewer than N parts, the one with the
     largest sum of squares is split by 2-means. N estimated: merged while ``_merge_more`` says so (a
-    relative persistence below ``merge_persistence``, or more parts than the ``num_segments`` slots), parts
-    with a footprint under ``min_object_area`` dropped (-1), never split: 0 to ``num_segments`` parts.
+    relative persistence below ``merge_persistence``, or more parts than the ``num_segments`` slots), parts under
+    ``absorb_area`` joined to a larger touching part (``_absorb_costs``), parts with a footprint under
+    ``min_object_area`` left dropped (-1), never split: 0 to ``num_segments`` parts.
     """
     from sklearn.cluster import KMeans
 
