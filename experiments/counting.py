@@ -128,7 +128,8 @@ def main(argv: list[str] | None = None) -> None:
         counting.count_rows(records),
         intro=f"`shapes.num_objects: estimated`, {args.slots} slots, merge_persistence {seg.merge_persistence}, "
               f"flush_persistence {seg.flush_persistence}, flush_height {seg.flush_height} m, min_object_area "
-              f"{seg.min_object_area} m^2; tracking {args.tracking}; {wall:.0f} s on the CPU." + sensor),
+              f"{seg.min_object_area} m^2, absorb_area {seg.absorb_area} m^2; "
+              f"tracking {args.tracking}; {wall:.0f} s on the CPU." + sensor),
         args.out)
 
 
