@@ -1,4 +1,5 @@
-"""Gradient-safe norms and divisions: the one place where a zero length or a zero denominator is handled.
+"""Gradient-safe norms and divisions: the one place where a zero length or a zero denominator is handled; and the
+weighted normal equations of a least-squares step (``normal_equations``).
 
 ``jnp.where(ok, x / y, 0)`` is not enough under autodiff: the branch not taken still runs, and a division
 by zero there makes the gradient NaN. These functions put a safe value into the division itself (the
@@ -33,3 +34,15 @@ def normalize(x: jax.Array, axis: int = -1, eps: float = TINY) -> jax.Array:
     """``x / |x|`` along ``axis`` for vectors longer than ``eps``; 0 for shorter ones (never NaN)."""
     norm = safe_norm(x, axis=axis, keepdims=True)
     return jnp.where(norm > eps, x / jnp.where(norm > eps, norm, 1.0), 0.0)
+
+
+def normal_equations(J: jax.Array, w: jax.Array, r: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """(J^T W J [K, K], J^T W r [K]) of residuals ``r: [P]`` with Jacobian ``J: [P, K]`` and weights ``w: [P]``,
+    at full float32 precision. On an accelerator as products summed over P, which fuse with what makes J: with
+    K of 4 or 6 a matrix product is a kernel of its own on a GPU, at HIGHEST precision a slow one (BENCHMARKS.md,
+    issue 34); on the CPU the HIGHEST products themselves (``geometry.rotate`` says why)."""
+    Jw = J * w[:, None]
+    if jax.default_backend() == "cpu":
+        highest = jax.lax.Precision.HIGHEST
+        return jnp.matmul(J.T, Jw, precision=highest), jnp.matmul(J.T, w * r, precision=highest)
+    return jnp.sum(Jw[:, :, None] * J[:, None, :], axis=0), jnp.sum(Jw * r[:, None], axis=0)

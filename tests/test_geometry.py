@@ -1,5 +1,6 @@
 import math
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
@@ -218,3 +219,22 @@ def test_camera_config_round_trips_intrinsics():
     for scale in (1.0, 0.5, 0.25):
         assert CameraConfig.kinect_v1(scale).intrinsics() == Intrinsics.kinect_v1(scale)
     assert CameraConfig().intrinsics() == Intrinsics.kinect_v1()  # the defaults are the Kinect v1
+
+
+def test_rotate_and_normal_equations_match_float64_products():
+    """``geometry.rotate`` is ``x @ R.T`` and ``math.normal_equations`` is (J^T W J, J^T W r), to float32 rounding,
+    over batch shapes (the elementwise forms the GPU's move uses instead of 3- and 6-term matrix products)."""
+    from jaxcls.math import normal_equations
+
+    rng = np.random.default_rng(0)
+    R = rng.normal(size=(3, 3)).astype(np.float32)
+    for shape in ((5, 3), (2, 7, 3)):
+        x = rng.normal(size=shape).astype(np.float32)
+        np.testing.assert_allclose(np.asarray(geometry.rotate(jnp.asarray(R), jnp.asarray(x))),
+                                   x.astype(np.float64) @ R.T.astype(np.float64), rtol=1e-5, atol=1e-5)
+    J, w, r = (rng.normal(size=s).astype(np.float32) for s in ((200, 6), (200,), (200,)))
+    w = np.abs(w)
+    A, b = normal_equations(jnp.asarray(J), jnp.asarray(w), jnp.asarray(r))
+    J64 = J.astype(np.float64)
+    np.testing.assert_allclose(np.asarray(A), J64.T @ (w[:, None] * J64), rtol=1e-4, atol=1e-3)
+    np.testing.assert_allclose(np.asarray(b), J64.T @ (w * r), rtol=1e-4, atol=1e-3)

@@ -41,7 +41,7 @@ from scipy.spatial import cKDTree
 
 from jaxcls import compile_cache
 from jaxcls.config import bounded, check_bounds
-from jaxcls.geometry import invert_rigid
+from jaxcls.geometry import invert_rigid, rotate
 from jaxcls.math import safe_div
 from jaxcls.perception.foreground import compact
 
@@ -221,7 +221,7 @@ def _nearest_of(target: Target, x: jax.Array, candidates: jax.Array) -> tuple[ja
 
 
 def _apply(T: jax.Array, x: jax.Array) -> jax.Array:
-    return jnp.einsum("ij,pj->pi", T[:3, :3], x, precision=HIGHEST) + T[:3, 3]
+    return rotate(T[:3, :3], x) + T[:3, 3]
 
 
 def _spread(x: jax.Array, w: jax.Array) -> jax.Array:

@@ -54,7 +54,7 @@ from flax import struct
 from jaxcls import geometry
 from jaxcls.config import bounded, check_bounds
 from jaxcls.geometry import Intrinsics
-from jaxcls.math import normalize, safe_div
+from jaxcls.math import normal_equations, normalize, safe_div
 from jaxcls.perception import foreground
 
 HIGHEST = jax.lax.Precision.HIGHEST
@@ -250,8 +250,8 @@ def _object_pairs(T: jax.Array, q: jax.Array, n: jax.Array, qmask: jax.Array, po
     pair mask [Q], candidates [Q]: facing model points that landed on a return)."""
     R, t = T[:3, :3], T[:3, 3]
     H, W = intrinsics.height, intrinsics.width
-    qc = jnp.matmul(q - t, R, precision=HIGHEST)  # R^T (q - t)
-    nc = jnp.matmul(n, R, precision=HIGHEST)
+    qc = geometry.rotate(R.T, q - t)  # R^T (q - t)
+    nc = geometry.rotate(R.T, n)
     z = qc[:, 2]
     facing = qmask & (z > 1e-3) & (jnp.sum(nc * qc, axis=-1) < 0)
     inv_z = 1.0 / jnp.where(facing, z, 1.0)
@@ -260,8 +260,8 @@ def _object_pairs(T: jax.Array, q: jax.Array, n: jax.Array, qmask: jax.Array, po
     pixel = jnp.where(inside, v * W + u, 0).astype(jnp.int32)
     p = points.reshape(-1, 3)[pixel]
     candidates = inside & (p[:, 2] > 0)
-    pw = jnp.matmul(p, R.T, precision=HIGHEST) + t
-    nw = jnp.matmul(normals.reshape(-1, 3)[pixel], R.T, precision=HIGHEST)
+    pw = geometry.rotate(R, p) + t
+    nw = geometry.rotate(R, normals.reshape(-1, 3)[pixel])
     diff = pw - q
     pair = (candidates & nok.reshape(-1)[pixel] & (jnp.sum(diff * diff, axis=-1) <= gate**2)
             & (jnp.sum(nw * n, axis=-1) >= cos_gate))
@@ -273,8 +273,8 @@ def _table_pairs(T: jax.Array, points: jax.Array, normals: jax.Array, nok: jax.A
     """Table pairs at pose estimate ``T``: frame points [M, 3] (camera frame) within ``band`` of the plane
     z = table height with a vertical normal. Returns (world points [M, 3], residuals z - h [M], mask [M])."""
     R, t = T[:3, :3], T[:3, 3]
-    tw = jnp.matmul(points, R.T, precision=HIGHEST) + t
-    up = jnp.matmul(normals, R[2], precision=HIGHEST)  # world z of the normals
+    tw = geometry.rotate(R, points) + t
+    up = geometry.rotate(R, normals)[:, 2]  # world z of the normals
     r = tw[:, 2] - table_height
     return tw, r, nok & (points[:, 2] > 0) & (jnp.abs(r) <= band) & (up >= cos_gate)
 
@@ -289,8 +289,8 @@ def _solve(a: jax.Array, normal: jax.Array, r: jax.Array, w: jax.Array, T: jax.A
     moved = _mm(T_prior, geometry.invert_rigid(T))  # where T_prior puts what T puts at c
     d = jnp.concatenate([c - (moved[:3, :3] @ c + moved[:3, 3]),
                          jaxlie.SO3.from_matrix(_mm(T[:3, :3], T_prior[:3, :3].T)).log()])
-    Hm = jnp.matmul(J.T, w[:, None] * J, precision=HIGHEST) + jnp.diag(prior)
-    g = jnp.matmul(J.T, w * r, precision=HIGHEST) + prior * d
+    Hm, g = normal_equations(J, w, r)
+    Hm, g = Hm + jnp.diag(prior), g + prior * d
     damping = 1e-6 * jnp.trace(Hm) / 6.0 + 1e-12
     xi = -jnp.linalg.solve(Hm + damping * jnp.eye(6), g)
     xi = jnp.where(jnp.all(jnp.isfinite(xi)), xi, 0.0)
