@@ -54,7 +54,8 @@ def attribute(trace_path: str | Path, hlo_path: str | Path) -> tuple[float, list
         name = names.get(e.get("args", {}).get("hlo_op", ""), "")
         parts = name.split("/")
         stage = next((p for p in parts if p in STAGES), None)
-        jits = re.findall(r"jit\(([^)]*)\)", name)[1:]  # below the program's own jit
+        jits = re.findall(r"jit\(([^)]*)\)", name)
+        jits = [j for j in jits if j != jits[0]]  # below the program's own jit (named once or twice)
         function = jits[0] if jits else "(no named function)"
         stage = stage or FUNCTION_STAGE.get(function, "(no stage name)")
         times[stage, function] += e["dur"] / 1e3
