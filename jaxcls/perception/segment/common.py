@@ -105,8 +105,8 @@ class _CountRule(NamedTuple):
     ``flush_persistence`` where they are flush: their highest points within ``flush_height`` m of each other
     and at least half of the cell pairs across their boundary within ``flush_height`` too (one surface, not
     two objects side by side). After that merge (``_absorb_costs``): a part of fewer than ``absorb_cells`` cells
-that touches a larger live part of at least ``object_cells`` (``min_object_area``) joins it, whatever its
-persistence (``absorb_cells`` 0: never)."""
+    that touches a larger live part of at least ``object_cells`` (``min_object_area``) joins it, whatever its
+    persistence (``absorb_cells`` 0: never)."""
 
     persistence: float
     flush_persistence: float
