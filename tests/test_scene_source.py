@@ -105,3 +105,25 @@ def test_scene_source_draws_touching_and_noisy_scenes(tmp_path, monkeypatch, tou
 def test_scene_fractions_are_checked():
     with pytest.raises(ValueError, match="scene_touching"):
         clouds.CloudConfig(scenes=1, scene_touching=0.7, scene_noisy=0.5)
+
+
+def test_worker_processes_make_the_same_clouds(tmp_path):
+    """``data.workers`` 2: the missing instances' and scenes' files made by two spawned processes (the object set
+    made again from its config in each) hold the clouds one process makes; an object set the config does not
+    make is refused with a clear error."""
+    object_set = builtin_object_set(train_per_class=1, test_per_class=0)
+    base = {**_config(tmp_path).__dict__, "views_per_instance": 1}
+    one = clouds.load_clouds(object_set, "train", clouds.CloudConfig(**{**base, "cache_dir": str(tmp_path / "a")}),
+                             OBJECTS, seed=0, show_progress=False, perception=PERCEPTION)
+    two = clouds.load_clouds(object_set, "train", clouds.CloudConfig(**{**base, "cache_dir": str(tmp_path / "b"),
+                                                                        "workers": 2}),
+                             OBJECTS, seed=0, show_progress=False, perception=PERCEPTION)
+    assert len(one) > len(object_set.train) and set(one.source.tolist()) == {clouds.SOURCES.index("view"),
+                                                                              clouds.SOURCES.index("scene")}
+    for field in ("points", "mask", "label", "source", "instance", "yaw"):
+        np.testing.assert_array_equal(getattr(two, field), getattr(one, field), err_msg=field)
+    other = builtin_object_set(train_per_class=2, test_per_class=0)  # not what OBJECTS makes
+    with pytest.raises(ValueError, match="remakes the object set"):
+        clouds.load_clouds(other, "train", clouds.CloudConfig(**{**base, "cache_dir": str(tmp_path / "c"),
+                                                                 "workers": 2, "scenes": 0}),
+                           OBJECTS, seed=0, show_progress=False, perception=PERCEPTION)

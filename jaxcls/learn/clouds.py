@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaxcls import geometry, io
+from jaxcls import geometry, io, parallel
 from jaxcls.config import bounded, check_bounds
 from jaxcls.perception import foreground, observation, tsdf
 from jaxcls.perception.settings import PerceptionConfig, Spec
@@ -79,6 +79,9 @@ class CloudConfig:
     scene_noisy: float = bounded(0.0, ge=0.0, le=1.0)
     backend: Backend = Backend.auto
     cache_dir: str = "data/clouds"
+    # Worker processes making the missing instances' and scenes' clouds (each writes its own file; the same
+    # clouds as one process makes): more than 1 renders with the CPU renderer (``mujoco``) and runs JAX on the CPU.
+    workers: int = bounded(1, ge=1)
 
     def __post_init__(self) -> None:
         check_bounds(self, "data.")
@@ -309,6 +312,32 @@ def scene_clouds(object_set: ObjectSet, split: Literal["train", "test"], object_
                     np.int32), np.asarray(instance, np.int32), np.asarray(yaw, np.float32))
 
 
+def _make_part(path: Path, what: tuple[str, int, int], object_set: ObjectSet | tuple[str, ...],
+               models_split: Literal["train", "test"], object_set_config: ObjectSetConfig, config: CloudConfig,
+               perception: PerceptionConfig) -> Path:
+    """Make and write one cloud file: ``what`` = ("instance", index in the split, seed) or ("scene", index, seed).
+    In a worker process ``object_set`` is the split's instance names: the set is made again from
+    ``object_set_config`` (its instances cached on disk) and must have them."""
+    if not isinstance(object_set, ObjectSet):
+        from jaxcls.world.objects import object_set_from_config
+
+        names, object_set = object_set, object_set_from_config(object_set_config)
+        if tuple(m.name for m in object_set.split(models_split)) != names:
+            raise ValueError(f"clouds: data.workers > 1 remakes the object set from its config in each worker, and "
+                             f"it does not give the set's {models_split} instances (an object set made in code: "
+                             "data.workers=1)")
+    kind, index, part_seed = what
+    if kind == "instance":
+        models = object_set.split(models_split)
+        model = models[index]
+        part = instance_clouds(model, models, object_set.class_index(model.class_name), object_set_config, config,
+                               part_seed, perception)
+    else:
+        part = scene_clouds(object_set, models_split, object_set_config, config, part_seed, perception)
+    _save_part(path, part)
+    return path
+
+
 def _save_part(path: Path, part: CloudSet) -> None:
     with io.atomic_write(path) as out:
         np.savez_compressed(out, points16=part.points.astype(np.float16),
@@ -329,7 +358,8 @@ def _cache_key(object_set: ObjectSet, split: str, config: CloudConfig, object_se
                seed: int, perception: PerceptionConfig) -> str:
     """The per-instance clouds' key (the scene source's settings are not in it: it has its own folder)."""
     defining = {**{k: v for k, v in dataclasses.asdict(config).items() if k not in _SCENE_FIELDS},
-                "backend": None, "cache_dir": None, "objects": {  # clutter never stands in the clouds' scenes
+                "backend": None, "cache_dir": None, "workers": None,
+                "objects": {  # clutter never stands in the clouds' scenes
                     k: v for k, v in dataclasses.asdict(object_set_config).items() if k != "clutter_source"},
                 "object_set": object_set.name, "classes": object_set.classes, "split": split,
         "seed": seed, "foreground": dataclasses.asdict(perception.foreground),
@@ -354,7 +384,8 @@ def load_clouds(object_set: ObjectSet, split: Literal["train", "test"], config: 
 
     The cache folder is named by a hash of everything that defines the clouds (config, class list, the
     instances' names and surface samples; not the backend, whose renders agree), so a changed config or
-    object set never reads stale clouds; an interrupted run resumes.
+    object set never reads stale clouds; an interrupted run resumes. ``config.workers`` processes make the
+    missing files (each file's clouds seeded by its own index: the same clouds whatever the count).
     """
     models_split = models_split or split
     models = object_set.split(models_split)
@@ -366,19 +397,14 @@ def load_clouds(object_set: ObjectSet, split: Literal["train", "test"], config: 
     name = split if models_split == split else f"{split}-views-of-{models_split}"
     folder = Path(config.cache_dir) / f"{object_set.name}_{name}_{key}"
     folder.mkdir(parents=True, exist_ok=True)
-    parts = []
     split_id = 0 if split == "train" else 1
     instance_work = (config.full_per_instance + config.views_per_instance + config.occluded_per_instance
                      + config.fused_per_instance) > 0
-    for i, model in enumerate(tqdm(models if instance_work else (), desc=f"{split} clouds",
-                                   disable=not show_progress, leave=False)):
-        path = folder / f"{i:04d}_{model.name}.npz"
-        if not path.is_file():
-            seq = np.random.SeedSequence([seed, split_id, i])
-            _save_part(path, instance_clouds(model, models, object_set.class_index(model.class_name),
-                                             object_set_config, config, int(seq.generate_state(1)[0]), perception))
-        part = _load_part(path)
-        parts.append(dataclasses.replace(part, instance=np.full(len(part), i, np.int32)))
+    # Each cloud file, the call that makes it (``_make_part``) and its seed: instances, then scenes.
+    files: list[tuple[Path, tuple]] = []
+    for i, model in enumerate(models if instance_work else ()):
+        seq = np.random.SeedSequence([seed, split_id, i])
+        files.append((folder / f"{i:04d}_{model.name}.npz", ("instance", i, int(seq.generate_state(1)[0]))))
     if config.scenes:
         # One file per scene (scene i has its own seed: more scenes extend the cache), in a folder keyed by
         # what defines scene clouds (perception included: they are observe's segments), so a changed
@@ -390,13 +416,24 @@ def load_clouds(object_set: ObjectSet, split: Literal["train", "test"], config: 
         scene_folder = folder / ("scenes_" + hashlib.sha1(json.dumps(scene_defining, sort_keys=True).encode())
                                  .hexdigest()[:12])
         scene_folder.mkdir(exist_ok=True)
-        for i in tqdm(range(config.scenes), desc=f"{split} scene clouds", disable=not show_progress, leave=False):
-            path = scene_folder / f"scene_{i:04d}.npz"
-            if not path.is_file():
-                seq = np.random.SeedSequence([seed, split_id, 1_000_000 + i])
-                _save_part(path, scene_clouds(object_set, models_split, object_set_config, config,
-                                              int(seq.generate_state(1)[0]), perception))
-            parts.append(_load_part(path))
+        for i in range(config.scenes):
+            seq = np.random.SeedSequence([seed, split_id, 1_000_000 + i])
+            files.append((scene_folder / f"scene_{i:04d}.npz", ("scene", i, int(seq.generate_state(1)[0]))))
+    missing = [(path, what) for path, what in files if not path.is_file()]
+    with tqdm(total=len(missing), desc=f"{split} clouds", disable=not show_progress or not missing,
+              leave=False) as bar:
+        if config.workers > 1 and len(missing) > 1:  # the CPU renderer in the workers (renders agree)
+            worker_config = dataclasses.replace(config, backend=Backend.mujoco)
+            names = tuple(m.name for m in models)
+            parallel.run(_make_part, [(path, what, names, models_split, object_set_config, worker_config, perception)
+                                      for path, what in missing], config.workers, lambda _: bar.update())
+        else:
+            for path, what in missing:
+                _make_part(path, what, object_set, models_split, object_set_config, config, perception)
+                bar.update()
+    parts = [_load_part(path) for path, _ in files]
+    parts = [dataclasses.replace(part, instance=np.full(len(part), what[1], np.int32)) if what[0] == "instance"
+             else part for part, (_, what) in zip(parts, files, strict=True)]
     return CloudSet.concatenate(parts)
 
 

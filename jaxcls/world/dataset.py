@@ -20,25 +20,17 @@ the file and the first view at fault, not met as an IndexError or a NaN moves la
 
 from __future__ import annotations
 
-import contextlib
-import ctypes
-import ctypes.util
 import dataclasses
 import json
-import multiprocessing
-import os
-import signal
-import sys
 import warnings
 import zipfile
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import jax
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaxcls import geometry, io
+from jaxcls import geometry, io, parallel
 from jaxcls.config import bounded, check_bounds, load_config, save_config
 from jaxcls.world import recording, scenes
 from jaxcls.world.objects import object_set_from_config
@@ -244,51 +236,14 @@ def build_dataset(config: DatasetConfig, overwrite: bool = False, show_progress:
                              f"set backend=mujoco (backend={config.backend!r} resolves to "
                              f"{resolve_backend(config.backend)!r}) or workers=1")
         config = dataclasses.replace(config, backend="mujoco")
-        # Spawned, not forked (JAX is threaded); each worker renders and writes whole scenes.
-        context = multiprocessing.get_context("spawn")
-        pool = ProcessPoolExecutor(min(config.workers, len(todo)), mp_context=context, initializer=_cpu_worker)
-        try:
-            with _sigint_ignored():  # the workers start deaf to Ctrl-C: this process stops them (below)
-                futures = [pool.submit(_render_scene, config, i) for i in todo]
-            for done in as_completed(futures):
-                bar.set_postfix(scene=done.result())
-                bar.update(config.viewpoints.count)
-        except BaseException:  # Ctrl-C or a worker's error: the other workers stop now, not after their scenes
-            for process in list((getattr(pool, "_processes", None) or {}).values()):
-                process.terminate()
-            raise
-        finally:
-            pool.shutdown(wait=True, cancel_futures=True)
+
+        def rendered(index: int) -> None:
+            bar.set_postfix(scene=index)
+            bar.update(config.viewpoints.count)
+
+        # Each worker renders and writes whole scenes.
+        parallel.run(_render_scene, [(config, i) for i in todo], config.workers, rendered)
     return out
-
-
-@contextlib.contextmanager
-def _sigint_ignored():
-    """SIGINT ignored while worker processes are started, so that they inherit it ignored (a terminal's
-    Ctrl-C reaches every process of the job, and a worker stopped halfway through its imports prints a
-    traceback); off the main thread, nothing changes."""
-    try:
-        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    except ValueError:  # not the main thread
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
-def _cpu_worker() -> None:
-    """A rendering worker keeps JAX (the sensor model's noise) on the CPU: a GPU host's workers would each
-    claim most of the GPU's memory. It leaves Ctrl-C to the process that started it and, on Linux, ends
-    with it (a parent that ends at once on Ctrl-C must not leave workers rendering on)."""
-    jax.config.update("jax_platforms", "cpu")
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    libc = ctypes.util.find_library("c")
-    if sys.platform.startswith("linux") and libc:
-        ctypes.CDLL(libc).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG: SIGTERM when the parent ends
-        if os.getppid() == 1:  # the parent ended before that took effect
-            os._exit(1)
 
 
 def _render_scene(config: DatasetConfig, index: int, object_set=None, progress: tqdm | None = None) -> int:
