@@ -157,15 +157,16 @@ def invert_rigid(T: jax.Array) -> jax.Array:
     return jnp.eye(4, dtype=T.dtype).at[:3, :3].set(R.T).at[:3, 3].set(-R.T @ t)
 
 
-def rotate(R: jax.Array, x: jax.Array) -> jax.Array:
+def rotate(R: jax.Array, x: jax.Array, fused: bool | None = None) -> jax.Array:
     """``x @ R.T``: the [3, 3] matrix ``R`` applied to points ``x: [..., 3]`` at full float32 precision.
 
     On an accelerator as three products and two sums a coordinate, which XLA fuses into the operations around
     them: a matrix product of 3 terms is a kernel of its own on a GPU, at HIGHEST precision (``jaxcls.precision``)
     a slow one (the tracking's were ~7% of a batched move's GPU time, BENCHMARKS.md, issue 34). On the CPU the
     HIGHEST product itself: its rounding does not depend on vmap, the elementwise form's does (FMA contraction),
-    and a vmapped move must equal the sequential one there (tests/test_episode.py)."""
-    if jax.default_backend() == "cpu":
+    and a vmapped move must equal the sequential one there (tests/test_episode.py). ``fused``: the elementwise
+    form (True) or the product (False) whatever the backend (None: by the backend)."""
+    if not (jax.default_backend() != "cpu" if fused is None else fused):
         return jnp.einsum("ij,...j->...i", R, x, precision=jax.lax.Precision.HIGHEST)
     return x[..., 0:1] * R[:, 0] + x[..., 1:2] * R[:, 1] + x[..., 2:3] * R[:, 2]
 

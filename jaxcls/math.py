@@ -36,13 +36,14 @@ def normalize(x: jax.Array, axis: int = -1, eps: float = TINY) -> jax.Array:
     return jnp.where(norm > eps, x / jnp.where(norm > eps, norm, 1.0), 0.0)
 
 
-def normal_equations(J: jax.Array, w: jax.Array, r: jax.Array) -> tuple[jax.Array, jax.Array]:
+def normal_equations(J: jax.Array, w: jax.Array, r: jax.Array, fused: bool | None = None
+                     ) -> tuple[jax.Array, jax.Array]:
     """(J^T W J [K, K], J^T W r [K]) of residuals ``r: [P]`` with Jacobian ``J: [P, K]`` and weights ``w: [P]``,
     at full float32 precision. On an accelerator as products summed over P, which fuse with what makes J: with
     K of 4 or 6 a matrix product is a kernel of its own on a GPU, at HIGHEST precision a slow one (BENCHMARKS.md,
-    issue 34); on the CPU the HIGHEST products themselves (``geometry.rotate`` says why)."""
+    issue 34); on the CPU the HIGHEST products themselves (``geometry.rotate`` says why; ``fused`` as there)."""
     Jw = J * w[:, None]
-    if jax.default_backend() == "cpu":
+    if not (jax.default_backend() != "cpu" if fused is None else fused):
         highest = jax.lax.Precision.HIGHEST
         return jnp.matmul(J.T, Jw, precision=highest), jnp.matmul(J.T, w * r, precision=highest)
     return jnp.sum(Jw[:, :, None] * J[:, None, :], axis=0), jnp.sum(Jw * r[:, None], axis=0)

@@ -228,13 +228,14 @@ def test_rotate_and_normal_equations_match_float64_products():
 
     rng = np.random.default_rng(0)
     R = rng.normal(size=(3, 3)).astype(np.float32)
-    for shape in ((5, 3), (2, 7, 3)):
-        x = rng.normal(size=shape).astype(np.float32)
-        np.testing.assert_allclose(np.asarray(geometry.rotate(jnp.asarray(R), jnp.asarray(x))),
-                                   x.astype(np.float64) @ R.T.astype(np.float64), rtol=1e-5, atol=1e-5)
     J, w, r = (rng.normal(size=s).astype(np.float32) for s in ((200, 6), (200,), (200,)))
     w = np.abs(w)
-    A, b = normal_equations(jnp.asarray(J), jnp.asarray(w), jnp.asarray(r))
     J64 = J.astype(np.float64)
-    np.testing.assert_allclose(np.asarray(A), J64.T @ (w[:, None] * J64), rtol=1e-4, atol=1e-3)
-    np.testing.assert_allclose(np.asarray(b), J64.T @ (w * r), rtol=1e-4, atol=1e-3)
+    for fused in (None, False, True):  # by the backend, the product, the elementwise form (an accelerator's)
+        for shape in ((5, 3), (2, 7, 3)):
+            x = rng.normal(size=shape).astype(np.float32)
+            np.testing.assert_allclose(np.asarray(geometry.rotate(jnp.asarray(R), jnp.asarray(x), fused)),
+                                       x.astype(np.float64) @ R.T.astype(np.float64), rtol=1e-5, atol=1e-5)
+        A, b = normal_equations(jnp.asarray(J), jnp.asarray(w), jnp.asarray(r), fused)
+        np.testing.assert_allclose(np.asarray(A), J64.T @ (w[:, None] * J64), rtol=1e-4, atol=1e-3)
+        np.testing.assert_allclose(np.asarray(b), J64.T @ (w * r), rtol=1e-4, atol=1e-3)
