@@ -23,14 +23,20 @@ from typing import Any
 import jax
 
 
+def pooled(workers: int, calls: int) -> bool:
+    """Whether ``run`` makes ``calls`` calls in worker processes (more than one worker and more than one call)
+    rather than here: a caller that hands workers other arguments than its own (names, not objects) asks."""
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    return workers > 1 and calls > 1
+
+
 def run(function: Callable[..., Any], calls: Sequence[tuple], workers: int,
         done: Callable[[Any], None] = lambda result: None) -> None:
     """``function(*args)`` for each ``args`` of ``calls``, ``done(result)`` after each (in the order they end).
     ``workers`` 1 (or a single call): here, one after another; more: that many spawned processes (``function``
     and its arguments picklable: a module-level function)."""
-    if workers < 1:
-        raise ValueError(f"workers must be >= 1, got {workers}")
-    if workers == 1 or len(calls) <= 1:
+    if not pooled(workers, len(calls)):
         for args in calls:
             done(function(*args))
         return
@@ -77,4 +83,4 @@ def cpu_worker() -> None:
             os._exit(1)
 
 
-__all__ = ["cpu_worker", "run", "sigint_ignored"]
+__all__ = ["cpu_worker", "pooled", "run", "sigint_ignored"]

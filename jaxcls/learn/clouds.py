@@ -422,15 +422,12 @@ def load_clouds(object_set: ObjectSet, split: Literal["train", "test"], config: 
     missing = [(path, what) for path, what in files if not path.is_file()]
     with tqdm(total=len(missing), desc=f"{split} clouds", disable=not show_progress or not missing,
               leave=False) as bar:
-        if config.workers > 1 and len(missing) > 1:  # the CPU renderer in the workers (renders agree)
-            worker_config = dataclasses.replace(config, backend=Backend.mujoco)
-            names = tuple(m.name for m in models)
-            parallel.run(_make_part, [(path, what, names, models_split, object_set_config, worker_config, perception)
-                                      for path, what in missing], config.workers, lambda _: bar.update())
-        else:
-            for path, what in missing:
-                _make_part(path, what, object_set, models_split, object_set_config, config, perception)
-                bar.update()
+        # Workers get the split's instance names (the set made again from its config) and the CPU renderer
+        # (renders agree); here, the set and the config themselves.
+        given, made_with = ((tuple(m.name for m in models), dataclasses.replace(config, backend=Backend.mujoco))
+                            if parallel.pooled(config.workers, len(missing)) else (object_set, config))
+        parallel.run(_make_part, [(path, what, given, models_split, object_set_config, made_with, perception)
+                                  for path, what in missing], config.workers, lambda _: bar.update())
     parts = [_load_part(path) for path, _ in files]
     parts = [dataclasses.replace(part, instance=np.full(len(part), what[1], np.int32)) if what[0] == "instance"
              else part for part, (_, what) in zip(parts, files, strict=True)]

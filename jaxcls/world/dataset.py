@@ -226,7 +226,7 @@ def build_dataset(config: DatasetConfig, overwrite: bool = False, show_progress:
     todo = [i for i in range(config.num_scenes) if not _finished(scene_file(out, i))]
     with tqdm(total=len(todo) * config.viewpoints.count, desc=f"dataset {config.name}", unit="view",
               disable=not show_progress) as bar:
-        if config.workers == 1 or len(todo) <= 1:
+        if not parallel.pooled(config.workers, len(todo)):  # here, the bar moving view by view
             for i in todo:
                 bar.set_postfix(scene=i)
                 _render_scene(config, i, object_set, bar)
