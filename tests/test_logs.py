@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 import pytest
 
 from jaxcls.learn.logs import ScalarLog, read_scalars, scalars
@@ -26,3 +28,9 @@ def test_a_resumed_log_shows_each_step_once_with_the_kept_values(tmp_path):
     assert got["test/acc"] == pytest.approx({1: 0.1, 2: 0.2, 3: 0.5, 4: 0.5})
     with pytest.raises(FileNotFoundError, match="not a folder"):
         read_scalars(tmp_path / "missing")
+
+
+def test_a_missing_tensorboardx_names_the_setting(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "tensorboardX", None)  # (an import of it now raises ImportError)
+    with pytest.raises(ImportError, match="tensorboard=false"):
+        ScalarLog(tmp_path)

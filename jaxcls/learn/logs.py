@@ -58,7 +58,11 @@ class ScalarLog:
     (0: a new run); later events of an earlier writer are purged on reading."""
 
     def __init__(self, folder: str | Path, resumed_at: int = 0) -> None:
-        from tensorboardX import SummaryWriter
+        try:
+            from tensorboardX import SummaryWriter
+        except ImportError as e:
+            raise ImportError("the training log (tensorboard: true) needs tensorboardX, a dependency of jaxcls "
+                              "(pip install tensorboardX), or set tensorboard=false") from e
 
         self.folder = Path(folder)
         self.folder.mkdir(parents=True, exist_ok=True)
