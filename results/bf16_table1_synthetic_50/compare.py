@@ -1,6 +1,7 @@
-"""PointNet in float32 against bfloat16 (perception.classification_precision), Table 1's episodes on the same
-scenes, start views and keys: each row's F1 after T, the paired difference (scene bootstrap), and the share of
-episodes with the same path and refined labels.
+"""PointNet in one precision against another (perception.classification_precision: float32 or tf32 against
+bfloat16), Table 1's episodes on the same scenes, start views and keys: each row's F1 after T, the paired
+difference (scene bootstrap), and the share of episodes with the same path and refined labels. The columns are
+named by each run's config.yaml.
 
     python results/bf16_table1_synthetic_50/compare.py runs/bf16_ab/float32 runs/bf16_ab/bfloat16
 """
@@ -11,15 +12,19 @@ from pathlib import Path
 import numpy as np
 
 from jaxcls import metrics
+from jaxcls.config import load_config
 from jaxcls.episode import protocol
 from jaxcls.experiments.counting import paired_runs
 from jaxcls.experiments.table1 import data
+from jaxcls.experiments.table1.config import Table1Config
 from jaxcls.perception import pointnet
 
 a_dir, b_dir = map(Path, sys.argv[1:3])
 a, b = (data.read_stores(d / "episodes.jsonl") for d in (a_dir, b_dir))
 M = len(pointnet.load_classifier().classes)  # the shipped weights' (the runs' classifier)
-print("| row | scenes | episodes | F1 float32 | F1 bfloat16 | bfloat16 - float32 [95% paired scene interval] | "
+pa, pb = (load_config(Table1Config, d / "config.yaml").perception.classification_precision for d in (a_dir, b_dir))
+pa, pb = (getattr(p, "value", p) for p in (pa, pb))
+print(f"| row | scenes | episodes | F1 {pa} | F1 {pb} | {pb} - {pa} [95% paired scene interval] | "
       "same path and refined labels |")
 print("| --- | --- | --- | --- | --- | --- | --- |")
 for (_, row), (x, y) in paired_runs(a, b).items():
