@@ -15,7 +15,14 @@ from jaxcls import metrics, perception
 from jaxcls.geometry import CameraConfig, Intrinsics
 from jaxcls.perception import foreground, segment
 from jaxcls.perception.segment import grid
-from jaxcls.perception.settings import ForegroundConfig, ObjectCount, PerceptionConfig, ShapeConfig, Spec
+from jaxcls.perception.settings import (
+    ESTIMATED_COUNT_FIELDS,
+    ForegroundConfig,
+    ObjectCount,
+    PerceptionConfig,
+    ShapeConfig,
+    Spec,
+)
 from jaxcls.perception.tracking import TrackingConfig
 from jaxcls.world import scenes
 from jaxcls.world.setup import WorldConfig, make_world
@@ -321,10 +328,10 @@ def test_estimated_count_is_capped_by_the_slots_and_drops_fragments(path):
 
 @pytest.mark.parametrize("path", PATHS)
 def test_estimated_count_merges_a_small_touching_part_drops_it_apart(path):
-    """A handle (a 3 cm^2 blob, 3 mm from a 4 cm body: its own footprint basin, more persistent than
+    """A handle (a 2 cm^2 blob, 5 mm from a 4 cm body: its own footprint basin, more persistent than
     ``merge_persistence``) joins the body's segment (``absorb_area``), where without the rule it was dropped
     as a fragment under ``min_object_area``; the same blob 5 cm away, touching nothing, is still dropped."""
-    body, r = (0.0, 0.0, 0.04, 0.10), 0.01
+    body, r = (0.0, 0.0, 0.04, 0.10), 0.008
     assert np.pi * r ** 2 < COUNTING.segmentation.min_object_area <= COUNTING.segmentation.absorb_area
     off = _with_segmentation(COUNTING, absorb_area=0.0)
     for x, spec, joined in ((0.053, COUNTING, True), (0.053, off, False), (0.1, COUNTING, False)):
@@ -421,9 +428,13 @@ def test_flush_inputs_twin_equals_reference():
 
 
 def test_known_count_ignores_the_estimated_count_rules():
-    """With N known the flush and fragment settings change nothing: the same labels, both paths."""
+    """With N known the estimated count's settings (``ESTIMATED_COUNT_FIELDS``: merge, flush, fragment and absorb)
+    change nothing: the same labels, both paths."""
     pts, nrm, m = _box(0.0, 0.0, 0.24, 0.08, 0.08, yaw=0.3)
-    other = _with_segmentation(SPEC, flush_persistence=1.0, flush_height=0.05, min_object_area=0.05, absorb_area=0.05)
+    changed = dict(merge_persistence=0.9, min_object_area=0.05, flush_persistence=1.0, flush_height=0.05,
+                   absorb_area=0.05)
+    assert set(changed) == set(ESTIMATED_COUNT_FIELDS)
+    other = _with_segmentation(SPEC, **changed)
     for fn in PATHS.values():
         a, b = fn(SPEC, pts, nrm, m), fn(other, pts, nrm, m)
         np.testing.assert_array_equal(np.asarray(a.labels), np.asarray(b.labels))

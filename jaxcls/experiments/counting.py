@@ -42,6 +42,7 @@ from jaxcls import metrics, perception
 from jaxcls.episode import protocol
 from jaxcls.experiments import segmentation
 from jaxcls.perception import segment
+from jaxcls.perception.settings import ESTIMATED_COUNT_FIELDS
 from jaxcls.world import scenes
 
 SCORED = (1, 3, 5)  # views fused after which the counts are taken
@@ -287,7 +288,8 @@ F1_HEADER = ("classifier", "method", "scenes", "episodes", "T", "F1, N given", "
 
 def run_settings_differ(known: Any, estimated: Any) -> list[str]:
     """The keys (dotted) in which two ``Table1Config``s' results-defining settings differ, besides how N is set
-    (``perception.shapes``' ``COUNT_SETTINGS``): [] where the runs are comparable."""
+    (``perception.shapes``' ``COUNT_SETTINGS``) and the segmentation settings only an estimated count reads
+    (``settings.ESTIMATED_COUNT_FIELDS``): [] where the runs are comparable."""
     def flat(tree, prefix=""):
         out = {}
         for k, v in tree.items():
@@ -297,7 +299,8 @@ def run_settings_differ(known: Any, estimated: Any) -> list[str]:
                 out[f"{prefix}{k}"] = v
         return out
 
-    skip = {f"perception.shapes.{k}" for k in COUNT_SETTINGS}
+    skip = ({f"perception.shapes.{k}" for k in COUNT_SETTINGS}
+            | {f"perception.segmentation.{k}" for k in ESTIMATED_COUNT_FIELDS})
     a, b = flat(known.results_defining()), flat(estimated.results_defining())
     return sorted(k for k in a.keys() | b.keys() if k not in skip and a.get(k) != b.get(k))
 

@@ -120,9 +120,13 @@ class SegmentConfig:
     # footprint (closed, filled cells) covers less than min_object_area m^2 are dropped as fragments. Chosen on
     # rendered scenes (seeds 100-129) disjoint from RESULTS.md's "Counting objects" (0-29): 0.15 counted best
     # after 3 views of 0.1-0.4 (one object's basins merge at 0.02-0.28, touching objects' at 0.1-0.9: they
-    # overlap); the smallest builtin object's footprint hull is 18 cm^2.
+    # overlap; with the flush and absorb rules below, 0.10-0.20 within two walks of 90 on the tuning walks).
+    # min_object_area 5 cm^2 (10 before the absorb rule): with small touching parts absorbed it only drops
+    # isolated fragments, and most objects missed after 3 moves were barely seen ones whose part apart from the
+    # rest was small; 5 of 3 / 5 / 7 / 10 cm^2 counted best after 3 moves on both sets' tuning walks
+    # (results/counting_min_area_tune; RESULTS.md, "Counting objects without a known N").
     merge_persistence: float = bounded(0.15, ge=0.0, le=1.0)
-    min_object_area: float = bounded(0.001, ge=0.0)
+    min_object_area: float = bounded(0.0005, ge=0.0)
     # Estimated count only: two touching basins that are flush, their highest points within flush_height m of
     # each other and at least half of the cell pairs across their boundary too (one object's top surface running
     # on, as a box's, a bowl's rim), merge while their relative persistence is below flush_persistence
@@ -137,7 +141,7 @@ class SegmentConfig:
     # larger part are dropped. A jug's or mug's handle is such a part (~3-5 cm^2, relative persistence ~0.3):
     # dropped, it left a bottle or a cup; above min_object_area, a bowl's second wall. 15 cm^2 counted best of
     # 10 / 15 / 20 on the tuning walks (dataset seed 100, both sets; RESULTS.md, "Counting objects without a
-    # known N"); 10 (= min_object_area) would leave every count as it was.
+    # known N"; min_object_area was 10 then: absorb_area = min_object_area leaves the persistence merge's count).
     absorb_area: float = bounded(0.0015, ge=0.0)
     # JAX twin only: static bounds.
     max_basins: int = bounded(64, ge=1)  # basins kept (highest peaks); the others join the nearest kept one
@@ -148,6 +152,11 @@ class SegmentConfig:
         if self.flush_persistence < self.merge_persistence:
             raise ValueError(f"segmentation.flush_persistence: {self.flush_persistence} is below merge_persistence "
                              f"{self.merge_persistence} (flush basins merge at least as readily as others)")
+
+
+# The ``SegmentConfig`` fields read only with ``shapes.num_objects = estimated`` (N known ignores them: a test
+# pins it), so runs with N known and N estimated may differ in them and still be compared.
+ESTIMATED_COUNT_FIELDS = ("merge_persistence", "min_object_area", "flush_persistence", "flush_height", "absorb_area")
 
 
 @dataclasses.dataclass(frozen=True)
