@@ -29,7 +29,7 @@ import jaxlie
 import numpy as np
 from flax import struct
 
-from jaxcls import devices
+from jaxcls import devices, precision
 from jaxcls.config import bounded, check_bounds
 
 # MuJoCo cameras look along their -z with y up; OpenCV cameras look along +z with y down. The same
@@ -165,8 +165,8 @@ def rotate(R: jax.Array, x: jax.Array, fused: bool | None = None) -> jax.Array:
     a slow one (the tracking's were ~7% of a batched move's GPU time, BENCHMARKS.md, issue 34). On the CPU the
     HIGHEST product itself: its rounding does not depend on vmap, the elementwise form's does (FMA contraction),
     and a vmapped move must equal the sequential one there (tests/test_episode.py). ``fused``: the elementwise
-    form (True) or the product (False) whatever the backend (None: by the backend)."""
-    if not (jax.default_backend() != "cpu" if fused is None else fused):
+    form (True) or the product (False) whatever the backend (None: ``precision.fused_products``)."""
+    if not precision.fused_products(fused):
         return jnp.einsum("ij,...j->...i", R, x, precision=jax.lax.Precision.HIGHEST)
     return x[..., 0:1] * R[:, 0] + x[..., 1:2] * R[:, 1] + x[..., 2:3] * R[:, 2]
 

@@ -11,6 +11,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from jaxcls import precision
+
 TINY = 1e-12
 
 
@@ -43,7 +45,7 @@ def normal_equations(J: jax.Array, w: jax.Array, r: jax.Array, fused: bool | Non
     K of 4 or 6 a matrix product is a kernel of its own on a GPU, at HIGHEST precision a slow one (BENCHMARKS.md,
     issue 34); on the CPU the HIGHEST products themselves (``geometry.rotate`` says why; ``fused`` as there)."""
     Jw = J * w[:, None]
-    if not (jax.default_backend() != "cpu" if fused is None else fused):
+    if not precision.fused_products(fused):
         highest = jax.lax.Precision.HIGHEST
         return jnp.matmul(J.T, Jw, precision=highest), jnp.matmul(J.T, w * r, precision=highest)
     return jnp.sum(Jw[:, :, None] * J[:, None, :], axis=0), jnp.sum(Jw * r[:, None], axis=0)

@@ -31,6 +31,15 @@ def full_float32_matmuls() -> bool:
     return True
 
 
+def fused_products(fused: bool | None = None) -> bool:
+    """Whether a small float32 product (``geometry.rotate``'s 3 terms, ``math.normal_equations``' K x K) runs as
+    elementwise products and sums (True), which XLA fuses into the operations around them, or as a matrix product
+    at HIGHEST precision (False): ``fused`` where given, else True on an accelerator (a product of 3 terms is a
+    slow kernel of its own there) and False on the CPU (the elementwise form's rounding depends on vmap there,
+    and a vmapped move must equal the sequential one)."""
+    return jax.default_backend() != "cpu" if fused is None else fused
+
+
 class MatmulPrecision(enum.StrEnum):
     """The float32 products of one stage on an accelerator (a CPU runs every one at full float32):
     ``float32``, full precision (the reference; the process's default once ``full_float32_matmuls`` ran);
@@ -54,4 +63,4 @@ class MatmulPrecision(enum.StrEnum):
         return jnp.dtype(jnp.bfloat16 if self is MatmulPrecision.bfloat16 else jnp.float32)
 
 
-__all__ = ["MatmulPrecision", "full_float32_matmuls"]
+__all__ = ["MatmulPrecision", "full_float32_matmuls", "fused_products"]
