@@ -23,7 +23,6 @@ a_dir, b_dir = map(Path, sys.argv[1:3])
 a, b = (data.read_stores(d / "episodes.jsonl") for d in (a_dir, b_dir))
 M = len(pointnet.load_classifier().classes)  # the shipped weights' (the runs' classifier)
 pa, pb = (load_config(Table1Config, d / "config.yaml").perception.classification_precision for d in (a_dir, b_dir))
-pa, pb = (getattr(p, "value", p) for p in (pa, pb))
 print(f"| row | scenes | episodes | F1 {pa} | F1 {pb} | {pb} - {pa} [95% paired scene interval] | "
       "same path and refined labels |")
 print("| --- | --- | --- | --- | --- | --- | --- |")
