@@ -4,6 +4,7 @@ weight files (round trip, mismatched class lists, corrupt files) and the weights
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 
 import jax
@@ -231,3 +232,32 @@ def test_classification_precision_sets_the_networks_products(classifier, clouds)
     scores = [pointnet.predict(classifier, points, mask, p)[0] for p in MatmulPrecision]
     if jax.default_backend() == "cpu":
         np.testing.assert_allclose(np.asarray(scores[0]), np.asarray(scores[1]), atol=1e-6)
+
+
+def test_pooled_inference_equals_the_layers_then_the_max():
+    """At inference the pooled shared MLPs fold their last batch norm into the Dense and take the max before
+    the shift and the ReLU (``_pooled_inference``): on the shipped weights' three pooled MLPs, the same [B, C]
+    as the layers applied point by point, then ``masked_max``; padding ignored, an empty cloud 0."""
+    variables = pointnet.load_classifier().variables
+    x = jax.random.normal(jax.random.key(5), (3, 90, 64))
+    mask = jnp.ones((3, 90), bool).at[1, 40:].set(False).at[2].set(False)
+    for path in (("TNet_0", "_SharedMLP_0"), ("TNet_1", "_SharedMLP_0"), ("_SharedMLP_1",)):
+        sub = {name: variables[name] for name in ("params", "batch_stats")}
+        for key in path:
+            sub = {name: tree[key] for name, tree in sub.items()}
+        cin = sub["params"]["Dense_0"]["kernel"].shape[0]
+        layers = pointnet._SharedMLP((64, 128, 1024), 0.9)
+        pooled = pointnet._SharedMLP((64, 128, 1024), 0.9, pool=True)
+        want = pointnet.masked_max(layers.apply(sub, x[..., :cin], mask, train=False), mask)
+        got = pooled.apply(sub, x[..., :cin], mask, train=False)
+        assert got.shape == (3, 1024), path
+        # the folded path ran: the last product laid out channels x points, nothing normalised per point
+        shapes = [v.aval.shape for e in jax.make_jaxpr(functools.partial(pooled.apply, train=False))(
+            sub, x[..., :cin], mask).jaxpr.eqns for v in e.outvars]
+        assert (3, 1024, 90) in shapes and (3, 90, 1024) not in shapes, path
+        np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-4, atol=1e-4, err_msg=str(path))
+        assert not np.any(np.asarray(got[2])) and np.any(np.asarray(got[1]) > 0)
+        # the padded cloud pools over its real points only
+        np.testing.assert_allclose(np.asarray(got[1]), np.asarray(pooled.apply(sub, x[1:2, :40, :cin],
+                                                                                mask[1:2, :40], train=False))[0],
+                                   rtol=1e-5, atol=1e-5)

@@ -82,18 +82,44 @@ def masked_max(features: jax.Array, mask: jax.Array) -> jax.Array:
 
 
 class _SharedMLP(nn.Module):
-    """Per-point Dense + batch norm (over real points) + ReLU, for each width."""
+    """Per-point Dense + batch norm (over real points) + ReLU, for each width; with ``pool``, then the max over
+    the real points (``masked_max``): [B, C] instead of [B, P, C].
+
+    Pooled at inference (``_pooled_inference``), the last layer's batch norm is folded into its Dense and the
+    max taken before the per-channel shift and the ReLU (both monotone), on the product laid out channels x
+    points: the [B, P, C] activations (C = 1024) are never normalised, rectified or transposed."""
 
     widths: Sequence[int]
     momentum: float
+    pool: bool = False
 
     @nn.compact
     def __call__(self, x: jax.Array, mask: jax.Array, train: bool) -> jax.Array:
-        for width in self.widths:
+        last = len(self.widths) - 1
+        for i, width in enumerate(self.widths):
+            if i == last and self.pool and not train and not self.is_initializing():
+                return _pooled_inference(x, mask, self.variables["params"][f"Dense_{i}"],
+                                         self.variables["params"][f"BatchNorm_{i}"],
+                                         self.variables["batch_stats"][f"BatchNorm_{i}"])
             x = nn.Dense(width)(x)
             x = nn.BatchNorm(use_running_average=not train, momentum=self.momentum)(x, mask=mask[..., None])
             x = nn.relu(x)
-        return x
+        return masked_max(x, mask) if self.pool else x
+
+
+_BN_EPSILON = nn.BatchNorm.epsilon  # flax's default, which the layers use
+
+
+def _pooled_inference(x: jax.Array, mask: jax.Array, dense: dict, norm: dict, stats: dict) -> jax.Array:
+    """[B, C] ``masked_max(relu(batch_norm(x W + b)), mask)`` at inference (running statistics), computed as
+    ``relu(max_p (x W') + c)``: W' = W a, c = a (b - mean) + beta, a = gamma / sqrt(var + eps) (the norm folded
+    into the Dense; ReLU and the shift commute with the max). x: [B, P, Cin]; mask: [B, P]; dense: the Dense's
+    {kernel [Cin, C], bias [C]}; norm: {scale, bias} [C]; stats: {mean, var} [C]. 0 for an empty cloud."""
+    a = norm["scale"] * jax.lax.rsqrt(stats["var"] + _BN_EPSILON)
+    shift = a * (dense["bias"] - stats["mean"]) + norm["bias"]
+    z = jnp.einsum("...pi,io->...op", x, dense["kernel"] * a)  # [B, C, P]: the max runs along the minor axis
+    pooled = jnp.max(jnp.where(mask[..., None, :], z, -jnp.inf), axis=-1)
+    return jnp.where(jnp.any(mask, axis=-1)[..., None], nn.relu(pooled + shift), 0.0)
 
 
 class _Head(nn.Module):
@@ -131,7 +157,7 @@ class TNet(nn.Module):
 
     @nn.compact
     def __call__(self, x: jax.Array, mask: jax.Array, train: bool) -> jax.Array:
-        h = masked_max(_SharedMLP((64, 128, 1024), self.momentum)(x, mask, train), mask)
+        h = _SharedMLP((64, 128, 1024), self.momentum, pool=True)(x, mask, train)
         out = _Head((512, 256), self.k * self.k, self.momentum, out_kernel_init=nn.initializers.zeros,
                     out_bias_init=_identity_init(self.k))
         return out(h, train).reshape(*x.shape[:-2], self.k, self.k)
@@ -155,8 +181,7 @@ class PointNet(nn.Module):
         x = points @ TNet(3, self.momentum)(points, mask, train)
         x = _SharedMLP((64, 64), self.momentum)(x, mask, train)
         feature_transform = TNet(64, self.momentum)(x, mask, train)
-        x = _SharedMLP((64, 128, 1024), self.momentum)(x @ feature_transform, mask, train)
-        pooled = masked_max(x, mask)
+        pooled = _SharedMLP((64, 128, 1024), self.momentum, pool=True)(x @ feature_transform, mask, train)
         logits = _Head((512, 256), self.num_classes, self.momentum, self.dropout)(pooled, train)
         yaw = None
         if self.yaw_head:
