@@ -54,15 +54,19 @@ def _dense_points(x: jax.Array, valid: jax.Array, spec: Spec) -> jax.Array:
     flat = (ijk[:, 0] * G + ijk[:, 1]) * G + ijk[:, 2]
     offsets = jnp.asarray([(i * G + j) * G + k for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)])
 
-    def neighbourhood_sum(flags):
-        grid = jnp.zeros(G**3, jnp.int16).at[jnp.where(flags, flat, G**3)].add(1, mode="drop")
+    def neighbourhood_sum(grid):
         # One neighbour cell at a time: [P] gathered live, not [P, 27].
         total, _ = jax.lax.scan(lambda acc, o: (acc + grid[flat + o].astype(jnp.int32), None),
                                 jnp.zeros(flat.shape, jnp.int32), offsets)
         return total
 
-    core = valid & (neighbourhood_sum(valid) >= spec.segmentation.dbscan_min_samples)
-    return valid & (neighbourhood_sum(core) > 0)
+    where = jnp.where(valid, flat, G**3)  # out of bounds: dropped
+    counts = jnp.zeros(G**3, jnp.int16).at[where].add(1, mode="drop")  # valid points a cell
+    core = valid & (neighbourhood_sum(counts) >= spec.segmentation.dbscan_min_samples)
+    # The core points a cell, from the same buffer (updated in place: no second grid to zero): each valid
+    # point takes back its 1 and adds 1 if it is core (core points are valid).
+    counts = counts.at[where].add(core.astype(jnp.int16) - 1, mode="drop")
+    return valid & (neighbourhood_sum(counts) > 0)
 
 
 def _footprint_field(x: jax.Array, normals: jax.Array, kept: jax.Array, spec: Spec
