@@ -29,8 +29,9 @@ import jaxlie
 import numpy as np
 from flax import struct
 
-from jaxcls import devices, precision
+from jaxcls import devices
 from jaxcls.config import bounded, check_bounds
+from jaxcls.math import row_dots
 
 # MuJoCo cameras look along their -z with y up; OpenCV cameras look along +z with y down. The same
 # matrix maps back (it is its own inverse).
@@ -166,9 +167,7 @@ def rotate(R: jax.Array, x: jax.Array, fused: bool | None = None) -> jax.Array:
     HIGHEST product itself: its rounding does not depend on vmap, the elementwise form's does (FMA contraction),
     and a vmapped move must equal the sequential one there (tests/test_episode.py). ``fused``: the elementwise
     form (True) or the product (False) whatever the backend (None: ``precision.fused_products``)."""
-    if not precision.fused_products(fused):
-        return jnp.einsum("ij,...j->...i", R, x, precision=jax.lax.Precision.HIGHEST)
-    return x[..., 0:1] * R[:, 0] + x[..., 1:2] * R[:, 1] + x[..., 2:3] * R[:, 2]
+    return row_dots(x, R, fused)
 
 
 def transform_points(T: jnp.ndarray, points: jnp.ndarray) -> jnp.ndarray:

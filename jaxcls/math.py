@@ -38,6 +38,16 @@ def normalize(x: jax.Array, axis: int = -1, eps: float = TINY) -> jax.Array:
     return jnp.where(norm > eps, x / jnp.where(norm > eps, norm, 1.0), 0.0)
 
 
+def row_dots(x: jax.Array, M: jax.Array, fused: bool | None = None) -> jax.Array:
+    """``x @ M.T``: the dot products [..., K] of points ``x: [..., 3]`` with the rows of ``M: [K, 3]``, at full
+    float32 precision. On an accelerator as three products and two sums, which XLA fuses into the operations
+    around them (a product of 3 terms is a kernel of its own on a GPU, its [..., K] output written out first); on
+    the CPU the HIGHEST product itself (``geometry.rotate``, this with a rotation, says why; ``fused`` as there)."""
+    if not precision.fused_products(fused):
+        return jnp.einsum("ij,...j->...i", M, x, precision=jax.lax.Precision.HIGHEST)
+    return x[..., 0:1] * M[:, 0] + x[..., 1:2] * M[:, 1] + x[..., 2:3] * M[:, 2]
+
+
 def normal_equations(J: jax.Array, w: jax.Array, r: jax.Array, fused: bool | None = None
                      ) -> tuple[jax.Array, jax.Array]:
     """(J^T W J [K, K], J^T W r [K]) of residuals ``r: [P]`` with Jacobian ``J: [P, K]`` and weights ``w: [P]``,

@@ -222,9 +222,10 @@ def test_camera_config_round_trips_intrinsics():
 
 
 def test_rotate_and_normal_equations_match_float64_products():
-    """``geometry.rotate`` is ``x @ R.T`` and ``math.normal_equations`` is (J^T W J, J^T W r), to float32 rounding,
-    over batch shapes (the elementwise forms the GPU's move uses instead of 3- and 6-term matrix products)."""
-    from jaxcls.math import normal_equations
+    """``geometry.rotate`` is ``x @ R.T``, ``math.row_dots`` ``x @ M.T`` for any rows M [K, 3] and
+    ``math.normal_equations`` (J^T W J, J^T W r), to float32 rounding, over batch shapes (the elementwise forms
+    the GPU's move uses instead of 3- and 6-term matrix products)."""
+    from jaxcls.math import normal_equations, row_dots
 
     rng = np.random.default_rng(0)
     R = rng.normal(size=(3, 3)).astype(np.float32)
@@ -236,6 +237,10 @@ def test_rotate_and_normal_equations_match_float64_products():
             x = rng.normal(size=shape).astype(np.float32)
             np.testing.assert_allclose(np.asarray(geometry.rotate(jnp.asarray(R), jnp.asarray(x), fused)),
                                        x.astype(np.float64) @ R.T.astype(np.float64), rtol=1e-5, atol=1e-5)
+            M = rng.normal(size=(10, 3)).astype(np.float32)  # e.g. camera positions: [..., 10] dot products
+            got = np.asarray(row_dots(jnp.asarray(x), jnp.asarray(M), fused))
+            assert got.shape == (*shape[:-1], 10)
+            np.testing.assert_allclose(got, x.astype(np.float64) @ M.T.astype(np.float64), rtol=1e-5, atol=1e-5)
         A, b = normal_equations(jnp.asarray(J), jnp.asarray(w), jnp.asarray(r), fused)
         np.testing.assert_allclose(np.asarray(A), J64.T @ (w[:, None] * J64), rtol=1e-4, atol=1e-3)
         np.testing.assert_allclose(np.asarray(b), J64.T @ (w * r), rtol=1e-4, atol=1e-3)
