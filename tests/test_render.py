@@ -292,6 +292,19 @@ def test_warp_without_gpu_says_how_to_install(with_mesh):
 
 # ---------------------------------------------------------------- warp helpers that run on a CPU
 
+def test_warp_out_of_memory_says_what_to_lower(monkeypatch):
+    """Warp's render buffers live outside JAX's memory pool: its "Failed to allocate" becomes a MemoryError
+    naming the worlds, the frame size and the pool's fraction as set (or JAX's default), and the way out."""
+    error = RuntimeError("Failed to allocate 10066329600 bytes on device 'cuda:0'")
+    monkeypatch.setenv("XLA_PYTHON_CLIENT_MEM_FRACTION", "0.82")
+    message = warp_backend.out_of_memory_message(4096, INTR, error)
+    for part in ("4096 worlds", f"{INTR.width}x{INTR.height}", "10066329600 bytes",
+                 "XLA_PYTHON_CLIENT_MEM_FRACTION = 0.82", "lower the fraction"):
+        assert part in message, (part, message)
+    monkeypatch.delenv("XLA_PYTHON_CLIENT_MEM_FRACTION")
+    assert "0.75 (JAX's default)" in warp_backend.out_of_memory_message(8, INTR, error)
+
+
 def _random_rotations(n: int, seed: int = 0) -> np.ndarray:
     from scipy.spatial.transform import Rotation
 

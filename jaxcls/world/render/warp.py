@@ -22,6 +22,7 @@ the camera by millimetres (95.6% of pixels within 1 mm of ``mujoco`` instead of 
 
 from __future__ import annotations
 
+import os
 from typing import Any, Literal
 
 import jax
@@ -64,6 +65,19 @@ def render_device() -> jax.Device:
 
 
 # ---------------------------------------------------------------- pure parts (CPU-testable)
+
+def out_of_memory_message(batch: int, intrinsics: Intrinsics, error: Exception) -> str:
+    """What to do when Warp cannot allocate a render context of ``batch`` worlds (``error``: Warp's
+    "Failed to allocate N bytes"): its buffers live outside JAX's memory pool, which by default takes 75% of
+    the GPU (``XLA_PYTHON_CLIENT_MEM_FRACTION``), so a large batch needs that fraction lowered or fewer worlds."""
+    fraction = os.environ.get("XLA_PYTHON_CLIENT_MEM_FRACTION", "0.75 (JAX's default)")
+    preallocate = os.environ.get("XLA_PYTHON_CLIENT_PREALLOCATE", "true")
+    return (f"backend 'warp': MuJoCo Warp could not allocate the render buffers of {batch} worlds at "
+            f"{intrinsics.width}x{intrinsics.height} ({error}). Warp allocates outside JAX's memory pool, which "
+            f"holds XLA_PYTHON_CLIENT_MEM_FRACTION = {fraction} of the GPU (XLA_PYTHON_CLIENT_PREALLOCATE = "
+            f"{preallocate}): lower the fraction (e.g. 0.66 for 4,096 worlds at 640x480 on an 80 GB GPU, "
+            "BENCHMARKS.md) or render fewer worlds at once")
+
 
 @struct.dataclass
 class BufferLayout:
@@ -208,10 +222,15 @@ class WarpRenderer:
         """(render context, jitted render) for ``batch`` worlds; the context must outlive its calls."""
         if batch not in self._contexts:
             intr = self.intrinsics
-            rc = mjx.create_render_context(
-                mjm=self._mjm, nworld=batch, cam_res=(intr.width, intr.height), render_rgb=False,
-                render_depth=True, render_seg=True, use_textures=False, use_shadows=False,
-                enabled_geom_groups=[contract.RENDER_GROUP], cam_active=[self._cam])
+            try:
+                rc = mjx.create_render_context(
+                    mjm=self._mjm, nworld=batch, cam_res=(intr.width, intr.height), render_rgb=False,
+                    render_depth=True, render_seg=True, use_textures=False, use_shadows=False,
+                    enabled_geom_groups=[contract.RENDER_GROUP], cam_active=[self._cam])
+            except RuntimeError as e:
+                if "Failed to allocate" not in str(e):
+                    raise
+                raise MemoryError(out_of_memory_message(batch, intr, e)) from e
             layout = BufferLayout(depth_adr=int(rc.depth_adr.numpy()[0]), seg_adr=int(rc.seg_adr.numpy()[0]),
                                   width=intr.width, height=intr.height)
             pytree = rc.pytree()
