@@ -261,3 +261,11 @@ def test_pooled_inference_equals_the_layers_then_the_max():
         np.testing.assert_allclose(np.asarray(got[1]), np.asarray(pooled.apply(sub, x[1:2, :40, :cin],
                                                                                 mask[1:2, :40], train=False))[0],
                                    rtol=1e-5, atol=1e-5)
+        # negative batch-norm scales (none in the shipped weights): the max of the scaled product is still right
+        flipped = jax.tree.map(lambda a: a, sub)
+        scale = flipped["params"]["BatchNorm_2"]["scale"]
+        flipped["params"]["BatchNorm_2"]["scale"] = scale * jnp.where(jnp.arange(scale.shape[0]) % 2 == 0, -1.0, 1.0)
+        np.testing.assert_allclose(
+            np.asarray(pooled.apply(flipped, x[..., :cin], mask, train=False)),
+            np.asarray(pointnet.masked_max(layers.apply(flipped, x[..., :cin], mask, train=False), mask)),
+            rtol=1e-4, atol=1e-4, err_msg=f"{path}, negative scales")

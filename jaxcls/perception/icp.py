@@ -134,6 +134,8 @@ class Target(struct.PyTreeNode):
         through one flat index ``which * S + index``: under ``vmap`` a pair index (which, index) is a [..., 2]
         array XLA writes out before the gather (on a GPU, 126 MB for GR's 8 hop candidates at 512 episodes)."""
         L, S = table.shape[:2]
+        if L * S >= 2**31:
+            raise ValueError(f"icp: a model library table of {L} x {S} rows is too large for int32 indices")
         return table.reshape(L * S, *table.shape[2:])[self.which * S + index]
 
 
@@ -236,7 +238,7 @@ def _spread(x: jax.Array, w: jax.Array) -> jax.Array:
     """Second-largest principal variance (m^2) of the points ``x: [P, 3]`` weighted by ``w: [P]``."""
     n = jnp.sum(w)
     mean = safe_div(jnp.sum(w[:, None] * x, axis=0), n)
-    cov = safe_div(normal_equations(x - mean, w, jnp.zeros_like(w))[0], n)
+    cov = safe_div(normal_equations(x - mean, w, jnp.zeros_like(w))[0], n)  # J^T W J of the centred points
     return jnp.linalg.eigvalsh(cov)[1]
 
 

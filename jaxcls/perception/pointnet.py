@@ -81,6 +81,9 @@ def masked_max(features: jax.Array, mask: jax.Array) -> jax.Array:
     return jnp.where(jnp.any(mask, axis=-1)[..., None], pooled, 0.0)
 
 
+_BN_EPSILON = 1e-5  # the shared MLPs' batch norm (flax's default), which ``_pooled_inference`` folds too
+
+
 class _SharedMLP(nn.Module):
     """Per-point Dense + batch norm (over real points) + ReLU, for each width; with ``pool``, then the max over
     the real points (``masked_max``): [B, C] instead of [B, P, C].
@@ -102,12 +105,10 @@ class _SharedMLP(nn.Module):
                                          self.variables["params"][f"BatchNorm_{i}"],
                                          self.variables["batch_stats"][f"BatchNorm_{i}"])
             x = nn.Dense(width)(x)
-            x = nn.BatchNorm(use_running_average=not train, momentum=self.momentum)(x, mask=mask[..., None])
+            x = nn.BatchNorm(use_running_average=not train, momentum=self.momentum, epsilon=_BN_EPSILON)(
+                x, mask=mask[..., None])
             x = nn.relu(x)
         return masked_max(x, mask) if self.pool else x
-
-
-_BN_EPSILON = nn.BatchNorm.epsilon  # flax's default, which the layers use
 
 
 def _pooled_inference(x: jax.Array, mask: jax.Array, dense: dict, norm: dict, stats: dict) -> jax.Array:

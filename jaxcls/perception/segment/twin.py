@@ -60,12 +60,12 @@ def _dense_points(x: jax.Array, valid: jax.Array, spec: Spec) -> jax.Array:
                                 jnp.zeros(flat.shape, jnp.int32), offsets)
         return total
 
-    where = jnp.where(valid, flat, G**3)  # out of bounds: dropped
-    counts = jnp.zeros(G**3, jnp.int16).at[where].add(1, mode="drop")  # valid points a cell
+    slot = jnp.where(valid, flat, G**3)  # out of bounds: dropped
+    counts = jnp.zeros(G**3, jnp.int16).at[slot].add(1, mode="drop")  # valid points a cell
     core = valid & (neighbourhood_sum(counts) >= spec.segmentation.dbscan_min_samples)
     # The core points a cell, from the same buffer (updated in place: no second grid to zero): each valid
     # point takes back its 1 and adds 1 if it is core (core points are valid).
-    counts = counts.at[where].add(core.astype(jnp.int16) - 1, mode="drop")
+    counts = counts.at[slot].add(core.astype(jnp.int16) - 1, mode="drop")
     return valid & (neighbourhood_sum(counts) > 0)
 
 

@@ -23,6 +23,7 @@ the camera by millimetres (95.6% of pixels within 1 mm of ``mujoco`` instead of 
 from __future__ import annotations
 
 import os
+import re
 from typing import Any, Literal
 
 import jax
@@ -228,7 +229,7 @@ class WarpRenderer:
                     render_depth=True, render_seg=True, use_textures=False, use_shadows=False,
                     enabled_geom_groups=[contract.RENDER_GROUP], cam_active=[self._cam])
             except RuntimeError as e:
-                if "Failed to allocate" not in str(e):
+                if not re.search(r"Failed to allocate \d+ bytes", str(e)):
                     raise
                 raise MemoryError(out_of_memory_message(batch, intr, e)) from e
             layout = BufferLayout(depth_adr=int(rc.depth_adr.numpy()[0]), seg_adr=int(rc.seg_adr.numpy()[0]),
