@@ -32,7 +32,8 @@ def full_float32_matmuls() -> bool:
 
 
 def fused_products(fused: bool | None = None) -> bool:
-    """Whether a small float32 product (``geometry.rotate``'s 3 terms, ``math.normal_equations``' K x K) runs as
+    """Whether a small float32 product (``math.row_dots``' 3 terms, ``geometry.rotate`` among them, and
+    ``math.normal_equations``' K x K) runs as
     elementwise products and sums (True), which XLA fuses into the operations around them, or as a matrix product
     at HIGHEST precision (False): ``fused`` where given, else True on an accelerator (a product of 3 terms is a
     slow kernel of its own there) and False on the CPU (the elementwise form's rounding depends on vmap there,

@@ -129,14 +129,17 @@ class Target(struct.PyTreeNode):
         """(points, normals, mask) of the used model's samples ``index`` (any shape of i32)."""
         return self._rows(self.points, index), self._rows(self.normals, index), self._rows(self.mask, index)
 
-    def _rows(self, table: jax.Array, index: jax.Array) -> jax.Array:
-        """``table[which, index]`` of a stacked ``table: [L, S, ...]`` (any shape of i32 ``index``), gathered
-        through one flat index ``which * S + index``: under ``vmap`` a pair index (which, index) is a [..., 2]
-        array XLA writes out before the gather (on a GPU, 126 MB for GR's 8 hop candidates at 512 episodes)."""
+    def _rows(self, table: jax.Array, index: jax.Array, columns: int | None = None) -> jax.Array:
+        """``table[which, index, :columns]`` of a stacked ``table: [L, S, ...]`` (any shape of i32 ``index``),
+        gathered through one flat index ``which * S + index``: under ``vmap`` a pair index (which, index) is a
+        [..., 2] array XLA writes out before the gather (on a GPU, 126 MB for GR's 8 hop candidates at 512
+        episodes). ``columns``: only the first ones of each row gathered (the table is not sliced first)."""
         L, S = table.shape[:2]
         if L * S >= 2**31:
             raise ValueError(f"icp: a model library table of {L} x {S} rows is too large for int32 indices")
-        return table.reshape(L * S, *table.shape[2:])[self.which * S + index]
+        rows = table.reshape(L * S, *table.shape[2:])
+        flat = self.which * S + index
+        return rows[flat] if columns is None else rows[flat, :columns]
 
 
 def stack(targets: Sequence[Target]) -> Target:
@@ -217,8 +220,8 @@ def closest(target: Target, x: jax.Array) -> tuple[jax.Array, jax.Array]:
     cell = (ijk[:, 0] * G + ijk[:, 1]) * G + ijk[:, 2]
     index, d2 = _nearest_of(target, x, target._rows(target.grid, cell).astype(jnp.int32))
     for _ in range(target.hops):
-        hop = target._rows(target.neighbours[:, :, :_HOP_NEIGHBOURS], index)
-        index, d2 = _nearest_of(target, x, hop.astype(jnp.int32))
+        hop = target._rows(target.neighbours, index, _HOP_NEIGHBOURS).astype(jnp.int32)
+        index, d2 = _nearest_of(target, x, hop)
     return index, jnp.sqrt(d2)
 
 
@@ -363,7 +366,7 @@ def registration_ratio(source: jax.Array, mask: jax.Array, target: Target, pose:
     inlier = mask & (dist <= inlier_distance)
     points, normals, considered = target.samples()
     S = points.shape[0]
-    near = target._rows(target.neighbours[:, :, :neighbours], index).astype(jnp.int32)  # [P, Kn]: around each nearest
+    near = target._rows(target.neighbours, index, neighbours).astype(jnp.int32)  # [P, Kn]: around each nearest
     close = inlier[:, None] & (jnp.sum((target._at(near)[0] - p[:, None, :]) ** 2, -1) <= inlier_distance**2)
     matched = jnp.zeros(S, bool).at[jnp.where(close, near, S)].set(True, mode="drop")
     if seen_from is not None:
