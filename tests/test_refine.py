@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -219,3 +221,32 @@ def test_the_moves_cheaper_settings_and_the_product_rule(scene):
     valid = np.asarray(product.valid)
     np.testing.assert_array_equal(np.asarray(product.refined)[valid],
                                   np.asarray(product.candidates)[np.arange(len(best)), best][valid])
+
+
+def test_a_part_on_a_larger_segments_aligned_model_is_explained(scene):
+    """``refine.explained`` (the estimated count's rule after GR): on the scene's segments, each its own object,
+    none lies on another's aligned model; a segment cut in two, 70% and 30% of its points in two slots with the
+    larger part's fit, loses the smaller part, and only it; not where the distance is under the surface's
+    spread, nor where the larger part is not live."""
+    world, _, state, _, library = scene
+    config = refine.RefineConfig()
+    points, mask = np.asarray(state.segments.points), np.asarray(state.segments.mask)
+    out = refine.refine_jit(points, mask, state.probs, library, config, world.table_height)
+    sample = config.icp.points
+    none = refine.explained(points, mask, out, library, 0.01, 0.8, sample)
+    assert not np.asarray(none).any()
+    n = int(np.argmax(mask.sum(1)))  # the segment with most points: cut by its x coordinate
+    own = np.flatnonzero(mask[n])
+    order = own[np.argsort(points[n, own, 0])]
+    cut = order[int(0.7 * len(order)):]
+    part = np.zeros_like(points[:1]), np.zeros_like(mask[:1])
+    part[0][0, :len(cut)], part[1][0, :len(cut)] = points[n, cut], True
+    mask_cut = mask.copy()
+    mask_cut[n, cut] = False
+    points2, mask2 = np.concatenate([points, part[0]]), np.concatenate([mask_cut, part[1]])
+    fits = jax.tree.map(lambda x: jnp.concatenate([x, x[n:n + 1]]), out)
+    gone = np.asarray(refine.explained(points2, mask2, fits, library, 0.01, 0.8, sample))
+    assert gone.tolist() == [False] * len(mask) + [True]
+    assert not np.asarray(refine.explained(points2, mask2, fits, library, 1e-5, 0.8, sample)).any()
+    assert not np.asarray(refine.explained(points2, mask2, fits.replace(valid=fits.valid.at[n].set(False)), library,
+                                           0.01, 0.8, sample)).any()

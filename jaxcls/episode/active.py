@@ -36,8 +36,8 @@ from flax import struct
 from jaxcls.config import bounded, check_bounds
 from jaxcls.perception import observation, pose
 from jaxcls.perception.observation import Observation
-from jaxcls.perception.refine import ModelLibrary, RefineConfig, Refinement, YawSource, refine
-from jaxcls.perception.settings import Spec
+from jaxcls.perception.refine import ModelLibrary, RefineConfig, Refinement, YawSource, explained, refine
+from jaxcls.perception.settings import ObjectCount, Spec
 from jaxcls.planning import nbv
 
 STABLE_DISTANCE = 0.05  # m: a segment is the same object as last move's nearest segment within this
@@ -324,15 +324,26 @@ def refinement(episode: Episode, state: EpisodeState, depth: jax.Array | None = 
     on, its class is the evidence's argmax: a move whose segment fits every model badly (a merge, a sliver)
     cannot overturn what earlier moves saw; with ``"last"``, this move's class (Eq. 3). With GR off the class
     stays PointNet's (the prior, as the paper's rows without GR). The pose and model stay this move's best
-    registration."""
+    registration. With the count estimated (``shapes.num_objects``) and GR on, a segment whose points lie on a
+    larger segment's aligned model (``segmentation.explained_share``, ``refine.explained``) is no object: its
+    slot is left as an empty one's."""
     obs = state.observation
     gr = episode.refinement_on()
 
     def registered() -> Refinement:
         learned = episode.refine_config.yaw_source is YawSource.learned
-        return refine(obs.segments.points, obs.segments.mask, obs.probs, episode.library, episode.refine_config,
-                      episode.spec.table_height, seen_from(state), yaw=obs.yaw if learned else None,
-                      yaw_orders=episode.yaw_orders if learned else None)
+        fitted = refine(obs.segments.points, obs.segments.mask, obs.probs, episode.library, episode.refine_config,
+                        episode.spec.table_height, seen_from(state), yaw=obs.yaw if learned else None,
+                        yaw_orders=episode.yaw_orders if learned else None)
+        rule = episode.spec.config.segmentation
+        if episode.spec.config.shapes.num_objects is not ObjectCount.estimated or not rule.explained_share:
+            return fitted
+        gone = explained(obs.segments.points, obs.segments.mask, fitted, episode.library, rule.explained_distance,
+                         rule.explained_share, episode.refine_config.icp.points)
+        # An explained part is no object: an empty slot's answer (not live, no model, rho 0, identity pose).
+        return fitted.replace(valid=fitted.valid & ~gone, model=jnp.where(gone, -1, fitted.model),
+                              rho=jnp.where(gone[:, None], 0.0, fitted.rho),
+                              pose=jnp.where(gone[:, None, None], jnp.eye(4, dtype=fitted.pose.dtype), fitted.pose))
 
     if episode.choice is None:  # the static setting: one branch compiled
         new = registered() if gr else prior_only(episode, obs)

@@ -30,6 +30,8 @@ import numpy as np
 from flax import struct
 
 from jaxcls.config import bounded, check_bounds
+from jaxcls.geometry import invert_rigid, rotate
+from jaxcls.math import safe_div
 from jaxcls.perception import icp, pose
 
 if TYPE_CHECKING:  # perception reads models, it does not import the world
@@ -290,6 +292,32 @@ def refine(points: jax.Array, mask: jax.Array, probs: jax.Array, library: ModelL
                       refined=jnp.where(segment_valid, candidates[n, c], prior),
                       pose=jnp.where(segment_valid[:, None, None], chosen_pose, jnp.eye(4, dtype=points.dtype)),
                       model=jnp.where(segment_valid, models[n, c, chosen_j], -1), valid=segment_valid)
+
+
+def explained(points: jax.Array, mask: jax.Array, refinement: Refinement, library: ModelLibrary, distance: float,
+              share: float, sample: int) -> jax.Array:
+    """[N] bool: the live segments whose points lie on a larger live segment's aligned model, ``share`` of them
+    or more within ``distance`` m of its surface (the nearest of its samples at its refined pose and model): a
+    second part of one object that the segmentation parted (a bowl's wall seen as two arcs), which GR's fit of
+    the larger part already covers. points [N, P, 3] world (m), mask [N, P], ``refinement``: GR's answer for
+    them (``refine``); ``sample`` points of a segment are read (``icp.subsample``). Larger: more points (ties:
+    the lower index), so two segments never remove each other. Pure; N x N lookups of ``sample`` points."""
+    sub, sub_mask = jax.vmap(lambda p, m: icp.subsample(p, m, sample))(points, mask)
+    size = jnp.sum(mask, axis=1)
+    N = points.shape[0]
+
+    def on_model(j: jax.Array, i: jax.Array) -> jax.Array:
+        """The share of segment j's points within ``distance`` of segment i's aligned model."""
+        T_mw = invert_rigid(refinement.pose[i])
+        _, d = icp.closest(library.targets.select(jnp.maximum(refinement.model[i], 0)),
+                           rotate(T_mw[:3, :3], sub[j]) + T_mw[:3, 3])
+        return safe_div(jnp.sum(sub_mask[j] & (d <= distance)), jnp.sum(sub_mask[j]))
+
+    j, i = jnp.meshgrid(jnp.arange(N), jnp.arange(N), indexing="ij")
+    fraction = jax.vmap(on_model)(j.reshape(-1), i.reshape(-1)).reshape(N, N)  # [j, i]
+    larger = (size[None, :] > size[:, None]) | ((size[None, :] == size[:, None]) & (i < j))
+    live = refinement.valid & (refinement.model >= 0)
+    return jnp.any(live[:, None] & live[None, :] & larger & (fraction >= share), axis=1)
 
 
 refine_jit = jax.jit(refine, static_argnames=("config",))
