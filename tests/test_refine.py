@@ -225,8 +225,9 @@ def test_the_moves_cheaper_settings_and_the_product_rule(scene):
 
 def test_a_part_on_a_larger_segments_aligned_model_is_explained(scene):
     """``refine.explained`` (the estimated count's rule after GR): on the scene's segments, each its own object,
-    none lies on another's aligned model; a segment cut in two, 70% and 30% of its points in two slots with the
-    larger part's fit, loses the smaller part, and only it; not where the distance is under the surface's
+    none lies on another's aligned model; a segment cut in two, 70% and 30% of its points in two slots (the
+    smaller with the larger's fit moved 20 cm: only one lies on the other's model), loses the smaller part, and
+    only it; not where the distance is under the surface's
     spread, nor where the larger part is not live."""
     world, _, state, _, library = scene
     config = refine.RefineConfig()
@@ -244,7 +245,9 @@ def test_a_part_on_a_larger_segments_aligned_model_is_explained(scene):
     mask_cut = mask.copy()
     mask_cut[n, cut] = False
     points2, mask2 = np.concatenate([points, part[0]]), np.concatenate([mask_cut, part[1]])
+    # The part's own fit: the segment's, moved 20 cm (its points lie on the segment's model, not the reverse).
     fits = jax.tree.map(lambda x: jnp.concatenate([x, x[n:n + 1]]), out)
+    fits = fits.replace(pose=fits.pose.at[-1, 0, 3].add(0.2))
     gone = np.asarray(refine.explained(points2, mask2, fits, library, 0.01, 0.8, sample))
     assert gone.tolist() == [False] * len(mask) + [True]
     assert not np.asarray(refine.explained(points2, mask2, fits, library, 1e-5, 0.8, sample)).any()

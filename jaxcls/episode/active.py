@@ -325,8 +325,8 @@ def refinement(episode: Episode, state: EpisodeState, depth: jax.Array | None = 
     cannot overturn what earlier moves saw; with ``"last"``, this move's class (Eq. 3). With GR off the class
     stays PointNet's (the prior, as the paper's rows without GR). The pose and model stay this move's best
     registration. With the count estimated (``shapes.num_objects``) and GR on, a segment whose points lie on a
-    larger segment's aligned model (``segmentation.explained_share``, ``refine.explained``) is no object: its
-    slot is left as an empty one's."""
+    larger segment's aligned model (``segmentation.explained_share``, ``refine.explained``) is no object: not
+    live, no model, rho 0."""
     obs = state.observation
     gr = episode.refinement_on()
 
@@ -340,7 +340,7 @@ def refinement(episode: Episode, state: EpisodeState, depth: jax.Array | None = 
             return fitted
         gone = explained(obs.segments.points, obs.segments.mask, fitted, episode.library, rule.explained_distance,
                          rule.explained_share, episode.refine_config.icp.points)
-        # An explained part is no object: an empty slot's answer (not live, no model, rho 0, identity pose).
+        # An explained part is no object: not live, no model, rho 0, identity pose (its classes as GR found them).
         return fitted.replace(valid=fitted.valid & ~gone, model=jnp.where(gone, -1, fitted.model),
                               rho=jnp.where(gone[:, None], 0.0, fitted.rho),
                               pose=jnp.where(gone[:, None, None], jnp.eye(4, dtype=fitted.pose.dtype), fitted.pose))

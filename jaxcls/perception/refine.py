@@ -186,7 +186,8 @@ class Refinement(struct.PyTreeNode):
     prior: [N] i32 PointNet's class (Eq. 1's argmax); candidates: [N, k] i32 its top-k classes; rho: [N, k]
     f32 the best registration ratio of each candidate's models (Eq. 2; 0 for an empty segment); refined:
     [N] i32 the class of Eq. 3; pose: [N, 4, 4] f32 model-to-world pose of Eq. 4 (identity if empty);
-    model: [N] i32 the library model chosen; valid: [N] bool the segment had points to register.
+    model: [N] i32 the library model chosen; valid: [N] bool the segment is live: it had points to register
+    (and, in an episode with the count estimated, is no part of a larger segment's object: ``explained``).
     """
 
     prior: jax.Array
@@ -300,8 +301,11 @@ def explained(points: jax.Array, mask: jax.Array, refinement: Refinement, librar
     or more within ``distance`` m of its surface (the nearest of its samples at its refined pose and model): a
     second part of one object that the segmentation parted (a bowl's wall seen as two arcs), which GR's fit of
     the larger part already covers. points [N, P, 3] world (m), mask [N, P], ``refinement``: GR's answer for
-    them (``refine``); ``sample`` points of a segment are read (``icp.subsample``). Larger: more points (ties:
-    the lower index), so two segments never remove each other. Pure; N x N lookups of ``sample`` points."""
+    them (``refine``); ``sample`` points of a segment are read (``icp.subsample``). Larger: more points in its
+    slot, ties to the lower index, so two segments never remove each other; a slot holds at most
+    ``points_per_segment`` points, so two large segments tie and the lower index (the -x side) explains the
+    other. Any live larger segment may explain, whatever its fit's rho. Pure; N x N lookups of ``sample``
+    points."""
     sub, sub_mask = jax.vmap(lambda p, m: icp.subsample(p, m, sample))(points, mask)
     size = jnp.sum(mask, axis=1)
     N = points.shape[0]
