@@ -424,7 +424,10 @@ def explain_episodes(run_dir: str | Path, moves: Sequence[int] = (3, 10), limit:
     ``into_target``, whether the object it was merged into is a target).
     ``limit``: at most this many episodes (0 = all). ``overrides``: dotted settings laid over the run's config
     for the replay (a run stored before a segmentation setting existed: its value then, e.g.
-    ``perception.segmentation.flush_persistence=0.15``). Progress on stderr."""
+    ``perception.segmentation.flush_persistence=0.15``). The replay counts the segmentation's segments: where
+    the run's GR explained a part as a larger segment's object (``segmentation.explained_share``, on by default
+    since dbd802e), ``recorded`` is below what the surface shows, so recorded and twin differ there by design.
+    Progress on stderr."""
     from jaxcls.config import load_config
     from jaxcls.experiments.table1 import data
     from jaxcls.experiments.table1.config import Table1Config
