@@ -432,8 +432,7 @@ def test_known_count_ignores_the_estimated_count_rules():
     the parts GR explains) change nothing: the same labels, both paths (the episode's rule: test_counting.py)."""
     pts, nrm, m = _box(0.0, 0.0, 0.24, 0.08, 0.08, yaw=0.3)
     changed = dict(merge_persistence=0.9, min_object_area=0.05, flush_persistence=1.0, flush_height=0.05,
-                   absorb_area=0.05, explained_share=0.5, explained_distance=0.05,
-                   explained_min_rho=0.5)
+                   absorb_area=0.05, explained_share=0.5, explained_distance=0.05)
     assert set(changed) == set(ESTIMATED_COUNT_FIELDS)
     other = _with_segmentation(SPEC, **changed)
     for fn in PATHS.values():

@@ -339,7 +339,7 @@ def refinement(episode: Episode, state: EpisodeState, depth: jax.Array | None = 
         if episode.spec.config.shapes.num_objects is not ObjectCount.estimated or not rule.explained_share:
             return fitted
         gone = explained(obs.segments.points, obs.segments.mask, fitted, episode.library, rule.explained_distance,
-                         rule.explained_share, episode.refine_config.icp.points, rule.explained_min_rho)
+                         rule.explained_share, episode.refine_config.icp.points)
         # An explained part is no object: not live, no model, rho 0, identity pose (its classes as GR found them).
         return fitted.replace(valid=fitted.valid & ~gone, model=jnp.where(gone, -1, fitted.model),
                               rho=jnp.where(gone[:, None], 0.0, fitted.rho),

@@ -296,7 +296,7 @@ def refine(points: jax.Array, mask: jax.Array, probs: jax.Array, library: ModelL
 
 
 def explained(points: jax.Array, mask: jax.Array, refinement: Refinement, library: ModelLibrary, distance: float,
-              share: float, sample: int, min_rho: float = 0.0) -> jax.Array:
+              share: float, sample: int) -> jax.Array:
     """[N] bool: the live segments whose points lie on a larger live segment's aligned model, ``share`` of them
     or more within ``distance`` m of its surface (the nearest of its samples at its refined pose and model): a
     second part of one object that the segmentation parted (a bowl's wall seen as two arcs), which GR's fit of
@@ -304,8 +304,8 @@ def explained(points: jax.Array, mask: jax.Array, refinement: Refinement, librar
     them (``refine``); ``sample`` points of a segment are read (``icp.subsample``). Larger: more points in its
     slot, ties to the lower index, so two segments never remove each other; a slot holds at most
     ``points_per_segment`` points, so two large segments tie and the lower index (the -x side) explains the
-    other. Only a fit whose best rho (Eq. 2) is at least ``min_rho`` explains (0: any). Pure; N x N lookups of
-    ``sample`` points."""
+    other. Any live larger segment may explain, whatever its fit's rho. Pure; N x N lookups of ``sample``
+    points."""
     sub, sub_mask = jax.vmap(lambda p, m: icp.subsample(p, m, sample))(points, mask)
     size = jnp.sum(mask, axis=1)
     N = points.shape[0]
@@ -321,8 +321,7 @@ def explained(points: jax.Array, mask: jax.Array, refinement: Refinement, librar
     fraction = jax.vmap(on_model)(j.reshape(-1), i.reshape(-1)).reshape(N, N)  # [j, i]
     larger = (size[None, :] > size[:, None]) | ((size[None, :] == size[:, None]) & (i < j))
     live = refinement.valid & (refinement.model >= 0)
-    fits = live & (jnp.max(refinement.rho, axis=1) >= min_rho)
-    return jnp.any(live[:, None] & fits[None, :] & larger & (fraction >= share), axis=1)
+    return jnp.any(live[:, None] & live[None, :] & larger & (fraction >= share), axis=1)
 
 
 refine_jit = jax.jit(refine, static_argnames=("config",))

@@ -151,8 +151,6 @@ class SegmentConfig:
     # within 5 mm; 0.8 the stricter of the two tied (RESULTS.md, "Counting objects without a known N").
     explained_share: float = bounded(0.8, ge=0.0, le=1.0)
     explained_distance: float = bounded(0.01, gt=0.0)
-    # ... and only a fit whose best rho (Eq. 2) is at least explained_min_rho explains (0: any fit).
-    explained_min_rho: float = bounded(0.0, ge=0.0, le=1.0)
     # JAX twin only: static bounds.
     max_basins: int = bounded(64, ge=1)  # basins kept (highest peaks); the others join the nearest kept one
     max_cc_iters: int = bounded(64, ge=1)  # label-propagation rounds (about log of the diameter suffice)
@@ -167,7 +165,7 @@ class SegmentConfig:
 # The ``SegmentConfig`` fields read only with ``shapes.num_objects = estimated`` (N known ignores them: a test
 # pins it), so runs with N known and N estimated may differ in them and still be compared.
 ESTIMATED_COUNT_FIELDS = ("merge_persistence", "min_object_area", "flush_persistence", "flush_height", "absorb_area",
-                          "explained_share", "explained_distance", "explained_min_rho")
+                          "explained_share", "explained_distance")
 
 
 @dataclasses.dataclass(frozen=True)
