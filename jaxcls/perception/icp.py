@@ -233,7 +233,8 @@ def _nearest_of(target: Target, x: jax.Array, candidates: jax.Array) -> tuple[ja
     return jnp.take_along_axis(candidates, best, axis=1)[:, 0], jnp.take_along_axis(d2, best, axis=1)[:, 0]
 
 
-def _apply(T: jax.Array, x: jax.Array) -> jax.Array:
+def apply_rigid(T: jax.Array, x: jax.Array) -> jax.Array:
+    """Points ``x: [..., 3]`` moved by the rigid ``T: [4, 4]`` (``geometry.rotate``'s full float32 products)."""
     return rotate(T[:3, :3], x) + T[:3, 3]
 
 
@@ -249,7 +250,7 @@ def _step(T_mw: jax.Array, x: jax.Array, w0: jax.Array, target: Target, config: 
           ) -> tuple[jax.Array, jax.Array]:
     """One Gauss-Newton step: (the increment [4, 4] applied on the left of ``T_mw``, identity if too few
     pairs constrain it; the number of points within the inlier distance at ``T_mw``)."""
-    p = _apply(T_mw, x)
+    p = apply_rigid(T_mw, x)
     index, dist = closest(target, p)
     w = (w0 & (dist <= config.max_correspondence)).astype(p.dtype)
     inliers = jnp.sum(w0 & (dist <= config.inlier_distance))
@@ -361,7 +362,7 @@ def registration_ratio(source: jax.Array, mask: jax.Array, target: Target, pose:
     Returns rho, segment_fraction, model_fraction, matched ([S] bool: O_R), rmse (m, of S_R).
     """
     T_mw = invert_rigid(pose)
-    p = _apply(T_mw, jnp.where(mask[:, None], source, 0.0))
+    p = apply_rigid(T_mw, jnp.where(mask[:, None], source, 0.0))
     index, dist = closest(target, p)
     inlier = mask & (dist <= inlier_distance)
     points, normals, considered = target.samples()
@@ -370,7 +371,7 @@ def registration_ratio(source: jax.Array, mask: jax.Array, target: Target, pose:
     close = inlier[:, None] & (jnp.sum((target._at(near)[0] - p[:, None, :]) ** 2, -1) <= inlier_distance**2)
     matched = jnp.zeros(S, bool).at[jnp.where(close, near, S)].set(True, mode="drop")
     if seen_from is not None:
-        cams = _apply(T_mw, jnp.nan_to_num(seen_from))  # cameras in the model frame
+        cams = apply_rigid(T_mw, jnp.nan_to_num(seen_from))  # cameras in the model frame
         ok = jnp.all(jnp.isfinite(seen_from), axis=-1)
         # n . (cam - x) > 0 as n . cam > n . x: [S, C] (``row_dots``: a product on the CPU, where a batched
         # einsum over [C, S, 3] is ~2x slower under vmap; fused into the comparison on an accelerator).

@@ -30,7 +30,7 @@ import numpy as np
 from flax import struct
 
 from jaxcls.config import bounded, check_bounds
-from jaxcls.geometry import invert_rigid, rotate
+from jaxcls.geometry import invert_rigid
 from jaxcls.math import safe_div
 from jaxcls.perception import icp, pose
 
@@ -312,15 +312,14 @@ def explained(points: jax.Array, mask: jax.Array, refinement: Refinement, librar
 
     def on_model(j: jax.Array, i: jax.Array) -> jax.Array:
         """The share of segment j's points within ``distance`` of segment i's aligned model."""
-        T_mw = invert_rigid(refinement.pose[i])
         _, d = icp.closest(library.targets.select(jnp.maximum(refinement.model[i], 0)),
-                           rotate(T_mw[:3, :3], sub[j]) + T_mw[:3, 3])
+                           icp.apply_rigid(invert_rigid(refinement.pose[i]), sub[j]))
         return safe_div(jnp.sum(sub_mask[j] & (d <= distance)), jnp.sum(sub_mask[j]))
 
     j, i = jnp.meshgrid(jnp.arange(N), jnp.arange(N), indexing="ij")
     fraction = jax.vmap(on_model)(j.reshape(-1), i.reshape(-1)).reshape(N, N)  # [j, i]
     larger = (size[None, :] > size[:, None]) | ((size[None, :] == size[:, None]) & (i < j))
-    live = refinement.valid & (refinement.model >= 0)
+    live = refinement.valid  # (a live segment has a model: ``refine`` sets -1 only where it is not)
     return jnp.any(live[:, None] & live[None, :] & larger & (fraction >= share), axis=1)
 
 
