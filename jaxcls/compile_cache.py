@@ -17,6 +17,11 @@ JAX's cache keys a program by its lowered form, so a later process still traces 
 lookup: for Table 1's episode program most of a warm first call (~5 of 6.6 s on the 2-core CPU). ``exported``
 keeps a program's lowered form itself (StableHLO, ``jax.export``) in ``<folder>/../exported/<kind>``, keyed by
 what tracing reads, and a later process compiles that (from JAX's cache) without tracing.
+
+Loading even that takes seconds on a GPU (~5 s for Table 1's program on an H200: the executable read and put on
+the device), while the host would otherwise render frames or wait for the devices: ``ahead`` runs such a load
+on a background thread, and ``exported`` takes the arguments' shapes alone (``jax.ShapeDtypeStruct`` with their
+sharding) for the arrays that do not exist yet, e.g. frames still to be rendered.
 """
 
 from __future__ import annotations
@@ -25,9 +30,11 @@ import functools
 import hashlib
 import os
 import pickle
+import threading
 import warnings
 import zipfile
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -40,6 +47,9 @@ OFF = ("off", "none", "0", "false", "")
 MIN_COMPILE_SECONDS = 0.1
 _host: Path | None = None  # where ``cached_arrays`` keeps its entries (set by ``enable``)
 _exported: dict[tuple, Callable] = {}  # ``exported``'s programs in this process, by key and compiler options
+_making: dict[tuple, threading.Lock] = {}  # one lock a program being made: a second thread waits for the first
+_making_lock = threading.Lock()
+_background: ThreadPoolExecutor | None = None  # ``ahead``'s thread, started on its first use
 # JAX settings that say where and whether programs are cached, not what they compute: not in ``exported``'s key.
 _NOT_IN_KEY = ("compilation_cache", "persistent_cache", "log_compiles", "explain_cache_misses")
 
@@ -74,6 +84,11 @@ def enable(folder: str | Path | None = None, min_compile_seconds: float = MIN_CO
     global _host
     _host = target.parent / "host"
     return target
+
+
+def enabled() -> bool:
+    """Whether ``enable`` turned the cache on in this process."""
+    return _host is not None
 
 
 def cached_arrays(kind: str, key: bytes, build: Callable[[], dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
@@ -123,8 +138,9 @@ def exported_key(args: tuple) -> str:
 
     leaves, tree = jax.tree.flatten(args)
     for x in leaves:
-        if not isinstance(x, jax.Array):
-            raise TypeError(f"exported: arguments must be JAX arrays on their devices, got {type(x).__name__}")
+        if not (isinstance(x, jax.Array) or (isinstance(x, jax.ShapeDtypeStruct) and x.sharding is not None)):
+            raise TypeError("exported: arguments must be JAX arrays on their devices (or jax.ShapeDtypeStructs with "
+                            f"their sharding), got {type(x).__name__}")
     settings = sorted((k, repr(v)) for k, v in jax.config.values.items() if not any(w in k for w in _NOT_IN_KEY))
     platforms = sorted({(d.platform, d.device_kind) for x in leaves for d in x.sharding.device_set})
     parts = [_code_digest(), jax.__version__, jaxlib.__version__, flax.__version__, np.__version__,
@@ -155,25 +171,51 @@ def jitted(program: Callable, compiler_options: dict | None = None) -> Callable:
 
 def exported(jitted_program: Callable, args: tuple, kind: str, compiler_options: dict | None = None) -> Callable:
     """``jitted_program`` (a ``jax.jit`` made without options) compiled with XLA's ``compiler_options``, for calls
-    of ``args``' signature (JAX arrays on their devices: every later call's shapes, dtypes, shardings and static
-    settings). Once ``enable`` ran, its traced and lowered program (StableHLO, ``jax.export``) is kept in
-    ``<folder>/../exported/<kind>`` by ``exported_key``, and a later process reads it and only compiles it (JAX's
-    persistent cache: loads it) instead of tracing it again. Without ``enable``, or for a program that cannot be
-    exported (a warning says why): ``jitted(jitted_program, compiler_options)``. An entry that cannot be read is
-    made again. Only for programs whose every input is in ``args`` (no closed-over arrays: the key cannot see
-    them). The options are not part of the traced program, so not of its key on disk."""
+    of ``args``' signature (JAX arrays on their devices, or ``jax.ShapeDtypeStruct``s with their sharding: every
+    later call's shapes, dtypes, shardings and static settings). Once ``enable`` ran, its traced and lowered
+    program (StableHLO, ``jax.export``) is kept in ``<folder>/../exported/<kind>`` by ``exported_key``, a later
+    process reads it instead of tracing it again, and it is compiled here (JAX's persistent cache: loaded), so
+    that a call on a background thread (``ahead``) leaves the first real call nothing to do. Without ``enable``,
+    or for a program that cannot be exported (a warning says why): ``jitted(jitted_program, compiler_options)``
+    (compiled at its first call). An entry that cannot be read is made again. Only for programs whose every
+    input is in ``args`` (no closed-over arrays: the key cannot see them). The options are not part of the traced
+    program, so not of its key on disk. Thread-safe: a thread asking for a program another one is making waits
+    for it."""
     if _host is None:
         return jitted(jitted_program, compiler_options)
-    key = exported_key(args)
-    options = options_key(compiler_options)
-    if (key, options) not in _exported:
+    key = exported_key(args), options_key(compiler_options)
+    with _making_lock:
+        lock = _making.setdefault(key, threading.Lock())
+    with lock:
+        if key not in _exported:
+            try:
+                _exported[key] = _exported_program(jitted_program, args, kind, key[0], compiler_options)
+            except Exception as e:  # (a program JAX cannot export still runs)
+                warnings.warn(f"compilation cache: {kind} not exported ({type(e).__name__}: {e}); it is traced in "
+                              "every process", stacklevel=2)
+                _exported[key] = jitted(jitted_program, compiler_options)
+    return _exported[key]
+
+
+def ahead(load: Callable[[], Any], what: str) -> Future:
+    """``load()`` on a background thread (one for the process, loads run in the order given), e.g. an
+    ``exported`` program read and compiled while the host renders frames or waits for the devices. An
+    exception is not raised but warned about (naming ``what``): the caller then makes the program itself when
+    it needs it. Returns the load's ``Future`` (its result, or None after a failure)."""
+    global _background
+
+    def guarded():
         try:
-            _exported[key, options] = _exported_program(jitted_program, args, kind, key, compiler_options)
-        except Exception as e:  # (a program JAX cannot export still runs)
-            warnings.warn(f"compilation cache: {kind} not exported ({type(e).__name__}: {e}); it is traced in every "
-                          "process", stacklevel=2)
-            _exported[key, options] = jitted(jitted_program, compiler_options)
-    return _exported[key, options]
+            return load()
+        except Exception as e:
+            warnings.warn(f"compilation cache: loading {what} ahead failed ({type(e).__name__}: {e}); it is made "
+                          "when first called", stacklevel=2)
+            return None
+
+    with _making_lock:
+        if _background is None:
+            _background = ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxcls-ahead")
+    return _background.submit(guarded)
 
 
 def _exported_program(jitted_program: Callable, args: tuple, kind: str, key: str, compiler_options: dict | None
@@ -184,6 +226,8 @@ def _exported_program(jitted_program: Callable, args: tuple, kind: str, key: str
     from jaxcls import io
 
     path = _host.parent / "exported" / kind / f"{key}.bin"  # type: ignore[union-attr]
+    leaves, tree = jax.tree.flatten(args)
+    abstract = [jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=x.sharding, weak_type=x.weak_type) for x in leaves]
     entry: dict[str, Any] | None = None
     try:
         entry = pickle.loads(path.read_bytes())
@@ -194,21 +238,21 @@ def _exported_program(jitted_program: Callable, args: tuple, kind: str, key: str
         warnings.warn(f"compilation cache: cannot read {path} ({type(e).__name__}: {e}); tracing again", stacklevel=3)
         entry = None
     if entry is None:
-        leaves, tree = jax.tree.flatten(args)
         made: dict[str, Any] = {}
 
         def flat(*xs):
             made["out_tree"] = jax.tree.structure(out := jitted_program(*jax.tree.unflatten(tree, xs)))
             return jax.tree.leaves(out)
 
-        abstract = [jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=x.sharding, weak_type=x.weak_type) for x in leaves]
         program = export.export(jax.jit(flat, in_shardings=[x.sharding for x in leaves]))(*abstract)
         entry = {"module": program.serialize(), "out_tree": made["out_tree"]}
         try:
             io.write_bytes(path, pickle.dumps(entry))
         except OSError as e:
             warnings.warn(f"compilation cache: cannot keep {kind} in {path.parent}: {e}", stacklevel=3)
-    call, out_tree = jax.jit(program.call, compiler_options=compiler_options), entry["out_tree"]
+    # Compiled now (JAX's persistent cache: loaded), for the arguments' shapes, not at the first call.
+    call = jax.jit(program.call, compiler_options=compiler_options).lower(*abstract).compile()
+    out_tree = entry["out_tree"]
 
     def run(*call_args):
         return jax.tree.unflatten(out_tree, call(*jax.tree.leaves(call_args)))
@@ -216,5 +260,5 @@ def _exported_program(jitted_program: Callable, args: tuple, kind: str, key: str
     return run
 
 
-__all__ = ["ENV", "MIN_COMPILE_SECONDS", "cache_folder", "cached_arrays", "enable", "exported", "exported_key",
-           "jitted", "options_key"]
+__all__ = ["ENV", "MIN_COMPILE_SECONDS", "ahead", "cache_folder", "cached_arrays", "enable", "enabled", "exported",
+           "exported_key", "jitted", "options_key"]

@@ -135,8 +135,12 @@ def test_the_key_of_an_exported_program_is_what_tracing_reads(monkeypatch):
     assert key((x,)) != key((jax.device_put(jnp.ones((4, 3), jnp.int32), split),))
     assert key((x,)) != key((jax.device_put(jnp.ones((4, 3)), NamedSharding(mesh, PartitionSpec())),))
     assert key((Settings(x, 10),)) == key((Settings(x, 10),)) != key((Settings(x, 11),))
+    # An array's shape with its sharding (frames not yet rendered) is keyed as the array itself.
+    assert key((jax.ShapeDtypeStruct((4, 3), jnp.float32, sharding=split),)) == key((x,))
     with pytest.raises(TypeError, match="JAX arrays"):
         key((np.ones(3),))
+    with pytest.raises(TypeError, match="sharding"):
+        key((jax.ShapeDtypeStruct((4, 3), jnp.float32),))
     monkeypatch.setattr(compile_cache, "_host", None)
     program = jax.jit(lambda a: a * 2)
     assert compile_cache.exported(program, (x,), "test") is program
@@ -144,6 +148,58 @@ def test_the_key_of_an_exported_program_is_what_tracing_reads(monkeypatch):
     optioned = compile_cache.exported(program, (x,), "test", options)
     assert optioned is compile_cache.jitted(program, dict(options)) is not program
     np.testing.assert_array_equal(optioned(x), program(x))
+
+
+# Two threads ask for one program while it is made ahead from its arguments' shapes alone (``compile_cache.ahead``);
+# prints whether they got that one, how many times it was traced to be kept (``flat``, its wrapper: once), the
+# results against the plain jitted program's, and what a failing load gives.
+AHEAD = """
+import threading, warnings
+import jax, jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from jaxcls import compile_cache
+
+traced = []
+jax.monitoring.register_event_duration_secs_listener(
+    lambda name, secs, fun_name=None, **kw: traced.append(fun_name) if name.endswith("jaxpr_trace_duration") else None)
+compile_cache.enable(min_compile_seconds=0.0)
+mesh = Mesh(np.asarray(jax.devices()), ("e",))
+split = NamedSharding(mesh, PartitionSpec("e"))
+program = jax.jit(lambda x: jnp.cumsum(jnp.sin(x) * 3.0))
+x = jax.device_put(jnp.arange(16.0), split)
+shape = jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=split)
+ahead = compile_cache.ahead(lambda: compile_cache.exported(program, (shape,), "test"), "the test program")
+results = []
+threads = [threading.Thread(target=lambda: results.append(compile_cache.exported(program, (x,), "test")))
+           for _ in range(2)]
+for t in threads:
+    t.start()
+for t in threads:
+    t.join()
+loaded = ahead.result()
+failed = compile_cache.ahead(lambda: 1 / 0, "a broken program")
+with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter("always")
+    broken = failed.result()
+print("same", int(all(r is loaded for r in results)), "traced", traced.count("flat"),
+      "equal", int(np.array_equal(np.asarray(loaded(x)), np.asarray(program(x)))),
+      "broken", int(broken is None), "warned", int(any("a broken program" in str(w.message) for w in caught)))
+"""
+
+
+def test_a_program_loaded_ahead_from_shapes_is_the_one_calls_get(tmp_path):
+    """``compile_cache.ahead`` loads an ``exported`` program on a background thread from its arguments' shapes;
+    threads asking for it meanwhile wait for that one program (traced once) with the plain program's results;
+    a failing load is warned about, not raised."""
+    env = {**os.environ, "JAX_PLATFORMS": "cpu", "XLA_FLAGS": "--xla_force_host_platform_device_count=2",
+           compile_cache.ENV: str(tmp_path / "xla")}
+    done = subprocess.run([sys.executable, "-c", AHEAD], capture_output=True, text=True, cwd=ROOT, env=env,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    words = done.stdout.split()
+    out = dict(zip(words[::2], words[1::2], strict=True))
+    assert out == {"same": "1", "traced": "1", "equal": "1", "broken": "1", "warned": "1"}, out
 
 
 def test_off_and_unwritable_folders(tmp_path, monkeypatch):

@@ -8,6 +8,7 @@ import csv
 import dataclasses
 import importlib.util
 import json
+import os
 import socket
 import subprocess
 import sys
@@ -297,6 +298,37 @@ def test_the_oracle_bounds_a_policy_one_move_ahead(table1, tmp_path):
     assert [f1(together[s]) for s in range(2)] == pytest.approx([f1(records["oracle_gr", s]) for s in range(2)])
     (share,) = io.read_jsonl(tmp_path / "o3" / "episodes.1.jsonl")
     assert share == records["oracle_gr", 1]  # (the same call, whatever the process count)
+    # With the compilation cache on, each program is loaded on a background thread before its first call (its
+    # frames' shapes known, not the frames): the batched and the oracle's programs, one each, are what the calls
+    # ran (a signature of its own would make a third), and they give the records of the run without the cache.
+    cached = _cached_run(tmp_path, [*argv, f"out_dir={tmp_path / 'cached'}"])
+    assert cached["programs"] == 2 and not cached["warnings"], cached
+    assert io.read_jsonl(tmp_path / "cached" / "episodes.jsonl") == io.read_jsonl(tmp_path / "o" / "episodes.jsonl")
+
+
+# ``experiments/table1.py`` in a process of its own with the compilation cache on; prints the programs kept
+# (``compile_cache.exported``) and the warnings about loading one ahead.
+_CACHED = """
+import importlib.util, json, sys, warnings
+from jaxcls import compile_cache
+spec = importlib.util.spec_from_file_location("table1", {script!r})
+table1 = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(table1)
+with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter("always")
+    table1.main({argv!r})
+print(json.dumps({{"programs": len(compile_cache._exported),
+                  "warnings": [str(w.message) for w in caught if "ahead" in str(w.message)]}}))
+"""
+
+
+def _cached_run(tmp_path: Path, argv: list[str]) -> dict:
+    env = {**os.environ, "JAX_PLATFORMS": "cpu", "JAXCLS_CACHE_DIR": str(tmp_path / "xla")}
+    done = subprocess.run([sys.executable, "-c", _CACHED.format(script=str(ROOT / "experiments" / "table1.py"),
+                                                                 argv=argv)],
+                          capture_output=True, text=True, env=env, cwd=ROOT, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    return json.loads(done.stdout.strip().splitlines()[-1])
 
 
 def _memory_maps() -> int | None:

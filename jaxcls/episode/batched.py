@@ -208,16 +208,44 @@ def dispatch(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, scene: 
             scene = np.concatenate([scene, np.repeat(scene[:1], pad)])
             start = np.concatenate([start, np.repeat(start[:1], pad)])
             keys = jnp.concatenate([keys, jnp.repeat(keys[:1], pad, axis=0)])
-    split = NamedSharding(device_mesh, PartitionSpec(AXIS))
-    frames = split if split_scenes else NamedSharding(device_mesh, PartitionSpec())
-    args = (jax.device_put(episode, NamedSharding(device_mesh, PartitionSpec())),
-            jax.device_put(jnp.asarray(depth, jnp.float32), frames),
-            jax.device_put(jnp.asarray(T_wc, jnp.float32), frames),
-            jax.device_put(scene, split), jax.device_put(start, split), jax.device_put(keys, split))
+    args = _placed(episode, depth, T_wc, scene, start, keys, device_mesh, split_scenes)
     # (with the compilation cache on, a later process compiles the program kept on disk instead of tracing it)
     traces = compile_cache.exported(_traced(device_mesh, split_scenes), args, "batched_episodes",
                                     KERNEL_OPTIONS[kernels])(*args)
     return traces if order is None else _reordered(traces, order)
+
+
+def _placed(episode: active.Episode, depth: jax.Array | jax.ShapeDtypeStruct, T_wc: jax.Array, scene: np.ndarray,
+            start: np.ndarray, keys: jax.Array, device_mesh: Mesh, split_scenes: bool) -> tuple:
+    """The program's arguments on their devices (frames split by scene or replicated, the episodes split); a
+    ``jax.ShapeDtypeStruct`` ``depth`` (frames not yet rendered) becomes one with its sharding."""
+    split = NamedSharding(device_mesh, PartitionSpec(AXIS))
+    frames = split if split_scenes else NamedSharding(device_mesh, PartitionSpec())
+    depth = (jax.ShapeDtypeStruct(depth.shape, jnp.float32, sharding=frames) if isinstance(depth, jax.ShapeDtypeStruct)
+             else jax.device_put(jnp.asarray(depth, jnp.float32), frames))
+    return (jax.device_put(episode, NamedSharding(device_mesh, PartitionSpec())), depth,
+            jax.device_put(jnp.asarray(T_wc, jnp.float32), frames),
+            jax.device_put(scene, split), jax.device_put(start, split), jax.device_put(keys, split))
+
+
+def prepare(episode: active.Episode, frames: tuple[int, int, int, int], size: int, device_mesh: Mesh | None = None,
+            split_scenes: bool = False, kernels: Kernels = Kernels.fixed) -> None:
+    """Read and compile (with the compilation cache on: load) the program that ``dispatch`` runs for ``episode``
+    over frames of shape ``frames`` = (S, V, H, W) in calls of ``size`` episodes (a multiple of the devices,
+    each device's share at most size / n), before the frames exist: e.g. on a background thread
+    (``compile_cache.ahead``) while they are rendered, so that the first call finds it ready. Without the cache
+    nothing is done here (the first call compiles)."""
+    if not compile_cache.enabled():
+        return
+    device_mesh = device_mesh or mesh()
+    n = device_mesh.devices.size
+    rows = n * -(-size // n)
+    S, V = frames[0], frames[1]
+    key = jax.random.PRNGKey(0)
+    args = _placed(episode, jax.ShapeDtypeStruct(tuple(frames), jnp.float32), np.zeros((S, V, 4, 4), np.float32),
+                   np.zeros(rows, np.int32), np.zeros(rows, np.int32), jnp.broadcast_to(key, (rows, *key.shape)),
+                   device_mesh, split_scenes)
+    compile_cache.exported(_traced(device_mesh, split_scenes), args, "batched_episodes", KERNEL_OPTIONS[kernels])
 
 
 def _grouped(scene: np.ndarray, start: np.ndarray, keys: jax.Array, per: int, n: int, least: int
@@ -253,5 +281,5 @@ def rollouts(episode: active.Episode, depth: jax.Array, T_wc: jax.Array, scene: 
                           kernels=kernels), len(scene))
 
 
-__all__ = ["AXIS", "KERNEL_OPTIONS", "Kernels", "dispatch", "fetch", "mesh", "rendered", "replicate", "rollouts",
-           "split_frames"]
+__all__ = ["AXIS", "KERNEL_OPTIONS", "Kernels", "dispatch", "fetch", "mesh", "prepare", "rendered", "replicate",
+           "rollouts", "split_frames"]

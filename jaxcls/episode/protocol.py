@@ -215,16 +215,11 @@ def oracle_rollouts(episode: active.Episode, depth: np.ndarray, T_wc: np.ndarray
             raise ValueError(f"oracle_rollouts: several scenes need depth [S, V, H, W], T_wc [S, V, 4, 4], scene [R] "
                              f"and a truth per run; got {depth.shape}, {T_wc.shape}, {scene.shape}, {len(truths)} "
                              f"truths for {R} runs")
-    # Every input committed to the frames' device: the program sees one signature on every move (its own
-    # outputs, the next move's states, are committed).
-    device = next(iter(depth.devices()))
-    runs, at, episode, T_wc = np.arange(R), *jax.device_put((jnp.asarray(scene), episode, T_wc), device)
-    states = jax.device_put(_resets(episode, T_wc[at], jnp.asarray(starts, jnp.int32), keys), device)
-    C = _runs_candidates(episode, states.views)[0].shape[1]
-    to_start = jax.device_put(jnp.asarray(np.repeat(starts[:, None], C, axis=1), jnp.int32), device)
-    moves_to = compile_cache.exported(_runs_moves_to, (episode, states, depth, T_wc, at, to_start), "oracle_moves",
-                                      batched.KERNEL_OPTIONS[kernels])
-    states, traces = moves_to(episode, states, depth, T_wc, at, to_start)
+    runs, device = np.arange(R), next(iter(depth.devices()))
+    args = _oracle_first_move(episode, depth, T_wc, scene, starts, keys, device)
+    moves_to = compile_cache.exported(_runs_moves_to, args, "oracle_moves", batched.KERNEL_OPTIONS[kernels])
+    episode, states, depth, T_wc, at, _ = args
+    states, traces = moves_to(*args)
     traces = jax.device_get(traces)  # [R, C] traces on the host once a move: scored, and the picks kept
     pick = np.zeros(R, np.int64)
     kept = []
@@ -245,6 +240,39 @@ def oracle_rollouts(episode: active.Episode, depth: np.ndarray, T_wc: np.ndarray
         f1 = np.where(allowed, f1, -1.0)
         pick = np.argmax(f1, axis=1)
     return jax.tree.map(lambda *xs: np.stack(xs, axis=1), *kept)
+
+
+def _oracle_first_move(episode: active.Episode, depth: jax.Array | jax.ShapeDtypeStruct, T_wc: jax.Array,
+                       scene: np.ndarray, starts: np.ndarray, keys: jax.Array, device: jax.Device) -> tuple:
+    """The oracle's move program's arguments for its first move (every candidate column to the start): episode,
+    the runs' reset states, depth, T_wc, each run's scene, the views [R, C]. Every input committed to ``device``,
+    the frames': the program sees one signature on every move (its own outputs, the next move's states, are
+    committed); a ``jax.ShapeDtypeStruct`` ``depth`` (frames not yet rendered) gets that device's sharding."""
+    at, episode, T_wc = jax.device_put((jnp.asarray(scene), episode, T_wc), device)
+    states = jax.device_put(_resets(episode, T_wc[at], jnp.asarray(starts, jnp.int32), keys), device)
+    C = _runs_candidates(episode, states.views)[0].shape[1]
+    to_start = jax.device_put(jnp.asarray(np.repeat(np.asarray(starts)[:, None], C, axis=1), jnp.int32), device)
+    if isinstance(depth, jax.ShapeDtypeStruct):
+        depth = jax.ShapeDtypeStruct(depth.shape, jnp.float32, sharding=to_start.sharding)
+    return episode, states, depth, T_wc, at, to_start
+
+
+def prepare_oracle(episode: active.Episode, frames: tuple[int, int, int, int], runs: int,
+                   kernels: batched.Kernels = batched.Kernels.fixed) -> None:
+    """Read and compile (with the compilation cache on: load) the program ``oracle_rollouts`` runs for
+    ``episode`` over several scenes' frames of shape ``frames`` = (S, V, H, W) on the default device, ``runs``
+    runs a call, before the frames exist: e.g. on a background thread (``compile_cache.ahead``) while the host
+    waits for other episodes. Without the cache nothing is done here (the first call compiles)."""
+    if not compile_cache.enabled():
+        return
+    S, V = frames[0], frames[1]
+    device = next(iter(jnp.zeros((), jnp.float32).devices()))
+    T_wc = np.broadcast_to(np.eye(4, dtype=np.float32), (S, V, 4, 4))
+    key = jax.random.PRNGKey(0)
+    args = _oracle_first_move(episode, jax.ShapeDtypeStruct(tuple(frames), jnp.float32), jnp.asarray(T_wc),
+                              np.zeros(runs, np.int32), np.zeros(runs, np.int64),
+                              jnp.broadcast_to(key, (runs, *key.shape)), device)
+    compile_cache.exported(_runs_moves_to, args, "oracle_moves", batched.KERNEL_OPTIONS[kernels])
 
 
 def episode_record(trace: active.Trace, truth: scoring.Truth, **keys: Any) -> dict[str, Any]:
@@ -419,5 +447,5 @@ def moves_to_correct(records: Sequence[dict[str, Any]], label: str = "refined", 
 
 
 __all__ = ["PAPER_ROWS", "ROWS", "Kind", "Row", "SceneLabels", "all_views", "episode_record", "episode_records",
-           "moves_to_correct", "oracle_rollouts", "per_scene", "rollouts", "row", "run_keys", "scene_labels",
-           "start_views"]
+           "moves_to_correct", "oracle_rollouts", "per_scene", "prepare_oracle", "rollouts", "row", "run_keys",
+           "scene_labels", "start_views"]

@@ -130,6 +130,11 @@ class Scenes:
                                   table_height=scene.table_height, scene=scene, name=f"scene {i} (rendered)")
                 for n, (i, scene) in enumerate(zip(indices, chunk.scenes, strict=True))]
 
+    def frame_layout(self) -> tuple[Any, float, int]:
+        """(camera intrinsics, table height m, viewpoints V) of every scene's frames, from the dataset's config:
+        known before a frame is rendered or read (a program for the frames' shapes can be loaded meanwhile)."""
+        return self.dataset.camera.intrinsics(), self.dataset.scene.table_height, self.dataset.viewpoints.count
+
     def chunk(self, indices: Sequence[int]) -> Chunk:
         """The frames of scenes ``indices`` stacked for a batched call, on the device when rendered there."""
         if self.files:

@@ -7,10 +7,12 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import json
 import operator
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaxcls import devices, io, report
+from jaxcls import compile_cache, devices, io, report
 from jaxcls.episode import active, batched, protocol, runner, scoring, setup, sources
 from jaxcls.experiments.table1.config import Table1Config
 from jaxcls.experiments.table1.data import Scenes, process_store, read_stores, record_key
@@ -126,11 +128,15 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
     with tqdm(total=len(wanted), initial=len(wanted) - len(todo), desc="episodes", unit="episode",
               disable=not show_progress) as bar:
         batched_todo = [k for k in todo if rows[k[1]].kind in BATCHED]
+        oracle_todo = [k for k in todo if rows[k[1]].kind is protocol.Kind.ORACLE]
         if batched_todo:
             share = len({k[2] for k in wanted if rows[k[1]].kind in BATCHED})  # (a resumed run: the same shapes)
+            # (the oracle's program loaded on a background thread while the batched rows run: queued after theirs)
             stored += run_batched(config, scene_set, dataset, classifiers, object_set, batched_todo, mine, bar, clock,
-                                  share)
-        oracle_todo = [k for k in todo if rows[k[1]].kind is protocol.Kind.ORACLE]
+                                  share, then=lambda: load_oracle_ahead(config, scene_set, dataset, classifiers,
+                                                                        object_set, oracle_todo, oracle))
+        elif oracle_todo:
+            load_oracle_ahead(config, scene_set, dataset, classifiers, object_set, oracle_todo, oracle)
         if oracle_todo:
             stored += run_oracle(config, scene_set, dataset, classifiers, object_set, oracle[index::count], done,
                                  mine, bar, clock, oracle_frames(config, oracle))
@@ -190,8 +196,8 @@ def program_row(row: protocol.Row) -> protocol.Row:
 
 def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                 classifiers: dict[str, pointnet.Classifier], object_set, todo: list[tuple[str, str, int, int]],
-                store: Path, bar: tqdm, clock: Phases | None = None, planned: int | None = None
-                ) -> list[dict[str, Any]]:
+                store: Path, bar: tqdm, clock: Phases | None = None, planned: int | None = None,
+                then: Callable[[], None] | None = None) -> list[dict[str, Any]]:
     """The single-view and policy rows' episodes ``todo`` batched over scenes and runs and sharded over the
     local devices (``episode.batched``): the frames of ``scene_chunk`` of ``todo``'s scenes at a time (rounded up
     to a multiple of the devices), split by scene over the devices (each holds 1/n of them and runs their
@@ -201,7 +207,9 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     (PointNetSingle and VisOcclHist with the same GR) share its episodes. A call's records are built and appended
     while the next call runs on the devices. Returns the records appended. The chunks' and calls' sizes follow
     from ``planned`` scenes (the whole run's share, so that a resumed run has the first one's shapes and
-    compiles nothing; default: ``todo``'s)."""
+    compiles nothing; default: ``todo``'s). With the compilation cache on, each program is read and compiled
+    (loaded) on a background thread while the first chunk's frames are rendered (``compile_cache.ahead``);
+    ``then`` is called once the loads are queued (e.g. to queue the next rows' programs behind them)."""
     clock = clock or Phases()
     device_mesh = batched.mesh()
     policies = tuple(dict.fromkeys(program_row(protocol.ROWS[k[1]]).policy for k in todo))
@@ -239,6 +247,23 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     per, per_call = chunk_sizes(max(planned or 0, len(scenes)), n, config.scene_chunk, config.batch_episodes,
                                 config.runs)
     size = per_call * n * config.runs
+    if compile_cache.enabled():  # the programs loaded while the host renders the first chunk's frames
+        intrinsics, table_height, views = scene_set.frame_layout()
+        frames = (n * per, views, intrinsics.height, intrinsics.width)
+
+        def load(c: str, row: protocol.Row) -> None:
+            built = episode(config, row, classifiers[c], object_set, intrinsics, table_height, dataset.scene.split)
+            batched.prepare(built.switched(policies), frames, size, device_mesh, split_scenes=True,
+                            kernels=config.kernels)
+
+        libraries: dict[tuple[str, Any], protocol.Row] = {}  # (classifier, library) -> a row of its program
+        for k in todo:
+            row = program_row(protocol.ROWS[k[1]])
+            libraries.setdefault((k[0], row.library), row)
+        for (c, library), row in libraries.items():
+            compile_cache.ahead(functools.partial(load, c, row), f"Table 1's batched program ({c}, {library})")
+    if then is not None:
+        then()
     for first in range(0, len(scenes), n * per):
         chunk_scenes = scenes[first:first + n * per]
         slots = chunk_layout(chunk_scenes, n, per)  # the scene in each frame slot (device d: slots d per ...)
@@ -291,6 +316,26 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     if pending:
         finish()
     return made
+
+
+def load_oracle_ahead(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
+                      classifiers: dict[str, pointnet.Classifier], object_set, todo: list[tuple[str, str, int, int]],
+                      calls: list[list[tuple[str, str, int, int]]]) -> None:
+    """With the compilation cache on, the oracle's program for each (classifier, row) of ``todo`` read and
+    compiled (loaded) on a background thread (``compile_cache.ahead``), for ``run_oracle``'s frames (every
+    process's ``calls``: ``oracle_frames``) and calls, while the host does other work."""
+    if not (todo and compile_cache.enabled()):
+        return
+    intrinsics, table_height, views = scene_set.frame_layout()
+    frames = (oracle_frames(config, calls), views, intrinsics.height, intrinsics.width)
+
+    def load(c: str, name: str) -> None:
+        built = episode(config, protocol.ROWS[name], classifiers[c], object_set, intrinsics, table_height,
+                        dataset.scene.split)
+        protocol.prepare_oracle(built, frames, oracle_call_size(config), config.kernels)
+
+    for c, name in dict.fromkeys(k[:2] for k in todo):
+        compile_cache.ahead(functools.partial(load, c, name), f"the oracle's program ({c}, {name})")
 
 
 def oracle_calls(config: Table1Config, keys: list[tuple[str, str, int, int]]) -> list[list[tuple[str, str, int, int]]]:
