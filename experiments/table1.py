@@ -46,29 +46,46 @@ This is the command line; the logic is ``jaxcls.experiments.table1`` (``config``
 
 from __future__ import annotations
 
-import argparse
-import json
-import os
 import sys
-import time
 from pathlib import Path
 
-import jax
-from jax.experimental import multihost_utils
+from jaxcls.experiments.table1 import local
 
-from jaxcls import compile_cache, io, precision, report
-from jaxcls.config import load_config, save_config
-from jaxcls.experiments.table1 import data, figure, local, runner, tables
-from jaxcls.experiments.table1.config import SceneSource, Table1Config, check_out_dir
-from jaxcls.world.objects import object_set_from_config
+# --local-processes: its processes started here, before this one loads JAX and the config's schema, where that is
+# safe (local.start_early: ~3 s sooner on a GPU host); main hands them on, or stops them if it refuses the command.
+EARLY = local.start_early(sys.argv[1:], Path(__file__).resolve()) if __name__ == "__main__" else None
+
+import argparse  # noqa: E402  (the imports below load JAX: after the early start)
+import json  # noqa: E402
+import os  # noqa: E402
+import time  # noqa: E402
+
+import jax  # noqa: E402
+from jax.experimental import multihost_utils  # noqa: E402
+
+from jaxcls import compile_cache, io, precision, report  # noqa: E402
+from jaxcls.config import load_config, save_config  # noqa: E402
+from jaxcls.experiments.table1 import data, figure, runner, tables  # noqa: E402
+from jaxcls.experiments.table1.config import SceneSource, Table1Config, check_out_dir  # noqa: E402
+from jaxcls.world.objects import object_set_from_config  # noqa: E402
 
 STARTUP = "start-up (Python, imports, config)"
 SHUTDOWN_WAIT_SECONDS = 6 * 3600  # how long the other processes of a --distributed run wait for process 0 at exit
 
 
-def main(argv: list[str] | None = None, command_line: bool = False) -> None:
+def main(argv: list[str] | None = None, command_line: bool = False, early: local.Started | None = None) -> None:
     """The experiment (``argv``: its arguments, default the process's); ``command_line``: this process runs it
-    alone (its start-up phase then counts from the process's start: Python and the imports)."""
+    alone (its start-up phase then counts from the process's start: Python and the imports); ``early``:
+    ``--local-processes``' processes already started for these arguments (``local.start_early``), stopped if the
+    command is refused."""
+    try:
+        _main(argv, command_line, early)
+    finally:
+        if early is not None:
+            early.stop()  # (nothing left running once the command ends; a no-op after local.run)
+
+
+def _main(argv: list[str] | None, command_line: bool, early: local.Started | None) -> None:
     main_began = time.perf_counter()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", default="table1_synthetic", help="a path or a shipped config name")
@@ -131,7 +148,7 @@ def main(argv: list[str] | None = None, command_line: bool = False) -> None:
     timing_file = out / "timing.json"
     timing = json.loads(timing_file.read_text()) if timing_file.exists() else None
     others = None  # process 0 of several: the other processes' episodes, read while they run
-    early = None  # --local-processes: rows tabulated while the processes still run (tables.EarlyRows)
+    rows_early = None  # --local-processes: rows tabulated while the processes still run (tables.EarlyRows)
     if args.tables_only:
         dataset = data.dataset_config(config)
         records = data.stored_records(config, store)
@@ -141,14 +158,17 @@ def main(argv: list[str] | None = None, command_line: bool = False) -> None:
         every = runner.episode_keys(config, scene_set.count)
         stored = {data.record_key(r) for r in data.read_stores(store)} & set(every)
         # The batched rows' tables made while the processes run the oracle (each runs it after its batched rows).
-        early = tables.EarlyRows(config, len(object_set_from_config(dataset.objects).classes), every,
-                                 select=lambda so_far: data.of_config(config, so_far))
+        rows_early = tables.EarlyRows(config, len(object_set_from_config(dataset.objects).classes), every,
+                                      select=lambda so_far: data.of_config(config, so_far))
+        lines = local.commands(Path(__file__).resolve(), ["--config", args.config, *args.overrides],
+                               args.local_processes)
+        if early is not None and (early.command_lines != lines or early.out.resolve() != out.resolve()):
+            early.stop()  # (started for other arguments: not these)
+            early = None
         with clock(f"episodes ({args.local_processes} processes)"):
-            records = local.run(
-                local.commands(Path(__file__).resolve(), ["--config", args.config, *args.overrides],
-                               args.local_processes),
-                local.visible_gpus(args.local_processes), out, lambda: data.store_paths(store), len(every),
-                len(stored), offer=early.offer)
+            processes = early or local.start(lines, local.visible_gpus(args.local_processes), out)
+            records = local.run(processes, lambda: data.store_paths(store), len(every), len(stored),
+                                offer=rows_early.offer)
         records = data.of_config(config, records)
         clock.episodes = len(records) - len(stored)
         timing = json.loads(timing_file.read_text()) if timing_file.exists() else None  # (process 0's)
@@ -193,7 +213,7 @@ def main(argv: list[str] | None = None, command_line: bool = False) -> None:
     with clock("tables and figure"):
         classes = len(object_set_from_config(dataset.objects).classes)
         markdown, csv_rows, curves = tables.tables(config, records, classes, timing, argv,
-                                                   early.result() if early is not None else None)
+                                                   rows_early.result() if rows_early is not None else None)
         io.write_text(out / "table.md", markdown)
         io.write_text(out / "table.csv", tables.csv_text(csv_rows))
         if curves:
@@ -218,7 +238,7 @@ def finish_run_times(clock: runner.Phases, store: Path, started: float, share: t
 
 
 if __name__ == "__main__":
-    main(command_line=True)
+    main(command_line=True, early=EARLY)
     # Done, every file written: end without tearing down the accelerator's runtime and the episodes' memory
     # (~6 s on an H200 after a 1,000-scene run, in every process of a run split over GPUs).
     sys.stdout.flush()

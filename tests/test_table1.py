@@ -95,14 +95,41 @@ def test_local_processes_get_a_gpu_each_and_a_failed_one_stops_them_all(table1, 
              [sys.executable, "-c", f"{gpu}; import time; time.sleep(60)"]]
     began = time.perf_counter()
     with pytest.raises(RuntimeError, match=r"process 0 of 2 failed \(exit status 3\).*process\.0\.log:\ngpu 7"):
-        local.run(lines, ["7", "8"], tmp_path, lambda: [tmp_path / "episodes.0.jsonl"], 4, 0, show_progress=False,
-                  poll_seconds=0.1)
+        local.run(local.start(lines, ["7", "8"], tmp_path), lambda: [tmp_path / "episodes.0.jsonl"], 4, 0,
+                  show_progress=False, poll_seconds=0.1)
     assert time.perf_counter() - began < 30  # the sleeping one was stopped, not waited for
     assert (tmp_path / "process.1.log").read_text().strip() == "gpu 8"
     io.append_jsonl(tmp_path / "episodes.1.jsonl", [{"a": 1}, {"a": 2}])
-    done = local.run([[sys.executable, "-c", "pass"]], ["0"], tmp_path, lambda: [tmp_path / "episodes.1.jsonl"], 2,
-                     0, show_progress=False, poll_seconds=0.1)
+    done = local.run(local.start([[sys.executable, "-c", "pass"]], ["0"], tmp_path),
+                     lambda: [tmp_path / "episodes.1.jsonl"], 2, 0, show_progress=False, poll_seconds=0.1)
     assert done == [{"a": 1}, {"a": 2}]
+
+
+def test_local_processes_start_before_jax_only_where_that_is_safe(tmp_path, monkeypatch):
+    """``local.start_early``: the processes of a config that draws its scenes on the device and names its out_dir
+    start at once, with the command lines the launcher would give them; a dataset config (rendered first by the
+    launcher), another flag or no --config leave the start to the launcher's checks."""
+    from jaxcls.experiments.table1 import local
+
+    monkeypatch.delenv("CUDA_VISIBLE_DEVICES", raising=False)
+    script = tmp_path / "child.py"  # (a process that writes its arguments and GPU)
+    script.write_text("import os, sys, pathlib; pathlib.Path(__file__).with_name(sys.argv[-1] + '.args').write_text("
+                      "' '.join(sys.argv[1:]) + ' gpu=' + os.environ['CUDA_VISIBLE_DEVICES'])\n")
+    config = tmp_path / "t.yaml"
+    config.write_text(f"out_dir: {tmp_path / 'out'}\nscene_source: device\n")
+    assert local.start_early(["--config", str(config), "--local-processes", "2", "--tables-only"], script) is None
+    assert local.start_early(["--config", str(config)], script) is None
+    assert local.start_early(["--local-processes", "2", "scenes=3"], script) is None  # (the default: a dataset)
+    assert local.start_early(["--config", str(config), "--local-processes", "2", "scene_source=dataset"],
+                             script) is None
+    started = local.start_early(["--config", str(config), "scenes=3", "--local-processes", "2"], script)
+    assert started is not None and started.out == tmp_path / "out"
+    assert started.command_lines == local.commands(script, ["--config", str(config), "scenes=3"], 2)
+    for p in started.processes:
+        assert p.wait(timeout=60) == 0
+    started.stop()
+    assert sorted(f.read_text() for f in tmp_path.glob("*.args")) == [
+        f"--config {config} scenes=3 --processes 2 --process-id {i} gpu={i}" for i in range(2)]
 
 
 def test_a_follower_reads_logs_as_other_processes_append_to_them(tmp_path):
