@@ -208,7 +208,8 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     while the next call runs on the devices. Returns the records appended. The chunks' and calls' sizes follow
     from ``planned`` scenes (the whole run's share, so that a resumed run has the first one's shapes and
     compiles nothing; default: ``todo``'s). With the compilation cache on, each program is read and compiled
-    (loaded) on a background thread while the first chunk's frames are rendered (``compile_cache.ahead``);
+    (loaded) on a background thread while the host builds the renderer and draws the first chunk's scenes
+    (``compile_cache.ahead``; the renders themselves wait for it: ``compile_cache.no_loads``);
     ``then`` is called once the loads are queued (e.g. to queue the next rows' programs behind them)."""
     clock = clock or Phases()
     device_mesh = batched.mesh()
@@ -247,7 +248,7 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     per, per_call = chunk_sizes(max(planned or 0, len(scenes)), n, config.scene_chunk, config.batch_episodes,
                                 config.runs)
     size = per_call * n * config.runs
-    if compile_cache.enabled():  # the programs loaded while the host renders the first chunk's frames
+    if compile_cache.enabled():  # the programs loaded while the host prepares the first chunk's frames
         intrinsics, table_height, views = scene_set.frame_layout()
         frames = (n * per, views, intrinsics.height, intrinsics.width)
 
