@@ -50,8 +50,6 @@ _exported: dict[tuple, Callable] = {}  # ``exported``'s programs in this process
 _making: dict[tuple, threading.Lock] = {}  # one lock a program being made: a second thread waits for the first
 _making_lock = threading.Lock()
 _background: ThreadPoolExecutor | None = None  # ``ahead``'s thread, started on its first use
-# Held by a load on ``ahead``'s thread and by what must not run beside one (``no_loads``).
-_loading = threading.RLock()
 # JAX settings that say where and whether programs are cached, not what they compute: not in ``exported``'s key.
 _NOT_IN_KEY = ("compilation_cache", "persistent_cache", "log_compiles", "explain_cache_misses")
 
@@ -199,27 +197,22 @@ def exported(jitted_program: Callable, args: tuple, kind: str, compiler_options:
     return _exported[key]
 
 
-def no_loads():
-    """A context in which no ``ahead`` load runs (one that is running is waited for, later ones wait). For work
-    that breaks when another thread loads a program onto the GPU: MuJoCo Warp's renders, whose CUDA graph
-    capture fails then ("Warp CUDA error 901: operation failed due to a previous error during capture", or a
-    crash; measured on an H200: a render loop beside a thread compiling small programs failed within seconds,
-    never with this lock held by both). Such work waits for its results inside the context."""
-    return _loading
-
-
 def ahead(load: Callable[[], Any], what: str) -> Future:
     """``load()`` on a background thread (one for the process, loads run in the order given), e.g. an
-    ``exported`` program read and compiled while the host builds the frames' renderer or waits for the
-    devices; never beside work in ``no_loads`` (a render). An exception is not raised but warned about (naming
-    ``what``): the caller then makes the program itself when it needs it. Returns the load's ``Future`` (its
-    result, or None after a failure)."""
+    ``exported`` program read and compiled while the host builds a renderer or waits for the devices. An
+    exception is not raised but warned about (naming ``what``): the caller then makes the program itself when
+    it needs it. Returns the load's ``Future`` (its result, or None after a failure).
+
+    Never beside a MuJoCo Warp render (one dispatched and not yet done): a program loaded onto the GPU by
+    another thread breaks Warp's CUDA graph capture ("Warp CUDA error 901: operation failed due to a previous
+    error during capture", or a crash; on an H200 a render loop beside a thread compiling programs failed
+    within seconds). The caller starts a load after its renders are done and waits for it before the next one
+    (``experiments.table1.runner``: the frames of a chunk are done once a call that uses them is)."""
     global _background
 
     def guarded():
         try:
-            with _loading:
-                return load()
+            return load()
         except Exception as e:
             warnings.warn(f"compilation cache: loading {what} ahead failed ({type(e).__name__}: {e}); it is made "
                           "when first called", stacklevel=2)
@@ -274,4 +267,4 @@ def _exported_program(jitted_program: Callable, args: tuple, kind: str, key: str
 
 
 __all__ = ["ENV", "MIN_COMPILE_SECONDS", "ahead", "cache_folder", "cached_arrays", "enable", "enabled", "exported",
-           "exported_key", "jitted", "no_loads", "options_key"]
+           "exported_key", "jitted", "options_key"]

@@ -135,6 +135,13 @@ class Scenes:
         known before a frame is rendered or read (a program for the frames' shapes can be loaded meanwhile)."""
         return self.dataset.camera.intrinsics(), self.dataset.scene.table_height, self.dataset.viewpoints.count
 
+    def prepare_renderer(self) -> None:
+        """Build what rendering needs (the scene bank and its renderer, drawn scenes aside), rendering nothing:
+        host work that a program loaded on another thread meanwhile may overlap (``compile_cache.ahead``: never
+        a render). Nothing to do for a dataset's files."""
+        if not self.files and self.backend is Backend.warp:
+            _bank(self.dataset.objects, self.dataset.scene, self.dataset.camera)[1].warp_renderer  # noqa: B018
+
     def chunk(self, indices: Sequence[int]) -> Chunk:
         """The frames of scenes ``indices`` stacked for a batched call, on the device when rendered there."""
         if self.files:

@@ -12,7 +12,8 @@ import json
 import operator
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future
 from pathlib import Path
 from typing import Any
 
@@ -129,17 +130,21 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
               disable=not show_progress) as bar:
         batched_todo = [k for k in todo if rows[k[1]].kind in BATCHED]
         oracle_todo = [k for k in todo if rows[k[1]].kind is protocol.Kind.ORACLE]
+        loading: list[Future] = []  # the oracle's programs being loaded (run_oracle renders once they are)
+
+        def load_oracle() -> None:
+            loading.extend(load_oracle_ahead(config, scene_set, dataset, classifiers, object_set, oracle_todo, oracle))
+
         if batched_todo:
             share = len({k[2] for k in wanted if rows[k[1]].kind in BATCHED})  # (a resumed run: the same shapes)
-            # (the oracle's program loaded on a background thread while the batched rows run: queued after theirs)
+            # (the oracle's program loaded while the batched rows' last calls run, after their last render)
             stored += run_batched(config, scene_set, dataset, classifiers, object_set, batched_todo, mine, bar, clock,
-                                  share, then=lambda: load_oracle_ahead(config, scene_set, dataset, classifiers,
-                                                                        object_set, oracle_todo, oracle))
-        elif oracle_todo:
-            load_oracle_ahead(config, scene_set, dataset, classifiers, object_set, oracle_todo, oracle)
+                                  share, then=load_oracle)
+        else:
+            load_oracle()
         if oracle_todo:
             stored += run_oracle(config, scene_set, dataset, classifiers, object_set, oracle[index::count], done,
-                                 mine, bar, clock, oracle_frames(config, oracle))
+                                 mine, bar, clock, oracle_frames(config, oracle), loading)
         todo = [k for k in todo if rows[k[1]].kind not in (*BATCHED, protocol.Kind.ORACLE)]
         programs = [(c, name) for c in classifiers for name in rows if any(k[:2] == (c, name) for k in todo)]
         for group in passes(programs, jax.default_backend()):
@@ -208,25 +213,31 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     while the next call runs on the devices. Returns the records appended. The chunks' and calls' sizes follow
     from ``planned`` scenes (the whole run's share, so that a resumed run has the first one's shapes and
     compiles nothing; default: ``todo``'s). With the compilation cache on, each program is read and compiled
-    (loaded) on a background thread while the host builds the renderer and draws the first chunk's scenes
-    (``compile_cache.ahead``; the renders themselves wait for it: ``compile_cache.no_loads``);
-    ``then`` is called once the loads are queued (e.g. to queue the next rows' programs behind them)."""
+    (loaded) on a background thread (``compile_cache.ahead``) while the host builds the renderer, and the first
+    frames are rendered once it is loaded (never beside a load: ``compile_cache.ahead`` says why). ``then`` is
+    called once the last chunk's frames are rendered and in use, with no render to come here (e.g. to load the
+    next rows' programs while the last calls run)."""
     clock = clock or Phases()
     device_mesh = batched.mesh()
     policies = tuple(dict.fromkeys(program_row(protocol.ROWS[k[1]]).policy for k in todo))
     switched: dict[tuple[str, str], active.Episode] = {}
-    pending: list = []  # the call in flight: (its episodes' keys by row, traces, truths, starts, scene positions)
+    pending: list = []  # the call in flight: (its episodes' keys by row, traces, truths, starts, scene positions,
+    # whether it is of the last chunk)
+    then_called: list = []
+    dispatched: list = []  # (once the first call is)
     made: list[dict[str, Any]] = []  # the records appended
 
     def episodes_clock():
-        """Dispatching a call (the first one compiles) and waiting for one: the devices' share of the run."""
-        first_call = "batched episodes, first call (compiles)"
-        return clock("batched episodes" if first_call in clock.seconds else first_call)
+        """Dispatching a call (the first one compiles, or waits for its program loaded ahead) and waiting for
+        one: the devices' share of the run."""
+        return clock("batched episodes" if dispatched else "batched episodes, first call (compiles)")
 
     def finish() -> None:
-        calls, traces, truths, start, at = pending.pop()
+        calls, traces, truths, start, at, last = pending.pop()
         with episodes_clock():
             traces = batched.fetch(traces, len(start))
+        if last and then is not None and not then_called:  # (its chunk's frames rendered: no render to come)
+            then_called.append(then())
         with clock("records (labels matched to the objects)"):
             for (c, name), keys in calls.items():
                 moves = 1 if protocol.ROWS[name].kind is protocol.Kind.SINGLE else config.moves
@@ -248,7 +259,8 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     per, per_call = chunk_sizes(max(planned or 0, len(scenes)), n, config.scene_chunk, config.batch_episodes,
                                 config.runs)
     size = per_call * n * config.runs
-    if compile_cache.enabled():  # the programs loaded while the host prepares the first chunk's frames
+    loading: list[Future] = []  # the programs loaded ahead: waited for before the first render
+    if compile_cache.enabled():  # the programs loaded while the host builds the renderer
         intrinsics, table_height, views = scene_set.frame_layout()
         frames = (n * per, views, intrinsics.height, intrinsics.width)
 
@@ -262,10 +274,15 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
             row = program_row(protocol.ROWS[k[1]])
             libraries.setdefault((k[0], row.library), row)
         for (c, library), row in libraries.items():
-            compile_cache.ahead(functools.partial(load, c, row), f"Table 1's batched program ({c}, {library})")
-    if then is not None:
-        then()
-    for first in range(0, len(scenes), n * per):
+            loading.append(compile_cache.ahead(functools.partial(load, c, row),
+                                               f"Table 1's batched program ({c}, {library})"))
+    with clock("frames (rendered or read)"):
+        scene_set.prepare_renderer()
+    with episodes_clock():  # (the first call's load, as far as the renderer's set-up did not hide it)
+        for future in loading:
+            future.result()
+    firsts = range(0, len(scenes), n * per)
+    for first in firsts:
         chunk_scenes = scenes[first:first + n * per]
         slots = chunk_layout(chunk_scenes, n, per)  # the scene in each frame slot (device d: slots d per ...)
         at = {}  # a scene's slot in the chunk's frames (its first, where padding repeats it)
@@ -309,24 +326,28 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                     with episodes_clock():
                         traces = batched.dispatch(chosen, depth, T_wc, scene, start, key, device_mesh, size,
                                                   split_scenes=True, kernels=config.kernels)
+                    dispatched.append(True)
                     if pending:
                         finish()  # the last call's records, while this one runs
                     calls = {(c, name): [(index[k[2:]], k) for k in chunk_todo
                                          if k[:2] == (c, name) and k[2:] in index] for name in names}
-                    pending.append((calls, traces, truths, start, at))
+                    pending.append((calls, traces, truths, start, at, first == firsts[-1]))
     if pending:
         finish()
+    if then is not None and not then_called:
+        then()
     return made
 
 
 def load_oracle_ahead(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                       classifiers: dict[str, pointnet.Classifier], object_set, todo: list[tuple[str, str, int, int]],
-                      calls: list[list[tuple[str, str, int, int]]]) -> None:
+                      calls: list[list[tuple[str, str, int, int]]]) -> list[Future]:
     """With the compilation cache on, the oracle's program for each (classifier, row) of ``todo`` read and
     compiled (loaded) on a background thread (``compile_cache.ahead``), for ``run_oracle``'s frames (every
-    process's ``calls``: ``oracle_frames``) and calls, while the host does other work."""
+    process's ``calls``: ``oracle_frames``) and calls, while the host does other work (no render: a render
+    waits for the loads returned)."""
     if not (todo and compile_cache.enabled()):
-        return
+        return []
     intrinsics, table_height, views = scene_set.frame_layout()
     frames = (oracle_frames(config, calls), views, intrinsics.height, intrinsics.width)
 
@@ -335,8 +356,8 @@ def load_oracle_ahead(config: Table1Config, scene_set: Scenes, dataset: DatasetC
                         dataset.scene.split)
         protocol.prepare_oracle(built, frames, oracle_call_size(config), config.kernels)
 
-    for c, name in dict.fromkeys(k[:2] for k in todo):
-        compile_cache.ahead(functools.partial(load, c, name), f"the oracle's program ({c}, {name})")
+    return [compile_cache.ahead(functools.partial(load, c, name), f"the oracle's program ({c}, {name})")
+            for c, name in dict.fromkeys(k[:2] for k in todo)]
 
 
 def oracle_calls(config: Table1Config, keys: list[tuple[str, str, int, int]]) -> list[list[tuple[str, str, int, int]]]:
@@ -368,12 +389,16 @@ def oracle_frames(config: Table1Config, calls: list[list[tuple[str, str, int, in
 def run_oracle(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                classifiers: dict[str, pointnet.Classifier], object_set,
                calls: list[list[tuple[str, str, int, int]]], done: set, store: Path, bar: tqdm, clock: Phases,
-               frames: int) -> list[dict[str, Any]]:
+               frames: int, loading: Sequence[Future] = ()) -> list[dict[str, Any]]:
     """The oracle row's ``calls`` (``oracle_calls``; this process's) with an episode not in ``done``, each one call
     of ``protocol.oracle_rollouts`` over the runs of its scenes, padded to the calls' size (copies of its first
     episode, dropped); the frames of consecutive calls' scenes at a time, ``frames`` scenes (``oracle_frames``;
     padded with copies of the first scene's, never used). A call runs whole, as every process count and an
-    uninterrupted run have it; its episodes not in ``done`` are appended to ``store`` and returned."""
+    uninterrupted run have it; its episodes not in ``done`` are appended to ``store`` and returned. ``loading``:
+    programs being loaded ahead (``load_oracle_ahead``), waited for before the first render."""
+    with clock("the oracle (runs of several scenes a call)"):
+        for future in loading:
+            future.result()
     calls = [call for call in calls if any(k not in done for k in call)]
     size = oracle_call_size(config)  # (every call padded to it: a resumed run's last, shorter call too)
     episodes: dict[tuple[str, str], active.Episode] = {}

@@ -33,7 +33,6 @@ import mujoco
 import numpy as np
 from flax import struct
 
-from jaxcls import compile_cache
 from jaxcls.geometry import CV_TO_MJ, Intrinsics
 from jaxcls.math import normalize
 from jaxcls.world.render import contract
@@ -264,8 +263,7 @@ class WarpRenderer:
                mocap_quat: jax.Array | None = None) -> DepthFrames:
         """T_wc: [B, 4, 4] | [4, 4]. Returns JAX [B, H, W] f32 depth and i32 object ids. With ``mocap_pos``
         [B, nmocap, 3] and ``mocap_quat`` [B, nmocap, 4], world b's mocap bodies stand there (a scene bank's
-        scenes, ``world.bank``; the camera's own mocap is set from ``T_wc``). The frames are ready when it
-        returns."""
+        scenes, ``world.bank``; the camera's own mocap is set from ``T_wc``)."""
         T = jnp.asarray(contract.check_poses(T_wc), jnp.float32)
         if (mocap_pos is None) != (mocap_quat is None):
             raise ValueError("warp: give mocap_pos and mocap_quat together")
@@ -275,8 +273,5 @@ class WarpRenderer:
                                       or mocap_quat.shape != (T.shape[0], self._mjm.nmocap, 4)):
             raise ValueError(f"warp: mocap_pos/quat must be [{T.shape[0]}, {self._mjm.nmocap}, 3/4], got "
                              f"{mocap_pos.shape} and {mocap_quat.shape}")
-        # Done before it returns, and never beside a program loaded on another thread (compile_cache.no_loads:
-        # Warp's graph capture fails then).
-        with compile_cache.no_loads():
-            _, render = self._context(T.shape[0])
-            return jax.block_until_ready(render(self._mx, self._dx0, self._geom_object, T, mocap_pos, mocap_quat))
+        _, render = self._context(T.shape[0])
+        return render(self._mx, self._dx0, self._geom_object, T, mocap_pos, mocap_quat)
