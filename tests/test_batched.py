@@ -134,6 +134,9 @@ config = Table1Config(out_dir={out!r}, runs=t.RUNS, moves=t.MOVES, rows=("vis_oc
 
 
 class Frames:  # the scenes' frames, handed out as Table 1's scene set does
+    def prepare_renderer(self):  # (they are made already)
+        pass
+
     def chunk(self, indices):
         i = list(indices)
         return Chunk(scenes=[worlds[k].scene for k in i], depth=depth[i], T_wc=T_wc[i],

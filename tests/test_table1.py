@@ -328,23 +328,41 @@ def test_the_oracle_bounds_a_policy_one_move_ahead(table1, tmp_path):
     # With the compilation cache on, each program is loaded on a background thread before its first call (its
     # frames' shapes known, not the frames): the batched and the oracle's programs, one each, are what the calls
     # ran (a signature of its own would make a third), and they give the records of the run without the cache.
+    # No load ran while frames were being made (on a GPU, MuJoCo Warp's renders fail beside one).
     cached = _cached_run(tmp_path, [*argv, f"out_dir={tmp_path / 'cached'}"])
     assert cached["programs"] == 2 and not cached["warnings"], cached
+    assert cached["loads"] == 2 and cached["frames"] >= 2 and cached["overlaps"] == 0, cached
     assert io.read_jsonl(tmp_path / "cached" / "episodes.jsonl") == io.read_jsonl(tmp_path / "o" / "episodes.jsonl")
 
 
 # ``experiments/table1.py`` in a process of its own with the compilation cache on; prints the programs kept
-# (``compile_cache.exported``) and the warnings about loading one ahead.
+# (``compile_cache.exported``), the warnings about loading one ahead, the loads ahead and the frames made
+# (``Scenes.chunk``), and how many of those overlapped in time.
 _CACHED = """
-import importlib.util, json, sys, warnings
+import importlib.util, json, sys, time, warnings
 from jaxcls import compile_cache
+from jaxcls.experiments.table1 import data
+spans = {{"loads": [], "frames": []}}
+
+def timed(kind, work):
+    began = time.monotonic()
+    try:
+        return work()
+    finally:
+        spans[kind].append((began, time.monotonic()))
+
+chunk, ahead = data.Scenes.chunk, compile_cache.ahead
+data.Scenes.chunk = lambda self, indices: timed("frames", lambda: chunk(self, indices))
+compile_cache.ahead = lambda load, what: ahead(lambda: timed("loads", load), what)
 spec = importlib.util.spec_from_file_location("table1", {script!r})
 table1 = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(table1)
 with warnings.catch_warnings(record=True) as caught:
     warnings.simplefilter("always")
     table1.main({argv!r})
-print(json.dumps({{"programs": len(compile_cache._exported),
+overlaps = sum(a < d and c < b for a, b in spans["loads"] for c, d in spans["frames"])
+print(json.dumps({{"programs": len(compile_cache._exported), "loads": len(spans["loads"]),
+                  "frames": len(spans["frames"]), "overlaps": overlaps,
                   "warnings": [str(w.message) for w in caught if "ahead" in str(w.message)]}}))
 """
 
