@@ -189,11 +189,13 @@ def exported(jitted_program: Callable, args: tuple, kind: str, compiler_options:
     with lock:
         if key not in _exported:
             try:
-                _exported[key] = _exported_program(jitted_program, args, kind, key[0], compiler_options)
+                module, out_tree = _exported_module(jitted_program, args, kind, key[0])
             except Exception as e:  # (a program JAX cannot export still runs)
                 warnings.warn(f"compilation cache: {kind} not exported ({type(e).__name__}: {e}); it is traced in "
                               "every process", stacklevel=2)
                 _exported[key] = jitted(jitted_program, compiler_options)
+            else:  # (a failure to compile, e.g. out of memory, is raised and nothing kept: a later call tries again)
+                _exported[key] = _compiled(module, out_tree, args, compiler_options)
     return _exported[key]
 
 
@@ -224,8 +226,17 @@ def ahead(load: Callable[[], Any], what: str) -> Future:
     return _background.submit(guarded)
 
 
-def _exported_program(jitted_program: Callable, args: tuple, kind: str, key: str, compiler_options: dict | None
-                      ) -> Callable:
+def _abstract(args: tuple) -> list:
+    """``args``' leaves as ``jax.ShapeDtypeStruct``s with their sharding and weak type."""
+    import jax
+
+    return [jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=x.sharding, weak_type=x.weak_type)
+            for x in jax.tree.leaves(args)]
+
+
+def _exported_module(jitted_program: Callable, args: tuple, kind: str, key: str) -> tuple[Any, Any]:
+    """(the program's exported module, its output tree): read from ``<folder>/../exported/<kind>/<key>.bin``, or
+    traced, lowered and kept there."""
     import jax
     from jax import export
 
@@ -233,7 +244,7 @@ def _exported_program(jitted_program: Callable, args: tuple, kind: str, key: str
 
     path = _host.parent / "exported" / kind / f"{key}.bin"  # type: ignore[union-attr]
     leaves, tree = jax.tree.flatten(args)
-    abstract = [jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=x.sharding, weak_type=x.weak_type) for x in leaves]
+    abstract = _abstract(args)
     entry: dict[str, Any] | None = None
     try:
         entry = pickle.loads(path.read_bytes())
@@ -256,9 +267,15 @@ def _exported_program(jitted_program: Callable, args: tuple, kind: str, key: str
             io.write_bytes(path, pickle.dumps(entry))
         except OSError as e:
             warnings.warn(f"compilation cache: cannot keep {kind} in {path.parent}: {e}", stacklevel=3)
-    # Compiled now (JAX's persistent cache: loaded), for the arguments' shapes, not at the first call.
-    call = jax.jit(program.call, compiler_options=compiler_options).lower(*abstract).compile()
-    out_tree = entry["out_tree"]
+    return program, entry["out_tree"]
+
+
+def _compiled(program: Any, out_tree: Any, args: tuple, compiler_options: dict | None) -> Callable:
+    """The exported ``program`` compiled now (JAX's persistent cache: loaded) for ``args``' signature, not at its
+    first call; called with the arguments' pytree, it returns ``out_tree``'s."""
+    import jax
+
+    call = jax.jit(program.call, compiler_options=compiler_options).lower(*_abstract(args)).compile()
 
     def run(*call_args):
         return jax.tree.unflatten(out_tree, call(*jax.tree.leaves(call_args)))

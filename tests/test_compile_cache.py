@@ -202,6 +202,31 @@ def test_a_program_loaded_ahead_from_shapes_is_the_one_calls_get(tmp_path):
     assert out == {"same": "1", "traced": "1", "equal": "1", "broken": "1", "warned": "1"}, out
 
 
+def test_a_program_that_fails_to_compile_is_not_kept(tmp_path, monkeypatch):
+    """A compilation that fails (e.g. out of memory while loading beside running work) raises and keeps nothing:
+    the next call makes the program again; only a program JAX cannot export falls back to plain jit."""
+    import jax
+    import jax.numpy as jnp
+
+    monkeypatch.setattr(compile_cache, "_host", tmp_path / "host")  # (on, without JAX's own cache)
+    compiled, failures = compile_cache._compiled, []
+
+    def failing_once(*args, **kwargs):
+        if not failures:
+            failures.append(1)
+            raise RuntimeError("RESOURCE_EXHAUSTED: out of memory")
+        return compiled(*args, **kwargs)
+
+    monkeypatch.setattr(compile_cache, "_compiled", failing_once)
+    program = jax.jit(lambda a: jnp.cos(a) * 3.0)
+    x = jnp.arange(5.0)
+    with pytest.raises(RuntimeError, match="out of memory"):
+        compile_cache.exported(program, (x,), "test_failing")
+    made = compile_cache.exported(program, (x,), "test_failing")
+    assert made is not program and made is compile_cache.exported(program, (x,), "test_failing")
+    np.testing.assert_allclose(np.asarray(made(x)), np.cos(np.arange(5.0)) * 3.0, rtol=1e-6)
+
+
 def test_off_and_unwritable_folders(tmp_path, monkeypatch):
     monkeypatch.setenv(compile_cache.ENV, "off")
     assert compile_cache.cache_folder() is None and compile_cache.enable() is None

@@ -340,6 +340,7 @@ def test_the_oracle_bounds_a_policy_one_move_ahead(table1, tmp_path):
 # (``Scenes.chunk``), and how many of those overlapped in time.
 _CACHED = """
 import importlib.util, json, sys, time, warnings
+import jax
 from jaxcls import compile_cache
 from jaxcls.experiments.table1 import data
 spans = {{"loads": [], "frames": []}}
@@ -352,7 +353,7 @@ def timed(kind, work):
         spans[kind].append((began, time.monotonic()))
 
 chunk, ahead = data.Scenes.chunk, compile_cache.ahead
-data.Scenes.chunk = lambda self, indices: timed("frames", lambda: chunk(self, indices))
+data.Scenes.chunk = lambda self, indices: timed("frames", lambda: jax.block_until_ready(chunk(self, indices)))
 compile_cache.ahead = lambda load, what: ahead(lambda: timed("loads", load), what)
 spec = importlib.util.spec_from_file_location("table1", {script!r})
 table1 = importlib.util.module_from_spec(spec)

@@ -82,12 +82,13 @@ class Started:
 
 
 def start(command_lines: list[list[str]], gpus: list[str], out: Path) -> Started:
-    """Start every command: process i on GPU ``gpus[i]``, its output to ``log_path(out, i)`` (``out`` made)."""
+    """Start every command: process i on GPU ``gpus[i]``, its output appended to ``log_path(out, i)`` (a resumed
+    run's after the earlier runs'; ``out`` made)."""
     out.mkdir(parents=True, exist_ok=True)
     started = Started(command_lines, [], [], out)
     try:
         for i, (line, gpu) in enumerate(zip(command_lines, gpus, strict=True)):
-            started.logs.append(open(log_path(out, i), "w"))  # (closed by stop, once it ended)
+            started.logs.append(open(log_path(out, i), "a"))  # (closed by stop, once it ended)
             started.processes.append(subprocess.Popen(line, stdout=started.logs[-1], stderr=subprocess.STDOUT,
                                                       env={**os.environ, "CUDA_VISIBLE_DEVICES": gpu}))
     except BaseException:
