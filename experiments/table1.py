@@ -53,21 +53,22 @@ from jaxcls.experiments.table1 import local
 
 # --local-processes: its processes started here, before this one loads JAX and the config's schema, where that is
 # safe (local.start_early: ~3 s sooner on a GPU host); main hands them on, or stops them if it refuses the command.
+# (The imports below load JAX, so they come after it: pyproject.toml lets this file import below code.)
 EARLY = local.start_early(sys.argv[1:], Path(__file__).resolve()) if __name__ == "__main__" else None
 
-import argparse  # noqa: E402  (the imports below load JAX: after the early start)
-import json  # noqa: E402
-import os  # noqa: E402
-import time  # noqa: E402
+import argparse
+import json
+import os
+import time
 
-import jax  # noqa: E402
-from jax.experimental import multihost_utils  # noqa: E402
+import jax
+from jax.experimental import multihost_utils
 
-from jaxcls import compile_cache, io, precision, report  # noqa: E402
-from jaxcls.config import load_config, save_config  # noqa: E402
-from jaxcls.experiments.table1 import data, figure, runner, tables  # noqa: E402
-from jaxcls.experiments.table1.config import SceneSource, Table1Config, check_out_dir  # noqa: E402
-from jaxcls.world.objects import object_set_from_config  # noqa: E402
+from jaxcls import compile_cache, io, precision, report
+from jaxcls.config import load_config, save_config
+from jaxcls.experiments.table1 import data, figure, runner, tables
+from jaxcls.experiments.table1.config import SceneSource, Table1Config, check_out_dir
+from jaxcls.world.objects import object_set_from_config
 
 STARTUP = "start-up (Python, imports, config)"
 SHUTDOWN_WAIT_SECONDS = 6 * 3600  # how long the other processes of a --distributed run wait for process 0 at exit

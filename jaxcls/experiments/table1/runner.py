@@ -237,7 +237,8 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
         with episodes_clock():
             traces = batched.fetch(traces, len(start))
         if last and then is not None and not then_called:  # (its chunk's frames rendered: no render to come)
-            then_called.append(then())
+            then()
+            then_called.append(True)
         with clock("records (labels matched to the objects)"):
             for (c, name), keys in calls.items():
                 moves = 1 if protocol.ROWS[name].kind is protocol.Kind.SINGLE else config.moves
@@ -333,9 +334,7 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                                          if k[:2] == (c, name) and k[2:] in index] for name in names}
                     pending.append((calls, traces, truths, start, at, first == firsts[-1]))
     if pending:
-        finish()
-    if then is not None and not then_called:
-        then()
+        finish()  # (every chunk has a call: the last chunk's first finished one has called ``then``)
     return made
 
 

@@ -1,8 +1,13 @@
 """Does a program load on another thread crash MuJoCo Warp's renders? stress.py MODE SECONDS
 MODE: free (renders on this thread, compiles on another), locked (the same, never at once), nowarp (a plain JAX
 program instead of the renders)."""
-import sys, threading, time
-import jax, jax.numpy as jnp, numpy as np
+import sys
+import threading
+import time
+
+import jax
+import jax.numpy as jnp
+
 from jaxcls.config import load_config
 from jaxcls.experiments.table1 import data
 from jaxcls.experiments.table1.config import Table1Config
