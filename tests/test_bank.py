@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -76,3 +77,26 @@ def test_every_batch_render_call_has_the_same_number_of_worlds():
         assert (flat[frames:] == frames - 1).all() and len(flat) - frames < batch
     with pytest.raises(ValueError, match="batch >= 1"):
         launches(10, 0)
+
+
+def test_the_banks_geoms_posed_in_jax_are_mujocos_kinematics():
+    """The GPU path poses every slot's mesh from the scenes' mocap poses in JAX (``warp.posed_geoms``, no
+    ``mjx.forward``): the same geom poses as MuJoCo's own kinematics of the bank in each scene."""
+    from jaxcls.world.render import contract
+    from jaxcls.world.render import warp as warp_backend
+
+    worlds = [make_world(WORLD, seed=s) for s in (3, 4)]
+    bank = SceneBank.build(worlds[0].object_set, WORLD.scene, worlds[0].intrinsics)
+    pos, quat = bank.mocap([w.scene for w in worlds])
+    model = contract.render_model(bank.model)
+    xpos, xmat = warp_backend.posed_geoms(warp_backend.geom_rig(model), np.asarray(pos, np.float32),
+                                          np.asarray(quat, np.float32))
+    data = mujoco.MjData(model)
+    for s in range(len(worlds)):
+        data.mocap_pos[:], data.mocap_quat[:] = pos[s], quat[s]
+        mujoco.mj_forward(model, data)
+        placed = np.abs(data.geom_xpos[:, 2] - (WORLD.scene.table_height - PARK)) > 1.0  # parked far below
+        assert placed.sum() > len(worlds[s].scene.objects)  # the scene's meshes and the table
+        np.testing.assert_allclose(xpos[s], data.geom_xpos, atol=1e-4)  # float32 at 1 km below the table
+        np.testing.assert_allclose(xpos[s][placed], data.geom_xpos[placed], atol=2e-6)
+        np.testing.assert_allclose(xmat[s], data.geom_xmat.reshape(-1, 3, 3), atol=2e-6)

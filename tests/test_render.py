@@ -408,6 +408,40 @@ def test_unpack_frames():
     np.testing.assert_array_equal(np.asarray(frames.depth), expect_depth.reshape(B, H, W))
 
 
+def test_posed_geoms_are_mujocos_kinematics():
+    """``warp.posed_geoms`` (the static path's geoms carried by their mocap bodies, in JAX) against MuJoCo's own
+    kinematics: a mocap body turned at rest with an offset geom, a body fixed under it (no joint) with its own
+    offset geom, geoms nothing moves; mocap quaternions not of unit norm (MuJoCo normalises them)."""
+    spec = testing.scene_spec(INTR)
+    testing.add_object(spec, 0, [0.1, 0.0, 0.05], type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.05, 0, 0])
+    carrier = spec.worldbody.add_body(name="object_1", mocap=True, pos=[0.2, -0.1, 0.3],
+                                      quat=[math.cos(0.4), 0.3, math.sin(0.4), 0.1])
+    carrier.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.02, 0.03, 0.04], pos=[0.05, 0.01, -0.02],
+                     quat=[0.9, 0.1, -0.3, 0.2], material="object_mat")
+    child = carrier.add_body(name="object_2", pos=[0.0, 0.1, 0.02], quat=[math.cos(0.7), 0.0, 0.0, math.sin(0.7)])
+    child.add_geom(type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[0.01, 0.03, 0], pos=[0.03, 0, 0.01],
+                   material="object_mat")
+    model = spec.compile()
+    rig = warp_backend.geom_rig(model)
+    rng = np.random.default_rng(0)
+    pos = rng.normal(size=(4, model.nmocap, 3)) * 0.3
+    quat = rng.normal(size=(4, model.nmocap, 4)) * 2.0
+    xpos, xmat = warp_backend.posed_geoms(rig, jnp.asarray(pos, jnp.float32), jnp.asarray(quat, jnp.float32))
+    data = mujoco.MjData(model)
+    for b in range(len(pos)):
+        data.mocap_pos[:], data.mocap_quat[:] = pos[b], quat[b]
+        mujoco.mj_forward(model, data)
+        np.testing.assert_allclose(xpos[b], data.geom_xpos, atol=2e-6)
+        np.testing.assert_allclose(xmat[b], data.geom_xmat.reshape(-1, 3, 3), atol=2e-6)
+    assert np.asarray(rig.mocap).tolist().count(-1) == 2  # the table and the fixed object_0
+    jointed = testing.scene_spec(INTR)
+    hinged = jointed.worldbody.add_body(name="object_0")
+    hinged.add_joint(type=mujoco.mjtJoint.mjJNT_HINGE)
+    hinged.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.05, 0, 0], material="object_mat")
+    with pytest.raises(ValueError, match="1 joints: use kinematics='forward'"):
+        warp_backend.geom_rig(jointed.compile())
+
+
 def test_posed_data_static_writes_the_camera_frame(with_mesh):
     """The static path of the warp backend, on a JAX-impl Data (the fields are the same)."""
     from mujoco import mjx

@@ -19,7 +19,7 @@ import copy
 import dataclasses
 import functools
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
@@ -128,11 +128,11 @@ class SceneBank:
         return model
 
     def render(self, scene_list: Sequence[scenes.Scene], T_wc: np.ndarray, backend: Backend | str = Backend.mujoco,
-               batch: int = 512) -> DepthFrames:
+               batch: int = 512, kinematics: Literal["static", "forward"] = "static") -> DepthFrames:
         """Frames of S scenes, each from its own V cameras ``T_wc: [S, V, 4, 4]``: depth [S, V, H, W] m (0 = no
         return) and object ids (the scene's object index, -1 table or nothing). ``warp``: every frame from the
-        bank in calls of ``batch`` frames on the GPU (``launches``: the last padded; JAX arrays); ``mujoco`` (the
-        CPU): each scene from ``posed`` by MuJoCo's C caster (NumPy)."""
+        bank in calls of ``batch`` frames on the GPU (``launches``: the last padded; JAX arrays; ``kinematics``:
+        ``warp_renderer``'s); ``mujoco`` (the CPU): each scene from ``posed`` by MuJoCo's C caster (NumPy)."""
         T_wc = np.asarray(T_wc, np.float64)
         S = len(scene_list)
         if T_wc.ndim != 4 or T_wc.shape[0] != S or T_wc.shape[2:] != (4, 4):
@@ -150,7 +150,7 @@ class SceneBank:
             raise ValueError(f"bank: renders with 'mujoco' (CPU) or 'warp' (GPU), not {backend!r}")
         import jax.numpy as jnp
 
-        renderer = self.warp_renderer
+        renderer = self.warp_renderer(kinematics)
         pos, quat = self.mocap(scene_list)  # [S, nmocap, ...]
         scene_of = np.repeat(np.arange(S), V)
         flat = T_wc.reshape(S * V, 4, 4)
@@ -168,10 +168,18 @@ class SceneBank:
         H, W = depth.shape[1:]
         return DepthFrames(depth=depth.reshape(S, V, H, W), object_id=ids.reshape(S, V, H, W).astype(jnp.int32))
 
+    def warp_renderer(self, kinematics: Literal["static", "forward"] = "static") -> Renderer:
+        """The bank's GPU renderer (MJX's batch renderer), built once per ``kinematics``: ``static``, each slot's
+        mesh carried by its mocap pose in JAX (``render.warp.posed_geoms``), or ``forward``, ``mjx.forward``
+        moving them (collision and constraints over the parked slots included: the slow reference)."""
+        if kinematics not in self._warp_renderers:
+            self._warp_renderers[kinematics] = make_renderer(self.model, self.intrinsics, Backend.warp,
+                                                             kinematics=kinematics)
+        return self._warp_renderers[kinematics]
+
     @functools.cached_property
-    def warp_renderer(self) -> Renderer:
-        """The bank's GPU renderer (MJX's batch renderer, mocap bodies moved by ``mjx.forward``), built once."""
-        return make_renderer(self.model, self.intrinsics, Backend.warp, kinematics="forward")
+    def _warp_renderers(self) -> dict[str, Renderer]:
+        return {}
 
     def _slot_bodies(self) -> np.ndarray:
         import mujoco

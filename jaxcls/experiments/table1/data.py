@@ -141,7 +141,7 @@ class Scenes:
         a render). Nothing to do for a dataset's files."""
         if not self.files and self.backend is Backend.warp:
             bank = _bank(self.dataset.objects, self.dataset.scene, self.dataset.camera)[1]
-            _ = bank.warp_renderer  # (built once and kept by the bank)
+            bank.warp_renderer()  # (built once and kept by the bank)
 
     def chunk(self, indices: Sequence[int]) -> Chunk:
         """The frames of scenes ``indices`` stacked for a batched call, on the device when rendered there."""

@@ -1,10 +1,15 @@
 """Backend ``warp``: MJX's batch ray-traced renderer on MuJoCo Warp (CUDA GPU only).
 
-One world per view: the camera's mocap body is posed per world, ``mjx.forward`` moves the camera,
-``mjx.refit_bvh`` and ``mjx.render_with_segmentation`` trace depth and segmentation for all worlds.
-(``kinematics="static"`` writes the camera frame and the host's geom poses into the data instead of
-running ``mjx.forward``: the same frames for a static scene; on an H100 at 640x480, B = 512, 13.0k
-frames/s against 8.9k.)
+One world per view: the camera and the geoms are posed per world, ``mjx.refit_bvh`` and
+``mjx.render_with_segmentation`` trace depth and segmentation for all worlds. Two ways to pose them:
+- ``kinematics="static"`` (the scene bank's): no MuJoCo kinematics on the GPU. The camera frame is written from the
+  pose, and every geom is its host rest pose carried rigidly by the mocap body that holds it (``GeomRig``,
+  ``posed_geoms``: one product in JAX; a scene bank's objects are mocap bodies). Models without joints only
+  (the scene contract has none).
+- ``kinematics="forward"`` (the default): the camera's mocap body is posed and ``mjx.forward`` moves everything. It also
+  runs collision detection and constraints: over a scene bank's parked meshes, which all overlap, far the
+  larger part of a frame's time. Kept as the reference the static path is checked against.
+(On an H100 at 640x480, B = 512, one scene's model: static 13.0k frames/s, forward 8.9k.)
 What the installed MuJoCo Warp renderer (``mjx/third_party/mujoco_warp/_src/render.py``) writes:
 - depth: planar z-depth ``dist * cos(ray, optical axis)`` in metres, 0 where the ray hits nothing, and 0
   past ``zfar = vis.map.zfar * stat.extent``. Rays start at the camera centre (no near clip).
@@ -16,7 +21,8 @@ What the installed MuJoCo Warp renderer (``mjx/third_party/mujoco_warp/_src/rend
 (``unpack_frames``, pure and CPU-testable), which keeps metres exactly and needs no scale.
 
 The GPU-only code is ``WarpRenderer``, ``posed_data_forward`` and ``render_buffers``; the rest runs on
-a CPU. Every JAX matmul here asks for full float32: GPUs default to TF32, whose 10-bit mantissa moved
+a CPU (``posed_geoms`` is checked there against MuJoCo's own kinematics). Every JAX matmul here asks for full
+float32: GPUs default to TF32, whose 10-bit mantissa moved
 the camera by millimetres (95.6% of pixels within 1 mm of ``mujoco`` instead of 100%).
 """
 
@@ -141,6 +147,62 @@ def quat_from_matrix(R: jax.Array) -> jax.Array:
     return normalize(q * jnp.where(q[..., :1] < 0, -1.0, 1.0))
 
 
+@struct.dataclass
+class GeomRig:
+    """Every geom as a rigid offset from the mocap body that moves it, for a model without joints.
+
+    rest_pos: [G, 3] m and rest_mat: [G, 3, 3] each geom's world pose at rest (the host's ``mj_forward``);
+    mocap: [G] i32 the mocap index of the body carrying the geom (its own body or the nearest mocap ancestor),
+    -1 for geoms that nothing moves (the table, the world's); offset_pos: [G, 3] m and offset_mat: [G, 3, 3] the
+    geom's pose in that mocap body's frame (its rest pose where ``mocap`` is -1).
+    """
+
+    rest_pos: jax.Array
+    rest_mat: jax.Array
+    mocap: jax.Array
+    offset_pos: jax.Array
+    offset_mat: jax.Array
+
+
+def geom_rig(model: mujoco.MjModel) -> GeomRig:
+    """``model``'s ``GeomRig``; raises for a model with joints (its geoms are not rigid offsets of mocap
+    bodies: render it with ``kinematics='forward'``)."""
+    if model.njnt:
+        raise ValueError(f"warp: kinematics 'static' poses geoms rigidly with their mocap bodies, but the model "
+                         f"has {model.njnt} joints: use kinematics='forward'")
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    carrier = np.zeros(model.ngeom, np.int64)  # the body that moves each geom (0: the world, nothing moves it)
+    for g in range(model.ngeom):
+        b = int(model.geom_bodyid[g])
+        while b != 0 and model.body_mocapid[b] < 0:
+            b = int(model.body_parentid[b])
+        carrier[g] = b
+    rest_mat = data.geom_xmat.reshape(-1, 3, 3)
+    body_mat = data.xmat.reshape(-1, 3, 3)[carrier]  # [G, 3, 3] the carrier's rest frame (float64)
+    offset_mat = np.einsum("gji,gjk->gik", body_mat, rest_mat)
+    offset_pos = np.einsum("gji,gj->gi", body_mat, data.geom_xpos - data.xpos[carrier])
+    moved = carrier != 0
+    return GeomRig(rest_pos=jnp.asarray(data.geom_xpos, jnp.float32), rest_mat=jnp.asarray(rest_mat, jnp.float32),
+                   mocap=jnp.asarray(np.where(moved, model.body_mocapid[carrier], -1), jnp.int32),
+                   offset_pos=jnp.asarray(np.where(moved[:, None], offset_pos, data.geom_xpos), jnp.float32),
+                   offset_mat=jnp.asarray(np.where(moved[:, None, None], offset_mat, rest_mat), jnp.float32))
+
+
+def posed_geoms(rig: GeomRig, mocap_pos: jax.Array, mocap_quat: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Every geom's world pose with the mocap bodies at ``mocap_pos: [B, nmocap, 3]`` m and ``mocap_quat: [B,
+    nmocap, 4]`` (w, x, y, z; normalised here, as MuJoCo does): (xpos [B, G, 3] m, xmat [B, G, 3, 3]), what
+    MuJoCo's kinematics gives a model without joints. Pure JAX, full float32 products."""
+    R = jaxlie.SO3(normalize(mocap_quat.astype(jnp.float32))).as_matrix()  # [B, nmocap, 3, 3]
+    at = jnp.maximum(rig.mocap, 0)
+    R_g, p_g = R[:, at], mocap_pos.astype(jnp.float32)[:, at]  # [B, G, 3, 3], [B, G, 3]
+    highest = jax.lax.Precision.HIGHEST
+    xmat = jnp.matmul(R_g, rig.offset_mat, precision=highest)
+    xpos = p_g + jnp.einsum("bgij,gj->bgi", R_g, rig.offset_pos, precision=highest)
+    moved = rig.mocap >= 0
+    return (jnp.where(moved[:, None], xpos, rig.rest_pos), jnp.where(moved[:, None, None], xmat, rig.rest_mat))
+
+
 # ---------------------------------------------------------------- GPU parts
 
 def posed_data_forward(mx: Any, dx0: Any, T_wc: jax.Array, T_body_cam: np.ndarray, mocap_id: int,
@@ -163,16 +225,20 @@ def posed_data_forward(mx: Any, dx0: Any, T_wc: jax.Array, T_body_cam: np.ndarra
 
 
 def posed_data_static(dx0: Any, T_wc: jax.Array, geom_xpos: jax.Array, geom_xmat: jax.Array, cam_id: int) -> Any:
-    """[B]-batched data of a static scene: geom poses given (from the host's ``mj_forward``), the camera
-    frame written straight from ``T_wc: [B, 4, 4]``. Skips ``mjx.forward``: about a quarter of the time."""
-    cv_to_mj = jnp.asarray(CV_TO_MJ, T_wc.dtype)
+    """[B]-batched data with the geoms at ``geom_xpos: [G, 3] | [B, G, 3]`` m, ``geom_xmat: [G, 3, 3] | [B, G, 3,
+    3]`` (one pose for every world, or one a world: ``posed_geoms``) and the camera frame written straight from
+    ``T_wc: [B, 4, 4]``. Skips ``mjx.forward``."""
+    cv_to_mj = jnp.asarray(CV_TO_MJ, jnp.float32)
+    batched = geom_xpos.ndim == 3
 
-    def pose_world(T: jax.Array) -> Any:
+    def pose_world(T: jax.Array, gx: jax.Array, gm: jax.Array) -> Any:
         R = jnp.matmul(T[:3, :3], cv_to_mj, precision=jax.lax.Precision.HIGHEST)
-        return dx0.replace(geom_xpos=geom_xpos, geom_xmat=geom_xmat,
+        return dx0.replace(geom_xpos=gx, geom_xmat=gm,
                            cam_xpos=dx0.cam_xpos.at[cam_id].set(T[:3, 3]), cam_xmat=dx0.cam_xmat.at[cam_id].set(R))
 
-    return jax.vmap(pose_world)(T_wc.astype(jnp.float32))
+    axes = (0, 0, 0) if batched else (0, None, None)
+    return jax.vmap(pose_world, in_axes=axes)(T_wc.astype(jnp.float32), geom_xpos.astype(jnp.float32),
+                                              geom_xmat.astype(jnp.float32))
 
 
 def render_buffers(mx: Any, dx: Any, rc: Any) -> tuple[jax.Array, jax.Array]:
@@ -210,13 +276,10 @@ class WarpRenderer:
         # staged Warp capture: 10.7k forward.
         graph = mjxw.types.GraphMode
         device = render_device()
+        self._rig = geom_rig(self._mjm) if kinematics == "static" else None
         self._mx = mjx.put_model(self._mjm, impl="warp", device=device,
                                  graph_mode=graph.JAX if kinematics == "static" else graph.WARP_STAGED)
         self._dx0 = mjx.make_data(self._mjm, impl="warp", device=device)
-        data = mujoco.MjData(self._mjm)
-        mujoco.mj_forward(self._mjm, data)
-        self._geom_xpos = jnp.asarray(data.geom_xpos, jnp.float32)
-        self._geom_xmat = jnp.asarray(data.geom_xmat.reshape(-1, 3, 3), jnp.float32)
         self._contexts: dict[int, tuple[Any, Any]] = {}
 
     def _context(self, batch: int) -> tuple[Any, Any]:
@@ -238,10 +301,15 @@ class WarpRenderer:
 
             def render(mx: Any, dx0: Any, geom_object: jax.Array, T_wc: jax.Array, mocap_pos: jax.Array | None,
                        mocap_quat: jax.Array | None) -> DepthFrames:
-                if self.kinematics == "forward" or mocap_pos is not None:
+                if self.kinematics == "forward":
                     dx = posed_data_forward(mx, dx0, T_wc, self._T_body_cam, self._mocap, mocap_pos, mocap_quat)
-                else:
-                    dx = posed_data_static(dx0, T_wc, self._geom_xpos, self._geom_xmat, self._cam)
+                elif mocap_pos is None:
+                    dx = posed_data_static(dx0, T_wc, self._rig.rest_pos, self._rig.rest_mat, self._cam)
+                else:  # the camera's own mocap set too, as mjx.forward's path does (geoms it may carry)
+                    cam_pos, cam_quat = mocap_poses(T_wc, self._T_body_cam)
+                    gx, gm = posed_geoms(self._rig, mocap_pos.at[:, self._mocap].set(cam_pos),
+                                         mocap_quat.at[:, self._mocap].set(cam_quat))
+                    dx = posed_data_static(dx0, T_wc, gx, gm, self._cam)
                 depth, seg = render_buffers(mx, dx, pytree)
                 return unpack_frames(depth, seg, layout, geom_object)
 
@@ -267,8 +335,6 @@ class WarpRenderer:
         T = jnp.asarray(contract.check_poses(T_wc), jnp.float32)
         if (mocap_pos is None) != (mocap_quat is None):
             raise ValueError("warp: give mocap_pos and mocap_quat together")
-        if mocap_pos is not None and self.kinematics == "static":
-            raise ValueError("warp: posed mocap bodies need kinematics='forward' (mjx.forward moves them)")
         if mocap_pos is not None and (mocap_pos.shape != (T.shape[0], self._mjm.nmocap, 3)
                                       or mocap_quat.shape != (T.shape[0], self._mjm.nmocap, 4)):
             raise ValueError(f"warp: mocap_pos/quat must be [{T.shape[0]}, {self._mjm.nmocap}, 3/4], got "
