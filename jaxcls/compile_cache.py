@@ -49,7 +49,10 @@ _host: Path | None = None  # where ``cached_arrays`` keeps its entries (set by `
 _exported: dict[tuple, Callable] = {}  # ``exported``'s programs in this process, by key and compiler options
 _making: dict[tuple, threading.Lock] = {}  # one lock a program being made: a second thread waits for the first
 _making_lock = threading.Lock()
-_background: ThreadPoolExecutor | None = None  # ``ahead``'s thread, started on its first use
+_background: ThreadPoolExecutor | None = None  # ``ahead``'s threads, started on its first use
+# ``ahead``'s loads at once: each a program's compilation (or its executable read from JAX's cache), which runs
+# outside Python's lock; Table 1 loads one program a classifier (BENCHMARKS.md, "Programs loaded in parallel").
+AHEAD_THREADS = 4
 # JAX settings that say where and whether programs are cached, not what they compute: not in ``exported``'s key.
 _NOT_IN_KEY = ("compilation_cache", "persistent_cache", "log_compiles", "explain_cache_misses")
 
@@ -200,8 +203,8 @@ def exported(jitted_program: Callable, args: tuple, kind: str, compiler_options:
 
 
 def ahead(load: Callable[[], Any], what: str) -> Future:
-    """``load()`` on a background thread (one for the process, loads run in the order given), e.g. an
-    ``exported`` program read and compiled while the host builds a renderer or waits for the devices. An
+    """``load()`` on a background thread (up to ``AHEAD_THREADS`` loads at once, started in the order given), e.g.
+    an ``exported`` program read and compiled while the host builds a renderer or waits for the devices. An
     exception is not raised but warned about (naming ``what``): the caller then makes the program itself when
     it needs it. Returns the load's ``Future`` (its result, or None after a failure).
 
@@ -222,7 +225,7 @@ def ahead(load: Callable[[], Any], what: str) -> Future:
 
     with _making_lock:
         if _background is None:
-            _background = ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxcls-ahead")
+            _background = ThreadPoolExecutor(max_workers=AHEAD_THREADS, thread_name_prefix="jaxcls-ahead")
     return _background.submit(guarded)
 
 

@@ -182,16 +182,19 @@ failed = compile_cache.ahead(lambda: 1 / 0, "a broken program")
 with warnings.catch_warnings(record=True) as caught:
     warnings.simplefilter("always")
     broken = failed.result()
+both = threading.Barrier(2, timeout=20)  # two loads that finish only together: they run at once, not in a queue
+pair = [compile_cache.ahead(lambda: both.wait() is not None, f"program {i}") for i in range(2)]
 print("same", int(all(r is loaded for r in results)), "traced", traced.count("flat"),
       "equal", int(np.array_equal(np.asarray(loaded(x)), np.asarray(program(x)))),
-      "broken", int(broken is None), "warned", int(any("a broken program" in str(w.message) for w in caught)))
+      "broken", int(broken is None), "warned", int(any("a broken program" in str(w.message) for w in caught)),
+      "together", int(all(p.result() for p in pair)))
 """
 
 
 def test_a_program_loaded_ahead_from_shapes_is_the_one_calls_get(tmp_path):
     """``compile_cache.ahead`` loads an ``exported`` program on a background thread from its arguments' shapes;
     threads asking for it meanwhile wait for that one program (traced once) with the plain program's results;
-    a failing load is warned about, not raised."""
+    a failing load is warned about, not raised; two loads run at once (``AHEAD_THREADS``)."""
     env = {**os.environ, "JAX_PLATFORMS": "cpu", "XLA_FLAGS": "--xla_force_host_platform_device_count=2",
            compile_cache.ENV: str(tmp_path / "xla")}
     done = subprocess.run([sys.executable, "-c", AHEAD], capture_output=True, text=True, cwd=ROOT, env=env,
@@ -199,7 +202,7 @@ def test_a_program_loaded_ahead_from_shapes_is_the_one_calls_get(tmp_path):
     assert done.returncode == 0, done.stderr[-3000:]
     words = done.stdout.split()
     out = dict(zip(words[::2], words[1::2], strict=True))
-    assert out == {"same": "1", "traced": "1", "equal": "1", "broken": "1", "warned": "1"}, out
+    assert out == {"same": "1", "traced": "1", "equal": "1", "broken": "1", "warned": "1", "together": "1"}, out
 
 
 def test_a_program_that_fails_to_compile_is_not_kept(tmp_path, monkeypatch):
