@@ -171,7 +171,7 @@ class SceneBank:
     def warp_renderer(self, kinematics: Literal["static", "forward"] = "static") -> Renderer:
         """The bank's GPU renderer (MJX's batch renderer), built once per ``kinematics``: ``static``, each slot's
         mesh carried by its mocap pose in JAX (``render.warp.posed_geoms``), or ``forward``, ``mjx.forward``
-        moving them (collision and constraints over the parked slots included: the slow reference)."""
+        moving them (collision detection and constraints over the parked slots included: the reference)."""
         if kinematics not in self._warp_renderers:
             self._warp_renderers[kinematics] = make_renderer(self.model, self.intrinsics, Backend.warp,
                                                              kinematics=kinematics)

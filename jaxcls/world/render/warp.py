@@ -6,10 +6,11 @@ One world per view: the camera and the geoms are posed per world, ``mjx.refit_bv
   pose, and every geom is its host rest pose carried rigidly by the mocap body that holds it (``GeomRig``,
   ``posed_geoms``: one product in JAX; a scene bank's objects are mocap bodies). Models without joints only
   (the scene contract has none).
-- ``kinematics="forward"`` (the default): the camera's mocap body is posed and ``mjx.forward`` moves everything. It also
-  runs collision detection and constraints: over a scene bank's parked meshes, which all overlap, far the
-  larger part of a frame's time. Kept as the reference the static path is checked against.
-(On an H100 at 640x480, B = 512, one scene's model: static 13.0k frames/s, forward 8.9k.)
+- ``kinematics="forward"`` (the default): the camera's mocap body is posed and ``mjx.forward`` moves everything,
+  collision detection and constraints included (over a scene bank's parked meshes, which all overlap). The
+  reference the static path is checked against.
+(On an H100 at 640x480, B = 512, one scene's model: static 13.0k frames/s, forward 8.9k; a real-like scene bank
+on an H200, B = 1,024: 12.7k and 12.1k, the same pixels: BENCHMARKS.md.)
 What the installed MuJoCo Warp renderer (``mjx/third_party/mujoco_warp/_src/render.py``) writes:
 - depth: planar z-depth ``dist * cos(ray, optical axis)`` in metres, 0 where the ray hits nothing, and 0
   past ``zfar = vis.map.zfar * stat.extent``. Rays start at the camera centre (no near clip).
@@ -22,8 +23,8 @@ What the installed MuJoCo Warp renderer (``mjx/third_party/mujoco_warp/_src/rend
 
 The GPU-only code is ``WarpRenderer``, ``posed_data_forward`` and ``render_buffers``; the rest runs on
 a CPU (``posed_geoms`` is checked there against MuJoCo's own kinematics). Every JAX matmul here asks for full
-float32: GPUs default to TF32, whose 10-bit mantissa moved
-the camera by millimetres (95.6% of pixels within 1 mm of ``mujoco`` instead of 100%).
+float32: GPUs default to TF32, whose 10-bit mantissa moved the camera by millimetres (95.6% of pixels within
+1 mm of ``mujoco`` instead of 100%).
 """
 
 from __future__ import annotations
