@@ -8,7 +8,8 @@ episodes of one scene from different start views, as issue 23's larger runs will
 Every combination of camera tracking (``perception.tracking.mode``), the volume's storage
 (``perception.volume.storage``) and PointNet's products (``perception.classification_precision``) is a
 variant, and so are the batch's memory layouts (``--slabs``, ``--segments-per-pass``; by default 8 and 1, the fusion in
-slabs and PointNet a segment at a time, as the scale configs run it); each batch size runs every variant, their repeats
+slabs and PointNet a segment at a time, as the scale configs run it) and the tracking's pyramid levels
+(``--tracking-levels``); each batch size runs every variant, their repeats
 interleaved. Reports episodes/s and moves/s, the first call (compilation), the program's device memory per
 episode (XLA's temporaries of the batch over B: ``compiled.memory_analysis``), the final F1 of the target
 objects pooled over the batch (prior and refined), and the share of episodes whose path and final labels equal
@@ -69,6 +70,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--segments-per-pass", type=int, nargs="+", default=[1],
                         help="perception.shapes.segments_per_pass (PointNet; the library's default is 0: all; "
                              "several: compared, interleaved)")
+    parser.add_argument("--tracking-levels", type=int, nargs="+", default=[],
+                        help="perception.tracking.levels (the tracking's pyramid; default: the library's; several: "
+                             "compared, interleaved)")
     parser.add_argument("--fit", type=int, nargs="*", default=[],
                         help="batch sizes of Table 1's program (episode.batched): its device memory against the "
                              "device's, and one call timed where it fits")
@@ -103,16 +107,18 @@ def main(argv: list[str] | None = None) -> None:
     truth = scoring.Truth.from_scene(scene, object_set)
     perception = setup.episode_perception()
     episodes = {}
-    for mode, storage, product, slabs, per_pass in itertools.product(args.tracking, args.storage, args.precision,
-                                                                     args.slabs, args.segments_per_pass):
+    levels = args.tracking_levels or [perception.tracking.levels]
+    for mode, storage, product, slabs, per_pass, level in itertools.product(
+            args.tracking, args.storage, args.precision, args.slabs, args.segments_per_pass, levels):
         settings = setup.ActiveConfig(episode=active.EpisodeConfig(moves=args.moves), perception=dataclasses.replace(
-            perception, tracking=dataclasses.replace(perception.tracking, mode=mode),
+            perception, tracking=dataclasses.replace(perception.tracking, mode=mode, levels=level),
             volume=dataclasses.replace(perception.volume, storage=storage, slabs=slabs),
             shapes=dataclasses.replace(perception.shapes, segments_per_pass=per_pass),
             classification_precision=product))
         name = f"{mode}/{storage}/{product}"  # (the layout named where several are compared)
         name += f"/slabs {slabs}" if len(args.slabs) > 1 else ""
         name += f"/segments a pass {per_pass}" if len(args.segments_per_pass) > 1 else ""
+        name += f"/tracking levels {level}" if len(levels) > 1 else ""
         episodes[name] = setup.make_episode(settings, object_set, Intrinsics.kinect_v1(),
                                                                      scene.table_height)
     reset = jax.jit(jax.vmap(active.reset, in_axes=(None, None, 0, 0)))

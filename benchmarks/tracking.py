@@ -2,7 +2,8 @@
 point-to-plane ``registration_icp`` onto the same fused model, on the same frames from the same initial poses,
 interleaved in one process.
 
-    python benchmarks/tracking.py [--scenes 3] [--frames 6] [--fused 5] [--rounds 3] [--out BENCHMARKS.md]
+    python benchmarks/tracking.py [--scenes 3] [--frames 6] [--fused 5] [--rounds 3] [--variant levels=1 ...]
+        [--out BENCHMARKS.md]
 
 Scenes: the world of the shipped ``real_like`` dataset config (Kinect v1 noise at 640x480, a hand-eye error
 shared by a scene's frames), ``mujoco`` backend, seeds 0..n-1. Per scene one ``World.measure`` of ``--fused``
@@ -13,7 +14,8 @@ registered to it from its REPORTED pose (the hand-eye error, ~8 mm at the object
 
 - ours: ``tracking.register`` + ``tracking.accept`` in one module-level ``jax.jit`` with ``TrackingConfig()``
   (its pyramid levels and Gauss-Newton steps, projective association, the table term; the row says which); and, to
-  attribute the cost, the same without the table term (``table=False``);
+  attribute the cost, the same without the table term (``table=False``); and one row per ``--variant``
+  (``TrackingConfig`` settings, e.g. ``levels=1,iterations=3``: what a cheaper registration loses);
 - Open3D: ``registration_icp`` with ``TransformationEstimationPointToPlane`` (plain, and with a Huber kernel
   of ours' width), max correspondence 0.02 m, at most 20 iterations (relative fitness and RMSE 1e-6); source:
   the frame's foreground points in the camera frame, every 2nd pixel in both directions (ours' finest level),
@@ -122,6 +124,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--frames", type=int, default=6, help="frames registered per scene")
     parser.add_argument("--fused", type=int, default=5, help="views fused (at their true poses) into each model")
     parser.add_argument("--rounds", type=int, default=3, help="rounds (each times every frame of every scene)")
+    parser.add_argument("--variant", action="append", default=[], metavar="KEY=VALUE[,KEY=VALUE]",
+                        help="a further row of ours with these TrackingConfig settings (repeatable)")
     parser.add_argument("--out", help="append the table to this Markdown file")
     args = parser.parse_args(argv)
     import open3d as o3d
@@ -142,6 +146,8 @@ def main(argv: list[str] | None = None) -> None:
 
     floor_eps, max_depth = spec.config.foreground.table_eps, spec.config.foreground.max_depth
     configs = {"ours": tracking.TrackingConfig(), "ours_no_table": tracking.TrackingConfig(table=False)}
+    variants = {f"ours, {v}": load_config(tracking.TrackingConfig, None, v.split(",")) for v in args.variant}
+    configs |= variants
     trackers: dict[float, dict[str, Open3DTracker]] = {}
 
     def peer_trackers(scene: Scene) -> dict[str, Open3DTracker]:
@@ -183,6 +189,7 @@ def main(argv: list[str] | None = None) -> None:
         return run
 
     contenders = {"ours": run_ours("ours"), "ours_no_table": run_ours("ours_no_table"),
+                  **{key: run_ours(key) for key in variants},
                   "open3d": run_peer("open3d"), "open3d_huber": run_peer("open3d_huber")}
     DEFAULT = tracking.TrackingConfig()
     names = {
@@ -192,6 +199,8 @@ def main(argv: list[str] | None = None) -> None:
         "open3d": f"Open3D `registration_icp` point-to-plane, {ITERATIONS} iterations, "
                   f"{MAX_CORRESPONDENCE * 1e3:.0f} mm gate (clouds built per frame)",
         "open3d_huber": f"Open3D, the same with `HuberLoss({configs['ours'].huber})` (ours' robust width)",
+        **{key: f"jaxcls, `{key[len('ours, '):]}`: strides {'/'.join(map(str, c.strides()))} x {c.iterations} steps"
+           for key, c in variants.items()},
     }
     # Warm-up: compiles ours, and keeps every contender's poses (all deterministic) for the accuracy columns.
     first: dict[str, float] = {}
