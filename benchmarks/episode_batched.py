@@ -118,7 +118,7 @@ def main(argv: list[str] | None = None) -> None:
         name = f"{mode}/{storage}/{product}"  # (the layout named where several are compared)
         name += f"/slabs {slabs}" if len(args.slabs) > 1 else ""
         name += f"/segments a pass {per_pass}" if len(args.segments_per_pass) > 1 else ""
-        name += f"/tracking levels {level}" if len(levels) > 1 else ""
+        name += f"/tracking levels {level}" if len(levels) > 1 or level != perception.tracking.levels else ""
         episodes[name] = setup.make_episode(settings, object_set, Intrinsics.kinect_v1(),
                                                                      scene.table_height)
     reset = jax.jit(jax.vmap(active.reset, in_axes=(None, None, 0, 0)))

@@ -7,13 +7,13 @@ against JAX's cache plus the traced programs kept on disk (``compile_cache.expor
 Settings: ``jax`` (JAX's cache alone), ``exported`` (plus the exported programs, loaded ahead on up to
 ``compile_cache.AHEAD_THREADS`` threads at once) and ``serial`` (the same, one program at a time: the programs of
 several classifiers, ``--classifiers shipped paper``, loaded one after the other).
-Each setting gets its own cache folder, filled by one cold run; then the warm runs of the two settings
-alternate, each a fresh process of ``experiments/table1.py`` (its own ``out_dir``). Reported per setting: the
-median of the process's wall time and of its run's phases (``run_times.json``): the first call (tracing,
-lowering, compiling or loading the episode program) and the whole run; and whether every run's records are
-the same. JAX's cache alone still traces and lowers the program before its lookup; the exported program skips
-both. Default config: 2 scenes of the synthetic set at 320x240, 2 runs of 2 moves of three batched rows (the
-program is the full switched one whatever the size).
+Each setting gets its own cache folder, filled by one cold run; then the settings' warm runs take turns (the
+order reversed every other round), each a fresh process of ``experiments/table1.py`` (its own ``out_dir``).
+Reported per setting: the median of the process's wall time and of its run's phases (``run_times.json``): the
+first call (tracing, lowering, compiling or loading the episode program) and the whole run; and whether every
+run's records are the same. JAX's cache alone still traces and lowers the program before its lookup; the
+exported program skips both. Default config: 2 scenes of the synthetic set at 320x240, 2 runs of 2 moves of three
+batched rows (the program is the full switched one whatever the size).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ CHILD = """
 import runpy, sys
 from jaxcls import compile_cache
 if sys.argv[1] == "jax":
-    compile_cache.exported = lambda jitted, args, kind: jitted
+    compile_cache.exported = lambda jitted, args, kind, options=None: compile_cache.jitted(jitted, options)
 if sys.argv[1] == "serial":
     compile_cache.AHEAD_THREADS = 1
 sys.argv = ["experiments/table1.py", *sys.argv[2:]]
@@ -59,7 +59,8 @@ dataset_overrides: [num_scenes=2, viewpoints.count=12, backend=mujoco, camera.wi
 """
 
 
-SETTINGS = {"jax": "JAX's cache", "exported": "JAX's cache + the exported programs",
+SETTINGS = {"jax": "JAX's cache",
+            "exported": f"JAX's cache + the exported programs (up to {compile_cache.AHEAD_THREADS} loads at once)",
             "serial": "JAX's cache + the exported programs, loaded one at a time"}
 CLASSIFIERS = {"shipped": "", "paper": "builtin_paper"}
 
@@ -88,6 +89,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", help="append the section to this Markdown file")
     parser.add_argument("overrides", nargs="*", help="experiments/table1.py overrides (key=value)")
     args = parser.parse_args(argv)
+    if args.config and args.classifiers != parser.get_default("classifiers"):
+        parser.error("--classifiers sets the default config's classifiers; a --config names its own")
     settings = {s: SETTINGS[s] for s in args.settings}
     runs: dict[str, list[dict]] = {s: [] for s in settings}
     with tempfile.TemporaryDirectory() as tmp:
@@ -117,8 +120,8 @@ def main(argv: list[str] | None = None) -> None:
         ("cache", "device", "cold first call s", "warm first call s (median)", "range", "warm run s (median)",
          "warm process wall s (median)"), rows,
         intro=f"{args.rounds} warm runs a setting, alternating, each a fresh process after one cold run a setting "
-              f"in its own cache folder; config {args.config or 'a 2-scene synthetic one'}, classifiers "
-              f"{', '.join(args.classifiers)}.",
+              f"in its own cache folder; config "
+              f"{args.config or 'a 2-scene synthetic one, classifiers ' + ', '.join(args.classifiers)}.",
         notes=[f"every run's records are {'the same' if same else 'NOT the same'}"]), args.out)
 
 

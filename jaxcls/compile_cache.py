@@ -50,8 +50,9 @@ _exported: dict[tuple, Callable] = {}  # ``exported``'s programs in this process
 _making: dict[tuple, threading.Lock] = {}  # one lock a program being made: a second thread waits for the first
 _making_lock = threading.Lock()
 _background: ThreadPoolExecutor | None = None  # ``ahead``'s threads, started on its first use
-# ``ahead``'s loads at once: each a program's compilation (or its executable read from JAX's cache), which runs
-# outside Python's lock; Table 1 loads one program a classifier (BENCHMARKS.md, "Programs loaded in parallel").
+# ``ahead``'s loads at once: a program's compilation (or its executable read from JAX's cache) runs outside
+# Python's lock, its tracing and deserialising do not; Table 1 loads one program a classifier (BENCHMARKS.md,
+# "Programs loaded in parallel").
 AHEAD_THREADS = 4
 # JAX settings that say where and whether programs are cached, not what they compute: not in ``exported``'s key.
 _NOT_IN_KEY = ("compilation_cache", "persistent_cache", "log_compiles", "explain_cache_misses")

@@ -411,7 +411,7 @@ def test_unpack_frames():
 def test_posed_geoms_are_mujocos_kinematics():
     """``warp.posed_geoms`` (the static path's geoms carried by their mocap bodies, in JAX) against MuJoCo's own
     kinematics: a mocap body turned at rest with an offset geom, a body fixed under it (no joint) with its own
-    offset geom, geoms nothing moves; mocap quaternions not of unit norm (MuJoCo normalises them)."""
+    offset geom, geoms nothing moves; mocap quaternions not of unit norm (MuJoCo normalises them), one zero."""
     spec = testing.scene_spec(INTR)
     testing.add_object(spec, 0, [0.1, 0.0, 0.05], type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.05, 0, 0])
     carrier = spec.worldbody.add_body(name="object_1", mocap=True, pos=[0.2, -0.1, 0.3],
@@ -426,6 +426,7 @@ def test_posed_geoms_are_mujocos_kinematics():
     rng = np.random.default_rng(0)
     pos = rng.normal(size=(4, model.nmocap, 3)) * 0.3
     quat = rng.normal(size=(4, model.nmocap, 4)) * 2.0
+    quat[1, 0] = 0.0  # a zero quaternion: MuJoCo's identity
     xpos, xmat = warp_backend.posed_geoms(rig, jnp.asarray(pos, jnp.float32), jnp.asarray(quat, jnp.float32))
     data = mujoco.MjData(model)
     for b in range(len(pos)):
@@ -459,3 +460,12 @@ def test_posed_data_static_writes_the_camera_frame(with_mesh):
     np.testing.assert_allclose(dx.cam_xpos[:, cam], T[:, :3, 3], atol=1e-6)
     np.testing.assert_allclose(dx.cam_xmat[:, cam], T[:, :3, :3] @ np.diag([1.0, -1, -1]), atol=1e-6)
     np.testing.assert_allclose(dx.geom_xpos[1], data.geom_xpos, atol=1e-6)
+    # One geom pose a world (the scene bank's, ``posed_geoms``): each world keeps its own.
+    shift = jnp.arange(3.0)[:, None, None] * jnp.array([0.1, -0.2, 0.05])
+    quarter = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # a quarter turn about z
+    turn = jnp.asarray(np.stack([np.eye(3), quarter, np.eye(3)]), jnp.float32)
+    per_world = jax.jit(warp_backend.posed_data_static, static_argnames="cam_id")(
+        dx0, jnp.asarray(T), gx[None] + shift, jnp.einsum("bij,gjk->bgik", turn, gm), cam_id=cam)
+    np.testing.assert_allclose(per_world.geom_xpos, np.asarray(gx)[None] + np.asarray(shift), atol=1e-6)
+    np.testing.assert_allclose(per_world.geom_xmat[1], np.einsum("ij,gjk->gik", np.asarray(turn[1]), gm), atol=1e-6)
+    np.testing.assert_allclose(per_world.cam_xpos[:, cam], T[:, :3, 3], atol=1e-6)

@@ -33,6 +33,8 @@ if TYPE_CHECKING:
     import mujoco
 
 PARK = 1000.0  # m below the table top where the slots a scene does not use wait
+Kinematics = Literal["static", "forward"]  # how the GPU renderer poses the slots (``render.warp``)
+KINEMATICS: Kinematics = "static"  # the bank's: each slot's mesh carried by its mocap pose in JAX
 
 
 def launches(frames: int, batch: int) -> list[np.ndarray]:
@@ -128,7 +130,7 @@ class SceneBank:
         return model
 
     def render(self, scene_list: Sequence[scenes.Scene], T_wc: np.ndarray, backend: Backend | str = Backend.mujoco,
-               batch: int = 512, kinematics: Literal["static", "forward"] = "static") -> DepthFrames:
+               batch: int = 512, kinematics: Kinematics = KINEMATICS) -> DepthFrames:
         """Frames of S scenes, each from its own V cameras ``T_wc: [S, V, 4, 4]``: depth [S, V, H, W] m (0 = no
         return) and object ids (the scene's object index, -1 table or nothing). ``warp``: every frame from the
         bank in calls of ``batch`` frames on the GPU (``launches``: the last padded; JAX arrays; ``kinematics``:
@@ -168,7 +170,7 @@ class SceneBank:
         H, W = depth.shape[1:]
         return DepthFrames(depth=depth.reshape(S, V, H, W), object_id=ids.reshape(S, V, H, W).astype(jnp.int32))
 
-    def warp_renderer(self, kinematics: Literal["static", "forward"] = "static") -> Renderer:
+    def warp_renderer(self, kinematics: Kinematics = KINEMATICS) -> Renderer:
         """The bank's GPU renderer (MJX's batch renderer), built once per ``kinematics``: ``static``, each slot's
         mesh carried by its mocap pose in JAX (``render.warp.posed_geoms``), or ``forward``, ``mjx.forward``
         moving them (collision detection and constraints over the parked slots included: the reference)."""

@@ -9,8 +9,10 @@ One world per view: the camera and the geoms are posed per world, ``mjx.refit_bv
 - ``kinematics="forward"`` (the default): the camera's mocap body is posed and ``mjx.forward`` moves everything,
   collision detection and constraints included (over a scene bank's parked meshes, which all overlap). The
   reference the static path is checked against.
-(On an H100 at 640x480, B = 512, one scene's model: static 13.0k frames/s, forward 8.9k; a real-like scene bank
-on an H200, B = 1,024: 12.7k and 12.1k, the same pixels: BENCHMARKS.md.)
+(On an H100 at 640x480, B = 512, one scene's model: static 12.8k frames/s, forward 10.7k, each in its graph mode
+below; a real-like scene bank on an H200, B = 1,024: 12.7k and 12.1k, both agreeing with MuJoCo's C caster on
+every pixel within 1 mm: BENCHMARKS.md. The two differ from each other in the last bits of some depths, enough
+to move a few of Table 1's records: F1 within 0.004 of each other, row by row.)
 What the installed MuJoCo Warp renderer (``mjx/third_party/mujoco_warp/_src/render.py``) writes:
 - depth: planar z-depth ``dist * cos(ray, optical axis)`` in metres, 0 where the ray hits nothing, and 0
   past ``zfar = vis.map.zfar * stat.extent``. Rays start at the camera centre (no near clip).
@@ -152,7 +154,7 @@ def quat_from_matrix(R: jax.Array) -> jax.Array:
 class GeomRig:
     """Every geom as a rigid offset from the mocap body that moves it, for a model without joints.
 
-    rest_pos: [G, 3] m and rest_mat: [G, 3, 3] each geom's world pose at rest (the host's ``mj_forward``);
+    rest_pos: [G, 3] m and rest_mat: [G, 3, 3] each geom's world pose at rest (the host's ``mj_kinematics``);
     mocap: [G] i32 the mocap index of the body carrying the geom (its own body or the nearest mocap ancestor),
     -1 for geoms that nothing moves (the table, the world's); offset_pos: [G, 3] m and offset_mat: [G, 3, 3] the
     geom's pose in that mocap body's frame (its rest pose where ``mocap`` is -1).
@@ -172,7 +174,7 @@ def geom_rig(model: mujoco.MjModel) -> GeomRig:
         raise ValueError(f"warp: kinematics 'static' poses geoms rigidly with their mocap bodies, but the model "
                          f"has {model.njnt} joints: use kinematics='forward'")
     data = mujoco.MjData(model)
-    mujoco.mj_forward(model, data)
+    mujoco.mj_kinematics(model, data)  # (the rest poses; no collision among the parked slots)
     carrier = np.zeros(model.ngeom, np.int64)  # the body that moves each geom (0: the world, nothing moves it)
     for g in range(model.ngeom):
         b = int(model.geom_bodyid[g])
@@ -192,9 +194,13 @@ def geom_rig(model: mujoco.MjModel) -> GeomRig:
 
 def posed_geoms(rig: GeomRig, mocap_pos: jax.Array, mocap_quat: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Every geom's world pose with the mocap bodies at ``mocap_pos: [B, nmocap, 3]`` m and ``mocap_quat: [B,
-    nmocap, 4]`` (w, x, y, z; normalised here, as MuJoCo does): (xpos [B, G, 3] m, xmat [B, G, 3, 3]), what
+    nmocap, 4]`` (w, x, y, z; normalised here, and a zero one the identity, as MuJoCo does): (xpos [B, G, 3] m,
+    xmat [B, G, 3, 3]), what
     MuJoCo's kinematics gives a model without joints. Pure JAX, full float32 products."""
-    R = jaxlie.SO3(normalize(mocap_quat.astype(jnp.float32))).as_matrix()  # [B, nmocap, 3, 3]
+    q = mocap_quat.astype(jnp.float32)
+    norm = jnp.linalg.norm(q, axis=-1, keepdims=True)
+    q = jnp.where(norm < 1e-10, jnp.array([1.0, 0.0, 0.0, 0.0]), q / jnp.maximum(norm, 1e-10))  # (MuJoCo: 0 -> 1)
+    R = jaxlie.SO3(q).as_matrix()  # [B, nmocap, 3, 3]
     at = jnp.maximum(rig.mocap, 0)
     R_g, p_g = R[:, at], mocap_pos.astype(jnp.float32)[:, at]  # [B, G, 3, 3], [B, G, 3]
     highest = jax.lax.Precision.HIGHEST
