@@ -209,11 +209,12 @@ def ahead(load: Callable[[], Any], what: str) -> Future:
     exception is not raised but warned about (naming ``what``): the caller then makes the program itself when
     it needs it. Returns the load's ``Future`` (its result, or None after a failure).
 
-    Never beside a MuJoCo Warp render (one dispatched and not yet done): a program loaded onto the GPU by
-    another thread breaks Warp's CUDA graph capture ("Warp CUDA error 901: operation failed due to a previous
-    error during capture", or a crash; on an H200 a render loop beside a thread compiling programs failed
-    within seconds). The caller starts a load after its renders are done and waits for it before the next one
-    (``experiments.table1.runner``: the frames of a chunk are done once a call that uses them is)."""
+    Never beside a render under MuJoCo Warp's own CUDA graph capture (``WarpRenderer.loads_beside_renders``
+    False: ``forward`` kinematics): a program loaded onto the GPU by another thread breaks the capture ("Warp
+    CUDA error 901: operation failed due to a previous error during capture", or a crash; on an H200 a render
+    loop beside a thread compiling programs failed within seconds). There the caller starts a load after its
+    renders are done and waits for it before the next one (``experiments.table1.runner``: the frames of a chunk
+    are done once a call that uses them is); renders in JAX's graph mode (``static``) may run beside loads."""
     global _background
 
     def guarded():

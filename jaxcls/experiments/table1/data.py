@@ -137,11 +137,20 @@ class Scenes:
 
     def prepare_renderer(self) -> None:
         """Build what rendering needs (the scene bank and its renderer, drawn scenes aside), rendering nothing:
-        host work that a program loaded on another thread meanwhile may overlap (``compile_cache.ahead``: never
-        a render). Nothing to do for a dataset's files."""
+        host work that a program loaded on another thread meanwhile may overlap, whatever the renderer
+        (``loads_beside_renders``). Nothing to do for a dataset's files."""
         if not self.files and self.backend is Backend.warp:
             bank = _bank(self.dataset.objects, self.dataset.scene, self.dataset.camera)[1]
             bank.warp_renderer()  # (built once and kept by the bank)
+
+    def loads_beside_renders(self) -> bool:
+        """Whether a program may be loaded on another thread (``compile_cache.ahead``) while ``chunk`` renders:
+        the renderer's word (``WarpRenderer.loads_beside_renders``: not under MuJoCo Warp's own CUDA graph
+        capture); always for a dataset's files and MuJoCo's C caster."""
+        if self.files or self.backend is not Backend.warp:
+            return True
+        bank = _bank(self.dataset.objects, self.dataset.scene, self.dataset.camera)[1]
+        return bank.warp_renderer().loads_beside_renders
 
     def chunk(self, indices: Sequence[int]) -> Chunk:
         """The frames of scenes ``indices`` stacked for a batched call, on the device when rendered there."""

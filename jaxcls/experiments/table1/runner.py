@@ -130,7 +130,7 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
               disable=not show_progress) as bar:
         batched_todo = [k for k in todo if rows[k[1]].kind in BATCHED]
         oracle_todo = [k for k in todo if rows[k[1]].kind is protocol.Kind.ORACLE]
-        loading: list[Future] = []  # the oracle's programs being loaded (run_oracle renders once they are)
+        loading: list[Future] = []  # the oracle's programs being loaded (run_oracle waits for them)
 
         def load_oracle() -> None:
             loading.extend(load_oracle_ahead(config, scene_set, dataset, classifiers, object_set, oracle_todo, oracle))
@@ -213,8 +213,9 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     while the next call runs on the devices. Returns the records appended. The chunks' and calls' sizes follow
     from ``planned`` scenes (the whole run's share, so that a resumed run has the first one's shapes and
     compiles nothing; default: ``todo``'s). With the compilation cache on, each program is read and compiled
-    (loaded) on a background thread (``compile_cache.ahead``) while the host builds the renderer, and the first
-    frames are rendered once it is loaded (never beside a load: ``compile_cache.ahead`` says why). ``then`` is
+    (loaded) on a background thread (``compile_cache.ahead``) while the host builds the renderer and renders the
+    first chunk, and waited for before the first call; where the renderer forbids a load beside a render
+    (``Scenes.loads_beside_renders``: MuJoCo Warp's own graph capture), before the first render. ``then`` is
     called once the last chunk's frames are rendered and in use, with no render to come here (e.g. to load the
     next rows' programs while the last calls run)."""
     clock = clock or Phases()
@@ -260,7 +261,7 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     per, per_call = chunk_sizes(max(planned or 0, len(scenes)), n, config.scene_chunk, config.batch_episodes,
                                 config.runs)
     size = per_call * n * config.runs
-    loading: list[Future] = []  # the programs loaded ahead: waited for before the first render
+    loading: list[Future] = []  # the programs loaded ahead: waited for before the first call
     if compile_cache.enabled():  # the programs loaded while the host builds the renderer
         intrinsics, table_height, views = scene_set.frame_layout()
         frames = (n * per, views, intrinsics.height, intrinsics.width)
@@ -279,9 +280,16 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                                                f"Table 1's batched program ({c}, {library})"))
     with clock("frames (rendered or read)"):
         scene_set.prepare_renderer()
-    with episodes_clock():  # (the first call's load, as far as the renderer's set-up did not hide it)
-        for future in loading:
-            future.result()
+
+    def loaded() -> None:
+        """Wait for the programs loaded ahead (once): before the first call, or before the first render where
+        the renderer forbids a load beside it."""
+        with episodes_clock():  # (the first call's load, as far as the renderer's set-up and frames did not hide it)
+            while loading:
+                loading.pop(0).result()
+
+    if not scene_set.loads_beside_renders():
+        loaded()
     firsts = range(0, len(scenes), n * per)
     for first in firsts:
         chunk_scenes = scenes[first:first + n * per]
@@ -324,6 +332,7 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                     key = np.stack([keys[s][r] for s, r in call])
                     bar.set_postfix(scenes=f"{chunk_scenes[0]}-{chunk_scenes[-1]}", classifier=c,
                                     rows="+".join(names))
+                    loaded()
                     with episodes_clock():
                         traces = batched.dispatch(chosen, depth, T_wc, scene, start, key, device_mesh, size,
                                                   split_scenes=True, kernels=config.kernels)
@@ -343,8 +352,8 @@ def load_oracle_ahead(config: Table1Config, scene_set: Scenes, dataset: DatasetC
                       calls: list[list[tuple[str, str, int, int]]]) -> list[Future]:
     """With the compilation cache on, the oracle's program for each (classifier, row) of ``todo`` read and
     compiled (loaded) on a background thread (``compile_cache.ahead``), for ``run_oracle``'s frames (every
-    process's ``calls``: ``oracle_frames``) and calls, while the host does other work (no render: a render
-    waits for the loads returned)."""
+    process's ``calls``: ``oracle_frames``) and calls, while the host does other work (``run_oracle`` waits for
+    the loads returned before its first call, or its first render where the renderer forbids a load beside it)."""
     if not (todo and compile_cache.enabled()):
         return []
     intrinsics, table_height, views = scene_set.frame_layout()
@@ -394,10 +403,17 @@ def run_oracle(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     episode, dropped); the frames of consecutive calls' scenes at a time, ``frames`` scenes (``oracle_frames``;
     padded with copies of the first scene's, never used). A call runs whole, as every process count and an
     uninterrupted run have it; its episodes not in ``done`` are appended to ``store`` and returned. ``loading``:
-    programs being loaded ahead (``load_oracle_ahead``), waited for before the first render."""
-    with clock("the oracle (runs of several scenes a call)"):
-        for future in loading:
-            future.result()
+    programs being loaded ahead (``load_oracle_ahead``), waited for before the first call (before the first render
+    where the renderer forbids a load beside it: ``Scenes.loads_beside_renders``)."""
+    loading = list(loading)
+
+    def loaded() -> None:
+        with clock("the oracle (runs of several scenes a call)"):
+            while loading:
+                loading.pop(0).result()
+
+    if not scene_set.loads_beside_renders():
+        loaded()
     calls = [call for call in calls if any(k not in done for k in call)]
     size = oracle_call_size(config)  # (every call padded to it: a resumed run's last, shorter call too)
     episodes: dict[tuple[str, str], active.Episode] = {}
@@ -428,6 +444,7 @@ def run_oracle(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                                             chunk.scenes[0].table_height, dataset.scene.split)
             padded = call + [call[0]] * (size - len(call))
             bar.set_postfix(scenes=f"{call[0][2]}-{call[-1][2]}", classifier=c, row=name)
+            loaded()
             with clock("the oracle (runs of several scenes a call)"):
                 traces = protocol.oracle_rollouts(
                     episodes[c, name], depth, T_wc, np.array([starts[s][r] for _, _, s, r in padded]),

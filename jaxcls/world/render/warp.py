@@ -289,6 +289,15 @@ class WarpRenderer:
         self._dx0 = mjx.make_data(self._mjm, impl="warp", device=device)
         self._contexts: dict[int, tuple[Any, Any]] = {}
 
+    @property
+    def loads_beside_renders(self) -> bool:
+        """Whether another thread may load a program onto the GPU while a render runs. Not under Warp's own
+        (staged) CUDA graph capture, ``forward``: a load beside it broke the capture ("Warp CUDA error 901:
+        operation failed due to a previous error during capture", or a crash, within seconds on an H200).
+        ``static`` runs in JAX's graph mode, where JAX captures: three 30 s loops of ~110 scene-bank renders
+        beside a thread compiling and running ~110 programs all finished (one H100, 2026-11-27)."""
+        return self.kinematics == "static"
+
     def _context(self, batch: int) -> tuple[Any, Any]:
         """(render context, jitted render) for ``batch`` worlds; the context must outlive its calls."""
         if batch not in self._contexts:
