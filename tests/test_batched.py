@@ -137,6 +137,9 @@ class Frames:  # the scenes' frames, handed out as Table 1's scene set does
     def prepare_renderer(self):  # (they are made already)
         pass
 
+    def loads_beside_renders(self):  # (nothing renders)
+        return True
+
     def chunk(self, indices):
         i = list(indices)
         return Chunk(scenes=[worlds[k].scene for k in i], depth=depth[i], T_wc=T_wc[i],

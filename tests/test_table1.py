@@ -12,6 +12,7 @@ import os
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -191,11 +192,20 @@ def test_interrupted_experiment_resumes_and_the_same_seed_gives_the_same_numbers
     # Two processes' shares, as a jax.distributed run splits the scenes (s to process s % 2), each appending to its
     # own store, the scenes rendered where the episodes run: checked below against one process's records. (Run
     # here, with the policy rows' program the interrupted run compiled.)
+    # Their first frames made after the classifiers load, on the main thread (``runner.FRAMES_AHEAD`` off);
+    # "d" below, whose records they must give, makes them on a thread while its classifiers load.
     split_argv = _small(tmp_path, "s", untracked, "scene_source=device", "rows=[vis_occl_hist_gr]")
     split = load_config(Table1Config, split_argv[1], split_argv[2:])
     dataset, scene_set = data.open_scenes(split)
-    returned = [runner.run_episodes(split, scene_set, dataset, tmp_path / "s" / "episodes.jsonl",
-                                    show_progress=False, process=(index, 2)) for index in (0, 1)]
+    chunks = []  # (made on the frames thread?, the scenes) of every Scenes.chunk
+    chunk = data.Scenes.chunk
+    monkeypatch.setattr(data.Scenes, "chunk", lambda self, indices: chunks.append(
+        (threading.current_thread().name.startswith("jaxcls-frames"), tuple(indices))) or chunk(self, indices))
+    with monkeypatch.context() as m:
+        m.setattr(runner, "FRAMES_AHEAD", False)
+        returned = [runner.run_episodes(split, scene_set, dataset, tmp_path / "s" / "episodes.jsonl",
+                                        show_progress=False, process=(index, 2)) for index in (0, 1)]
+    assert chunks == [(False, (0,)), (False, (1,))], chunks
     shares = [io.read_jsonl(tmp_path / "s" / f"episodes.{index}.jsonl") for index in (0, 1)]
 
     with monkeypatch.context() as m:  # (its programs kept for "d": see the docstring)
@@ -220,8 +230,12 @@ def test_interrupted_experiment_resumes_and_the_same_seed_gives_the_same_numbers
     monkeypatch.setattr(runner, "CPU_PROGRAMS_PER_PASS", 1)
     assert runner.passes([1, 2, 3], "cpu") == [[1], [2], [3]] and runner.passes([1, 2, 3], "gpu") == [[1, 2, 3]]
     maps_before = _memory_maps()
+    chunks.clear()
     table1.main(_small(tmp_path, "d", untracked, "scene_source=device"))
     maps_after = _memory_maps()
+    # The batched rows' first chunk (scene 0) made on the frames thread while the classifiers loaded, used and
+    # not made again; the second on the main thread; then PointNetFull's, scene by scene.
+    assert chunks == [(True, (0,)), (False, (1,)), (False, (0,)), (False, (1,))], chunks
     print("memory maps before and after a run:", maps_before, maps_after)
     if maps_before is not None:
         assert maps_after < maps_before - 1000

@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 from collections.abc import Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -146,11 +147,34 @@ class Scenes:
     def loads_beside_renders(self) -> bool:
         """Whether a program may be loaded on another thread (``compile_cache.ahead``) while ``chunk`` renders:
         the renderer's word (``WarpRenderer.loads_beside_renders``: not under MuJoCo Warp's own CUDA graph
-        capture); always for a dataset's files and MuJoCo's C caster."""
+        capture); always for a dataset's files and MuJoCo's C caster. Known before the renderer is built."""
         if self.files or self.backend is not Backend.warp:
             return True
-        bank = _bank(self.dataset.objects, self.dataset.scene, self.dataset.camera)[1]
-        return bank.warp_renderer().loads_beside_renders
+        from jaxcls.world.bank import KINEMATICS
+        from jaxcls.world.render.warp import loads_beside_renders
+
+        return loads_beside_renders(KINEMATICS)
+
+    def chunk_ahead(self, indices: Sequence[int]) -> Future:
+        """``chunk(indices)`` on a thread of its own, the renderer built there first (``prepare_renderer``); the
+        Future is done once the frames are (on the device too): e.g. a process's first frames made while it
+        loads its classifiers. Only where ``loads_beside_renders`` (ValueError otherwise); nothing else may
+        build the renderer or render until it is done."""
+        if not self.loads_beside_renders():
+            raise ValueError("Scenes.chunk_ahead: this renderer forbids work beside its renders (loads_beside_renders)")
+        import jax
+
+        def make() -> Chunk:
+            self.prepare_renderer()
+            chunk = self.chunk(indices)
+            jax.block_until_ready(chunk.depth)
+            return chunk
+
+        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxcls-frames")
+        try:
+            return pool.submit(make)
+        finally:
+            pool.shutdown(wait=False)
 
     def chunk(self, indices: Sequence[int]) -> Chunk:
         """The frames of scenes ``indices`` stacked for a batched call, on the device when rendered there."""

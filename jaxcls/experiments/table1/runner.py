@@ -37,6 +37,12 @@ from jaxcls.world.objects import object_set_from_config
 # died with LLVM's "Cannot allocate memory" after ~30. On the CPU the rows run in passes over the scenes of at
 # most this many (classifier, row) programs each, freed after the pass (a scene is read once per pass).
 CPU_PROGRAMS_PER_PASS = 12
+# Whether a run makes the batched rows' first chunk of frames on a thread while it loads its classifiers (where
+# the renderer allows work beside its renders: ``Scenes.chunk_ahead``); off: after them, on the main thread.
+FRAMES_AHEAD = True
+# ``Phases.mark``'s name for the first batched call handed to the devices (a warm run's start: its time since
+# the process started).
+FIRST_CALL_DISPATCHED = "first batched call dispatched"
 # The oracle's episodes in one call off the CPU: each tries its 32 candidates at every move, ~18,500 moves a call.
 ORACLE_EPISODES_PER_CALL = 64
 
@@ -48,6 +54,13 @@ class Phases:
     def __init__(self) -> None:
         self.seconds: dict[str, float] = {}
         self.episodes = 0
+        self.marks: dict[str, float] = {}  # an event's time since the process started (s), ``mark``
+
+    def mark(self, name: str) -> None:
+        """Note when ``name`` first happened: the process's age (``report.process_age``; nothing where that is
+        unknown), e.g. the first batched call dispatched: how long a warm run takes to start its episodes."""
+        if name not in self.marks and (age := report.process_age()) is not None:
+            self.marks[name] = age
 
     @contextlib.contextmanager
     def __call__(self, name: str):
@@ -65,9 +78,12 @@ def write_run_times(path: Path, clock: Phases, total: float, device: str | None 
     runs = json.loads(path.read_text()) if path.exists() else []
     entry = {"device": device or report.device_name(), "devices": len(jax.local_devices()), "episodes": clock.episodes,
              "total_s": round(total, 1), "phases_s": {k: round(v, 1) for k, v in clock.seconds.items()}}
+    if clock.marks:
+        entry["marks_s"] = {k: round(v, 1) for k, v in clock.marks.items()}
     io.write_json(path, [*runs, entry])
     print(f"run times ({entry['device']}, {clock.episodes} episodes): {entry['total_s']} s; "
-          + ", ".join(f"{k} {v} s" for k, v in entry["phases_s"].items()), file=sys.stderr)
+          + ", ".join(f"{k} {v} s" for k, v in entry["phases_s"].items())
+          + "".join(f"; {k} at {v} s" for k, v in entry.get("marks_s", {}).items()), file=sys.stderr)
 
 
 def run_times_file(store: Path, process: tuple[int, int]) -> Path:
@@ -114,21 +130,26 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
     owner, began = clock is None, time.perf_counter()
     clock = clock or Phases()
     with clock("start-up (classifiers, stored episodes)"):
+        stored = read_stores(store)
+        rows = {name: protocol.row(name) for name in config.rows}
+        done = {record_key(r) for r in stored}
+        every = episode_keys(config, scene_set.count)
+        oracle = oracle_calls(config, [k for k in every if rows[k[1]].kind is protocol.Kind.ORACLE])
+        wanted = [k for k in every if k[2] % count == index and rows[k[1]].kind is not protocol.Kind.ORACLE]
+        wanted += [k for call in oracle[index::count] for k in call]  # (the oracle's calls, not its scenes, split)
+        todo = [k for k in wanted if k not in done]
+        batched_todo = [k for k in todo if rows[k[1]].kind in BATCHED]
+        share = len({k[2] for k in wanted if rows[k[1]].kind in BATCHED})  # (a resumed run: the same shapes)
+        first = None  # the batched rows' first frames, made (the renderer built) while the classifiers load
+        if FRAMES_AHEAD and batched_todo and scene_set.loads_beside_renders():
+            slots = chunk_plan(config, sorted({k[2] for k in batched_todo}), share, len(jax.local_devices()))[2][0]
+            first = FirstFrames(render_order(slots), scene_set.chunk_ahead(render_order(slots)))
         object_set = object_set_from_config(dataset.objects)
         classifiers = {name: setup.load_classifier(path, object_set, f"classifiers.{name}")
                        for name, path in config.classifiers.items()}
-        stored = read_stores(store)
-    rows = {name: protocol.row(name) for name in config.rows}
-    done = {record_key(r) for r in stored}
-    every = episode_keys(config, scene_set.count)
-    oracle = oracle_calls(config, [k for k in every if rows[k[1]].kind is protocol.Kind.ORACLE])
-    wanted = [k for k in every if k[2] % count == index and rows[k[1]].kind is not protocol.Kind.ORACLE]
-    wanted += [k for call in oracle[index::count] for k in call]  # (the oracle's calls, not its scenes, split)
-    todo = [k for k in wanted if k not in done]
     mine = process_store(store, (index, count))  # where this process appends
     with tqdm(total=len(wanted), initial=len(wanted) - len(todo), desc="episodes", unit="episode",
               disable=not show_progress) as bar:
-        batched_todo = [k for k in todo if rows[k[1]].kind in BATCHED]
         oracle_todo = [k for k in todo if rows[k[1]].kind is protocol.Kind.ORACLE]
         loading: list[Future] = []  # the oracle's programs being loaded (run_oracle waits for them)
 
@@ -136,10 +157,9 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
             loading.extend(load_oracle_ahead(config, scene_set, dataset, classifiers, object_set, oracle_todo, oracle))
 
         if batched_todo:
-            share = len({k[2] for k in wanted if rows[k[1]].kind in BATCHED})  # (a resumed run: the same shapes)
             # (the oracle's program loaded while the batched rows' last calls run, after their last render)
             stored += run_batched(config, scene_set, dataset, classifiers, object_set, batched_todo, mine, bar, clock,
-                                  share, then=load_oracle)
+                                  share, then=load_oracle, first=first)
         else:
             load_oracle()
         if oracle_todo:
@@ -202,7 +222,7 @@ def program_row(row: protocol.Row) -> protocol.Row:
 def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                 classifiers: dict[str, pointnet.Classifier], object_set, todo: list[tuple[str, str, int, int]],
                 store: Path, bar: tqdm, clock: Phases | None = None, planned: int | None = None,
-                then: Callable[[], None] | None = None) -> list[dict[str, Any]]:
+                then: Callable[[], None] | None = None, first: FirstFrames | None = None) -> list[dict[str, Any]]:
     """The single-view and policy rows' episodes ``todo`` batched over scenes and runs and sharded over the
     local devices (``episode.batched``): the frames of ``scene_chunk`` of ``todo``'s scenes at a time (rounded up
     to a multiple of the devices), split by scene over the devices (each holds 1/n of them and runs their
@@ -217,7 +237,8 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     first chunk, and waited for before the first call; where the renderer forbids a load beside a render
     (``Scenes.loads_beside_renders``: MuJoCo Warp's own graph capture), before the first render. ``then`` is
     called once the last chunk's frames are rendered and in use, with no render to come here (e.g. to load the
-    next rows' programs while the last calls run)."""
+    next rows' programs while the last calls run). ``first``: the first chunk's frames being made already (on a
+    thread, ``Scenes.chunk_ahead``: its renderer built there too), used where they are of its scenes."""
     clock = clock or Phases()
     device_mesh = batched.mesh()
     policies = tuple(dict.fromkeys(program_row(protocol.ROWS[k[1]]).policy for k in todo))
@@ -254,12 +275,7 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
 
     scenes = sorted({k[2] for k in todo})  # (a process of several: its share)
     n = device_mesh.devices.size
-    # The frames split by scene over the devices, ``per`` scenes each (a chunk round-robin, so that a call of
-    # consecutive scenes keeps every device busy); a call takes ``per_call`` scenes of each device. One shape for
-    # every call: a last, shorter chunk and call padded (copies, dropped), so that nothing compiles again (~20 s
-    # a shape on an H200); the sizes balanced so that little is padded.
-    per, per_call = chunk_sizes(max(planned or 0, len(scenes)), n, config.scene_chunk, config.batch_episodes,
-                                config.runs)
+    per, per_call, layouts = chunk_plan(config, scenes, planned, n)
     size = per_call * n * config.runs
     loading: list[Future] = []  # the programs loaded ahead: waited for before the first call
     if compile_cache.enabled():  # the programs loaded while the host builds the renderer
@@ -278,8 +294,9 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
         for (c, library), row in libraries.items():
             loading.append(compile_cache.ahead(functools.partial(load, c, row),
                                                f"Table 1's batched program ({c}, {library})"))
-    with clock("frames (rendered or read)"):
-        scene_set.prepare_renderer()
+    if first is None:
+        with clock("frames (rendered or read)"):
+            scene_set.prepare_renderer()
 
     def loaded() -> None:
         """Wait for the programs loaded ahead (once): before the first call, or before the first render where
@@ -290,18 +307,17 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
 
     if not scene_set.loads_beside_renders():
         loaded()
-    firsts = range(0, len(scenes), n * per)
-    for first in firsts:
-        chunk_scenes = scenes[first:first + n * per]
-        slots = chunk_layout(chunk_scenes, n, per)  # the scene in each frame slot (device d: slots d per ...)
+    for number, slots in enumerate(layouts):  # the scene in each frame slot (device d: slots d per ...)
+        chunk_scenes = sorted(set(slots))
         at = {}  # a scene's slot in the chunk's frames (its first, where padding repeats it)
         for slot, s in enumerate(slots):
             at.setdefault(s, slot)
         chunk_todo = [k for k in todo if k[2] in at]
         groups = call_scenes(slots, n, per_call)
         with clock("frames (rendered or read)"):
-            order = list(dict.fromkeys(slots))  # rendered in slot order: a full chunk needs no reordering
-            chunk = scene_set.chunk(order)
+            order = render_order(slots)
+            ahead = first.frames.result() if number == 0 and first is not None else None  # (one render at a time)
+            chunk = ahead if ahead is not None and first.scenes == order else scene_set.chunk(order)
             place = {s: i for i, s in enumerate(order)}
             laid = np.array([place[s] for s in slots])
             depth, T_wc = (x if np.array_equal(laid, np.arange(len(x))) else x[laid] for x in (chunk.depth, chunk.T_wc))
@@ -336,12 +352,13 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                     with episodes_clock():
                         traces = batched.dispatch(chosen, depth, T_wc, scene, start, key, device_mesh, size,
                                                   split_scenes=True, kernels=config.kernels)
+                    clock.mark(FIRST_CALL_DISPATCHED)
                     dispatched.append(True)
                     if pending:
                         finish()  # the last call's records, while this one runs
                     calls = {(c, name): [(index[k[2:]], k) for k in chunk_todo
                                          if k[:2] == (c, name) and k[2:] in index] for name in names}
-                    pending.append((calls, traces, truths, start, at, first == firsts[-1]))
+                    pending.append((calls, traces, truths, start, at, number == len(layouts) - 1))
     if pending:
         finish()  # (every chunk has a call: the last chunk's first finished one has called ``then``)
     return made
@@ -516,6 +533,36 @@ def record_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetCon
                    scoring.Truth.from_scene(views.scene, object_set), on_move=recorder.move)
         written.append(recorder.write(folder / f"{c}_{name}_scene{s:04d}_run{r}.rrd"))
     return written
+
+
+@dataclasses.dataclass(frozen=True)
+class FirstFrames:
+    """The batched rows' first chunk's frames being made ahead: its ``scenes`` in render order (``render_order``)
+    and the ``Chunk``'s Future (``Scenes.chunk_ahead``)."""
+
+    scenes: list[int]
+    frames: Future
+
+
+def chunk_plan(config: Table1Config, scenes: list[int], planned: int | None,
+               devices: int) -> tuple[int, int, list[list[int]]]:
+    """(scenes a device holds in a chunk, scenes a device runs in a call, each chunk's frame slots) of the
+    batched rows' ``scenes`` (sorted) over ``devices``. The frames split by scene over the devices, ``per``
+    scenes each (a chunk round-robin, ``chunk_layout``, so that a call of consecutive scenes keeps every device
+    busy); a call takes ``per_call`` scenes of each device. One shape for every call: a last, shorter chunk and
+    call padded (copies, dropped), so that nothing compiles again (~20 s a shape on an H200); the sizes from
+    ``planned`` scenes (the whole run's share; default ``scenes``') balanced so that little is padded."""
+    per, per_call = chunk_sizes(max(planned or 0, len(scenes)), devices, config.scene_chunk, config.batch_episodes,
+                                config.runs)
+    step = devices * per
+    return per, per_call, [chunk_layout(scenes[first:first + step], devices, per)
+                           for first in range(0, len(scenes), step)]
+
+
+def render_order(slots: list[int]) -> list[int]:
+    """A chunk's scenes in slot order, each once: what ``Scenes.chunk`` renders for ``slots`` (``chunk_layout``;
+    a full chunk needs no reordering)."""
+    return list(dict.fromkeys(slots))
 
 
 def chunk_sizes(scenes: int, devices: int, scene_chunk: int, batch_episodes: int, runs: int) -> tuple[int, int]:

@@ -258,6 +258,15 @@ def render_buffers(mx: Any, dx: Any, rc: Any) -> tuple[jax.Array, jax.Array]:
     return depth, seg
 
 
+def loads_beside_renders(kinematics: Literal["forward", "static"]) -> bool:
+    """Whether another thread may load a program onto the GPU while a ``WarpRenderer`` of ``kinematics``
+    renders. Not under Warp's own (staged) CUDA graph capture, ``forward``: a load beside it broke the capture
+    ("Warp CUDA error 901: operation failed due to a previous error during capture", or a crash, within seconds
+    on an H200). ``static`` runs in JAX's graph mode, where JAX captures: three 30 s loops of ~110 scene-bank
+    renders beside a thread compiling and running ~110 programs all finished (one H100, 2026-11-27)."""
+    return kinematics == "static"
+
+
 class WarpRenderer:
     """Batched GPU rendering; one render context (and compiled function) per batch size, cached."""
 
@@ -291,12 +300,8 @@ class WarpRenderer:
 
     @property
     def loads_beside_renders(self) -> bool:
-        """Whether another thread may load a program onto the GPU while a render runs. Not under Warp's own
-        (staged) CUDA graph capture, ``forward``: a load beside it broke the capture ("Warp CUDA error 901:
-        operation failed due to a previous error during capture", or a crash, within seconds on an H200).
-        ``static`` runs in JAX's graph mode, where JAX captures: three 30 s loops of ~110 scene-bank renders
-        beside a thread compiling and running ~110 programs all finished (one H100, 2026-11-27)."""
-        return self.kinematics == "static"
+        """``loads_beside_renders(self.kinematics)``."""
+        return loads_beside_renders(self.kinematics)
 
     def _context(self, batch: int) -> tuple[Any, Any]:
         """(render context, jitted render) for ``batch`` worlds; the context must outlive its calls."""
