@@ -5,10 +5,11 @@ against JAX's cache plus the traced programs kept on disk (``compile_cache.expor
         [--config CONFIG] [--out BENCHMARKS.md] [overrides ...]
 
 Settings: ``jax`` (JAX's cache alone), ``exported`` (plus the exported programs, loaded ahead on up to
-``compile_cache.AHEAD_THREADS`` threads at once, the first chunk's frames made on a thread while the classifiers
-load), ``serial`` (the same, one program at a time: the programs of several classifiers, ``--classifiers shipped
-paper``, loaded one after the other) and ``frames_later`` (``exported`` with the first frames made after the
-classifiers load, on the main thread: ``runner.FRAMES_AHEAD`` off).
+``compile_cache.AHEAD_THREADS`` threads at once; where a device renders the frames, the first chunk's made on a
+thread while the classifiers load), ``serial`` (the same, one program at a time: the programs of several
+classifiers, ``--classifiers shipped paper``, loaded one after the other), ``frames_later`` (``exported`` with the
+first frames made after the classifiers load, on the main thread: ``runner.FRAMES_AHEAD`` off) and
+``frames_ahead`` (``exported`` with them made on a thread wherever they are made: ``runner.FRAMES_AHEAD`` on).
 Each setting gets its own cache folder, filled by one cold run; then the settings' warm runs take turns (the
 order reversed every other round), each a fresh process of ``experiments/table1.py`` (its own ``out_dir``).
 Reported per setting: the median of the process's wall time and of its run's phases (``run_times.json``): the
@@ -45,9 +46,9 @@ if sys.argv[1] == "jax":
     compile_cache.exported = lambda jitted, args, kind, options=None: compile_cache.jitted(jitted, options)
 if sys.argv[1] == "serial":
     compile_cache.AHEAD_THREADS = 1
-if sys.argv[1] == "frames_later":
+if sys.argv[1] in ("frames_later", "frames_ahead"):
     from jaxcls.experiments.table1 import runner
-    runner.FRAMES_AHEAD = False
+    runner.FRAMES_AHEAD = sys.argv[1] == "frames_ahead"
 sys.argv = ["experiments/table1.py", *sys.argv[2:]]
 runpy.run_path("experiments/table1.py", run_name="__main__")
 """
@@ -69,7 +70,8 @@ dataset_overrides: [num_scenes=2, viewpoints.count=12, backend=mujoco, camera.wi
 SETTINGS = {"jax": "JAX's cache",
             "exported": f"JAX's cache + the exported programs (up to {compile_cache.AHEAD_THREADS} loads at once)",
             "serial": "JAX's cache + the exported programs, loaded one at a time",
-            "frames_later": "JAX's cache + the exported programs, the first frames made after the classifiers load"}
+            "frames_later": "JAX's cache + the exported programs, the first frames made after the classifiers load",
+            "frames_ahead": "JAX's cache + the exported programs, the first frames made while the classifiers load"}
 CLASSIFIERS = {"shipped": "", "paper": "builtin_paper"}
 
 

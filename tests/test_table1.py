@@ -192,8 +192,9 @@ def test_interrupted_experiment_resumes_and_the_same_seed_gives_the_same_numbers
     # Two processes' shares, as a jax.distributed run splits the scenes (s to process s % 2), each appending to its
     # own store, the scenes rendered where the episodes run: checked below against one process's records. (Run
     # here, with the policy rows' program the interrupted run compiled.)
-    # Their first frames made after the classifiers load, on the main thread (``runner.FRAMES_AHEAD`` off);
-    # "d" below, whose records they must give, makes them on a thread while its classifiers load.
+    # Their first frames made after the classifiers load, on the main thread (``runner.FRAMES_AHEAD``: off, as
+    # by default where a CPU renders them); "d" below, whose records they must give, makes them on a thread while
+    # its classifiers load.
     split_argv = _small(tmp_path, "s", untracked, "scene_source=device", "rows=[vis_occl_hist_gr]")
     split = load_config(Table1Config, split_argv[1], split_argv[2:])
     dataset, scene_set = data.open_scenes(split)
@@ -231,6 +232,7 @@ def test_interrupted_experiment_resumes_and_the_same_seed_gives_the_same_numbers
     assert runner.passes([1, 2, 3], "cpu") == [[1], [2], [3]] and runner.passes([1, 2, 3], "gpu") == [[1, 2, 3]]
     maps_before = _memory_maps()
     chunks.clear()
+    monkeypatch.setattr(runner, "FRAMES_AHEAD", True)  # (by default only where a device renders them)
     table1.main(_small(tmp_path, "d", untracked, "scene_source=device"))
     maps_after = _memory_maps()
     # The batched rows' first chunk (scene 0) made on the frames thread while the classifiers loaded, used and

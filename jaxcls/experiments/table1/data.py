@@ -122,6 +122,11 @@ class Scenes:
     def from_files(cls, dataset: DatasetConfig, files: Sequence[Path]) -> Scenes:
         return cls(dataset=dataset, count=len(files), files=tuple(files))
 
+    @property
+    def on_device(self) -> bool:
+        """Whether the frames are rendered on a device (``warp``), not read from files or cast on the CPU."""
+        return not self.files and self.backend is Backend.warp
+
     def load(self, indices: Sequence[int]) -> list[sources.Preloaded]:
         """The frames of scenes ``indices`` (every viewpoint) on the host, one ``Preloaded`` each (checked)."""
         if self.files:
@@ -140,7 +145,7 @@ class Scenes:
         """Build what rendering needs (the scene bank and its renderer, drawn scenes aside), rendering nothing:
         host work that a program loaded on another thread meanwhile may overlap, whatever the renderer
         (``loads_beside_renders``). Nothing to do for a dataset's files."""
-        if not self.files and self.backend is Backend.warp:
+        if self.on_device:
             bank = _bank(self.dataset.objects, self.dataset.scene, self.dataset.camera)[1]
             bank.warp_renderer()  # (built once and kept by the bank)
 
@@ -148,7 +153,7 @@ class Scenes:
         """Whether a program may be loaded on another thread (``compile_cache.ahead``) while ``chunk`` renders:
         the renderer's word (``WarpRenderer.loads_beside_renders``: not under MuJoCo Warp's own CUDA graph
         capture); always for a dataset's files and MuJoCo's C caster. Known before the renderer is built."""
-        if self.files or self.backend is not Backend.warp:
+        if not self.on_device:
             return True
         from jaxcls.world.bank import KINEMATICS
         from jaxcls.world.render.warp import loads_beside_renders

@@ -38,8 +38,11 @@ from jaxcls.world.objects import object_set_from_config
 # most this many (classifier, row) programs each, freed after the pass (a scene is read once per pass).
 CPU_PROGRAMS_PER_PASS = 12
 # Whether a run makes the batched rows' first chunk of frames on a thread while it loads its classifiers (where
-# the renderer allows work beside its renders: ``Scenes.chunk_ahead``); off: after them, on the main thread.
-FRAMES_AHEAD = True
+# the renderer allows work beside its renders: ``Scenes.chunk_ahead``); False: after them, on the main thread;
+# None: where a device renders them (``Scenes.on_device``). A warm run's first call on one H100 came 2.0 s
+# sooner (21.2 -> 19.2 s after the process started); on the 2-core CPU, MuJoCo's C caster beside the loads,
+# 0.4 s later (4.4 -> 4.8 s) (BENCHMARKS.md, "Table 1's warm start").
+FRAMES_AHEAD: bool | None = None
 # ``Phases.mark``'s name for the first batched call handed to the devices (a warm run's start: its time since
 # the process started).
 FIRST_CALL_DISPATCHED = "first batched call dispatched"
@@ -141,7 +144,8 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
         batched_todo = [k for k in todo if rows[k[1]].kind in BATCHED]
         share = len({k[2] for k in wanted if rows[k[1]].kind in BATCHED})  # (a resumed run: the same shapes)
         first = None  # the batched rows' first frames, made (the renderer built) while the classifiers load
-        if FRAMES_AHEAD and batched_todo and scene_set.loads_beside_renders():
+        ahead = scene_set.on_device if FRAMES_AHEAD is None else FRAMES_AHEAD
+        if ahead and batched_todo and scene_set.loads_beside_renders():
             slots = chunk_plan(config, sorted({k[2] for k in batched_todo}), share, len(jax.local_devices()))[2][0]
             first = FirstFrames(render_order(slots), scene_set.chunk_ahead(render_order(slots)))
         object_set = object_set_from_config(dataset.objects)
