@@ -143,12 +143,12 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
         todo = [k for k in wanted if k not in done]
         batched_todo = [k for k in todo if rows[k[1]].kind in BATCHED]
         share = len({k[2] for k in wanted if rows[k[1]].kind in BATCHED})  # (a resumed run: the same shapes)
+        object_set = object_set_from_config(dataset.objects)  # (before the frames' thread: it uses the same one)
         first = None  # the batched rows' first frames, made (the renderer built) while the classifiers load
         ahead = scene_set.on_device if FRAMES_AHEAD is None else FRAMES_AHEAD
         if ahead and batched_todo and scene_set.loads_beside_renders():
             slots = chunk_plan(config, sorted({k[2] for k in batched_todo}), share, len(jax.local_devices()))[2][0]
             first = FirstFrames(render_order(slots), scene_set.chunk_ahead(render_order(slots)))
-        object_set = object_set_from_config(dataset.objects)
         classifiers = {name: setup.load_classifier(path, object_set, f"classifiers.{name}")
                        for name, path in config.classifiers.items()}
     mine = process_store(store, (index, count))  # where this process appends
