@@ -9,7 +9,8 @@ Settings: ``jax`` (JAX's cache alone), ``exported`` (plus the exported programs,
 thread while the classifiers load), ``serial`` (the same, one program at a time: the programs of several
 classifiers, ``--classifiers shipped paper``, loaded one after the other), ``frames_later`` (``exported`` with the
 first frames made after the classifiers load, on the main thread: ``runner.FRAMES_AHEAD`` off) and
-``frames_ahead`` (``exported`` with them made on a thread wherever they are made: ``runner.FRAMES_AHEAD`` on).
+``frames_ahead`` (``exported`` with them made on a thread wherever the renderer allows work beside its renders:
+``runner.FRAMES_AHEAD`` on).
 Each setting gets its own cache folder, filled by one cold run; then the settings' warm runs take turns (the
 order reversed every other round), each a fresh process of ``experiments/table1.py`` (its own ``out_dir``).
 Reported per setting: the median of the process's wall time and of its run's phases (``run_times.json``): the
@@ -33,10 +34,9 @@ import time
 from pathlib import Path
 
 from jaxcls import compile_cache, report
-from jaxcls.experiments.table1.runner import FIRST_CALL_DISPATCHED
+from jaxcls.experiments.table1.runner import FIRST_CALL, FIRST_CALL_DISPATCHED
 
 ROOT = Path(__file__).resolve().parents[1]
-FIRST_CALL = "batched episodes, first call (compiles)"
 
 # experiments/table1.py in a child process; "jax" keeps JAX's cache only (no exported programs).
 CHILD = """
@@ -68,7 +68,8 @@ dataset_overrides: [num_scenes=2, viewpoints.count=12, backend=mujoco, camera.wi
 
 
 SETTINGS = {"jax": "JAX's cache",
-            "exported": f"JAX's cache + the exported programs (up to {compile_cache.AHEAD_THREADS} loads at once)",
+            "exported": f"JAX's cache + the exported programs (up to {compile_cache.AHEAD_THREADS} loads at once; "
+                        "the first frames made while the classifiers load where a device renders them)",
             "serial": "JAX's cache + the exported programs, loaded one at a time",
             "frames_later": "JAX's cache + the exported programs, the first frames made after the classifiers load",
             "frames_ahead": "JAX's cache + the exported programs, the first frames made while the classifiers load"}

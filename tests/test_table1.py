@@ -223,6 +223,7 @@ def test_interrupted_experiment_resumes_and_the_same_seed_gives_the_same_numbers
     phases = times[0]["phases_s"]
     assert {table1.STARTUP, "start-up (classifiers, stored episodes)", "tables and figure"} <= set(phases)
     assert 0 < sum(phases.values()) <= times[0]["total_s"] + 0.2  # (disjoint phases, each rounded)
+    assert times[0]["marks_s"][runner.FIRST_CALL_DISPATCHED] > 0  # (this process's age: pytest's)
 
     # The same scenes drawn from the dataset config and rendered where the episodes run (the scene bank; MuJoCo's
     # C caster on a CPU), none read from the files, one compiled program per pass over the scenes (as on a CPU with
@@ -345,13 +346,18 @@ def test_the_oracle_bounds_a_policy_one_move_ahead(table1, tmp_path):
     # frames' shapes known, not the frames): the batched and the oracle's programs, one each, are what the calls
     # ran (a signature of its own would make a third), and they give the records of the run without the cache.
     # Where the renderer forbids a load beside a render (MuJoCo Warp's own graph capture: its renders fail beside
-    # one on a GPU), no load ran while frames were being made; elsewhere (here the CPU's: allowed) they may.
+    # one on a GPU), no load ran while frames were being made, and no frames were made ahead; elsewhere (here the
+    # CPU's: allowed) they may.
     for guarded in (True, False):
         out = tmp_path / f"cached_{guarded}"
         cached = _cached_run(tmp_path, [*argv, f"out_dir={out}"], guarded)
         assert cached["programs"] == 2 and not cached["warnings"], cached
         assert cached["loads"] == 2 and cached["frames"] >= 2, cached
         assert cached["overlaps"] == 0 or not guarded, cached
+        # The batched rows' first frames made on the frames thread while the classifiers loaded, only where
+        # the renderer allows work beside its renders; every later chunk on the main thread.
+        on_thread = [name.startswith("jaxcls-frames") for name in cached["threads"]]
+        assert on_thread == [not guarded] + [False] * (len(on_thread) - 1), cached
         assert io.read_jsonl(out / "episodes.jsonl") == io.read_jsonl(tmp_path / "o" / "episodes.jsonl")
         print(f"loads beside renders {'forbidden' if guarded else 'allowed'}: {cached['overlaps']} overlaps")
 
@@ -360,10 +366,10 @@ def test_the_oracle_bounds_a_policy_one_move_ahead(table1, tmp_path):
 # (``compile_cache.exported``), the warnings about loading one ahead, the loads ahead and the frames made
 # (``Scenes.chunk``), and how many of those overlapped in time.
 _CACHED = """
-import importlib.util, json, sys, time, warnings
+import importlib.util, json, sys, threading, time, warnings
 import jax
 from jaxcls import compile_cache
-from jaxcls.experiments.table1 import data
+from jaxcls.experiments.table1 import data, runner
 spans = {{"loads": [], "frames": []}}
 
 def timed(kind, work):
@@ -375,8 +381,15 @@ def timed(kind, work):
 
 if {guarded!r}:  # a renderer that forbids a load beside a render (MuJoCo Warp's own graph capture)
     data.Scenes.loads_beside_renders = lambda self: False
+runner.FRAMES_AHEAD = True  # (the first frames made on a thread where the renderer allows: not by default on a CPU)
 chunk, ahead = data.Scenes.chunk, compile_cache.ahead
-data.Scenes.chunk = lambda self, indices: timed("frames", lambda: jax.block_until_ready(chunk(self, indices)))
+threads = []  # the thread that made each chunk of frames
+
+def made(self, indices):
+    threads.append(threading.current_thread().name)
+    return timed("frames", lambda: jax.block_until_ready(chunk(self, indices)))
+
+data.Scenes.chunk = made
 compile_cache.ahead = lambda load, what: ahead(lambda: timed("loads", load), what)
 spec = importlib.util.spec_from_file_location("table1", {script!r})
 table1 = importlib.util.module_from_spec(spec)
@@ -386,7 +399,7 @@ with warnings.catch_warnings(record=True) as caught:
     table1.main({argv!r})
 overlaps = sum(a < d and c < b for a, b in spans["loads"] for c, d in spans["frames"])
 print(json.dumps({{"programs": len(compile_cache._exported), "loads": len(spans["loads"]),
-                  "frames": len(spans["frames"]), "overlaps": overlaps,
+                  "frames": len(spans["frames"]), "overlaps": overlaps, "threads": threads,
                   "warnings": [str(w.message) for w in caught if "ahead" in str(w.message)]}}))
 """
 

@@ -233,9 +233,9 @@ def prepare(episode: active.Episode, frames: tuple[int, int, int, int], size: in
     """Read and compile (with the compilation cache on: load) the program that ``dispatch`` runs for ``episode``
     over frames of shape ``frames`` = (S, V, H, W) in calls of ``size`` episodes (a multiple of the devices,
     each device's share at most size / n), before the frames exist: e.g. on a background thread
-    (``compile_cache.ahead``) while the host builds their renderer (never beside a MuJoCo Warp render:
-    ``compile_cache.ahead`` says why), so that the first call finds it ready. Without the cache nothing is done
-    here (the first call compiles)."""
+    (``compile_cache.ahead``) while the host builds their renderer or renders them (never beside a render under
+    MuJoCo Warp's own graph capture: ``compile_cache.ahead`` says why), so that the first call finds it ready.
+    Without the cache nothing is done here (the first call compiles)."""
     if not compile_cache.enabled():
         return
     device_mesh = device_mesh or mesh()

@@ -160,7 +160,7 @@ class Scenes:
 
         return loads_beside_renders(KINEMATICS)
 
-    def chunk_ahead(self, indices: Sequence[int]) -> Future:
+    def chunk_ahead(self, indices: Sequence[int]) -> Future[Chunk]:
         """``chunk(indices)`` on a thread of its own, the renderer built there first (``prepare_renderer``); the
         Future is done once the frames are (on the device too): e.g. a process's first frames made while it
         loads its classifiers. Only where ``loads_beside_renders`` (ValueError otherwise); nothing else may
@@ -208,6 +208,7 @@ def _render(dataset: DatasetConfig, indices: tuple[int, ...], backend: Backend) 
     import jax.numpy as jnp
 
     from jaxcls.world import scenes
+    from jaxcls.world.bank import KINEMATICS
     from jaxcls.world.render.sensor import measure
     from jaxcls.world.setup import make_world
 
@@ -215,7 +216,7 @@ def _render(dataset: DatasetConfig, indices: tuple[int, ...], backend: Backend) 
     seeds = scene_seeds(dataset.seed, dataset.num_scenes)
     drawn = [scenes.sample_scene(object_set, dataset.scene, seeds[i], dataset.objects) for i in indices]
     T_true = np.stack([make_world(dataset.world_config(), scene=s, object_set=object_set).viewpoints for s in drawn])
-    frames = bank.render(drawn, T_true, backend, batch=1024)
+    frames = bank.render(drawn, T_true, backend, batch=1024, kinematics=KINEMATICS)  # (loads_beside_renders')
     with jax.default_device(devices.host_cpu()):  # keys on the host: nothing waits for a GPU
         keys = [scene_key(dataset.seed, i) for i in indices]
     measured = [measure(keys[n], frames.depth[n], T_true[n], bank.intrinsics, dataset.sensor)

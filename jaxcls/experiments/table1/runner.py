@@ -12,6 +12,7 @@ import json
 import operator
 import sys
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future
 from pathlib import Path
@@ -25,7 +26,7 @@ from tqdm.auto import tqdm
 from jaxcls import compile_cache, devices, io, report
 from jaxcls.episode import active, batched, protocol, runner, scoring, setup, sources
 from jaxcls.experiments.table1.config import Table1Config
-from jaxcls.experiments.table1.data import Scenes, process_store, read_stores, record_key
+from jaxcls.experiments.table1.data import Chunk, Scenes, process_store, read_stores, record_key
 from jaxcls.geometry import Intrinsics
 from jaxcls.perception import pointnet
 from jaxcls.planning import nbv
@@ -43,6 +44,8 @@ CPU_PROGRAMS_PER_PASS = 12
 # sooner (21.2 -> 19.2 s after the process started); on the 2-core CPU, MuJoCo's C caster beside the loads,
 # 0.4 s later (4.4 -> 4.8 s) (BENCHMARKS.md, "Table 1's warm start").
 FRAMES_AHEAD: bool | None = None
+# The phase of the first batched call (tracing, compiling or loading its program, and the call).
+FIRST_CALL = "batched episodes, first call (compiles)"
 # ``Phases.mark``'s name for the first batched call handed to the devices (a warm run's start: its time since
 # the process started).
 FIRST_CALL_DISPATCHED = "first batched call dispatched"
@@ -61,7 +64,8 @@ class Phases:
 
     def mark(self, name: str) -> None:
         """Note when ``name`` first happened: the process's age (``report.process_age``; nothing where that is
-        unknown), e.g. the first batched call dispatched: how long a warm run takes to start its episodes."""
+        unknown; in a notebook, the kernel's), e.g. the first batched call dispatched: how long a warm run takes to
+        start its episodes."""
         if name not in self.marks and (age := report.process_age()) is not None:
             self.marks[name] = age
 
@@ -145,9 +149,10 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
         share = len({k[2] for k in wanted if rows[k[1]].kind in BATCHED})  # (a resumed run: the same shapes)
         object_set = object_set_from_config(dataset.objects)  # (before the frames' thread: it uses the same one)
         first = None  # the batched rows' first frames, made (the renderer built) while the classifiers load
-        ahead = scene_set.on_device if FRAMES_AHEAD is None else FRAMES_AHEAD
-        if ahead and batched_todo and scene_set.loads_beside_renders():
-            slots = chunk_plan(config, sorted({k[2] for k in batched_todo}), share, len(jax.local_devices()))[2][0]
+        frames_ahead = scene_set.on_device if FRAMES_AHEAD is None else FRAMES_AHEAD
+        if frames_ahead and batched_todo and scene_set.loads_beside_renders():
+            devices = batched.mesh().devices.size  # (run_batched's mesh)
+            slots = chunk_plan(config, sorted({k[2] for k in batched_todo}), share, devices)[2][0]
             first = FirstFrames(render_order(slots), scene_set.chunk_ahead(render_order(slots)))
         classifiers = {name: setup.load_classifier(path, object_set, f"classifiers.{name}")
                        for name, path in config.classifiers.items()}
@@ -256,7 +261,7 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     def episodes_clock():
         """Dispatching a call (the first one compiles, or waits for its program loaded ahead) and waiting for
         one: the devices' share of the run."""
-        return clock("batched episodes" if dispatched else "batched episodes, first call (compiles)")
+        return clock("batched episodes" if dispatched else FIRST_CALL)
 
     def finish() -> None:
         calls, traces, truths, start, at, last = pending.pop()
@@ -320,8 +325,12 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
         groups = call_scenes(slots, n, per_call)
         with clock("frames (rendered or read)"):
             order = render_order(slots)
-            ahead = first.frames.result() if number == 0 and first is not None else None  # (one render at a time)
-            chunk = ahead if ahead is not None and first.scenes == order else scene_set.chunk(order)
+            early = first.frames.result() if number == 0 and first is not None else None  # (one render at a time)
+            if early is not None and first.scenes != order:
+                warnings.warn(f"Table 1: the first frames made ahead are of scenes {first.scenes[:4]}..., not the "
+                              f"first chunk's {order[:4]}...: rendered again", stacklevel=2)
+                early = None
+            chunk = early if early is not None else scene_set.chunk(order)
             place = {s: i for i, s in enumerate(order)}
             laid = np.array([place[s] for s in slots])
             depth, T_wc = (x if np.array_equal(laid, np.arange(len(x))) else x[laid] for x in (chunk.depth, chunk.T_wc))
@@ -545,7 +554,7 @@ class FirstFrames:
     and the ``Chunk``'s Future (``Scenes.chunk_ahead``)."""
 
     scenes: list[int]
-    frames: Future
+    frames: Future[Chunk]
 
 
 def chunk_plan(config: Table1Config, scenes: list[int], planned: int | None,
