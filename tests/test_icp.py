@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from jaxcls import metrics
 from jaxcls.geometry import CameraConfig, backproject
-from jaxcls.perception import icp
+from jaxcls.perception import icp, refine
 from jaxcls.world import WorldConfig, make_world
 from jaxcls.world.objects import builtin_object_set
 
@@ -230,3 +230,19 @@ def test_closest_sample_lookups_agree_with_a_kdtree():
     assert np.all(d >= distance - 1e-6)
     with pytest.raises(ValueError, match=r"icp\.lookup"):
         icp.ICPConfig(lookup="octree")
+
+
+def test_a_librarys_lookup_tables_name_real_samples_only():
+    """The closest-sample lookup gathers its candidates' points without their mask: every index in a model
+    library's grid and neighbour tables must be a real sample of its model (a padded sample named there would
+    be taken for a surface point)."""
+    object_set = builtin_object_set(train_per_class=1, test_per_class=1)
+    models = [*object_set.train, *object_set.test]
+    library = refine.ModelLibrary.build(models, object_set.classes)
+    targets = library.targets
+    S = targets.points.shape[1]
+    assert targets.grid.shape[0] == targets.neighbours.shape[0] == len(models)
+    for table in (targets.grid, targets.neighbours):
+        index = np.asarray(table).astype(np.int64)
+        assert index.min() >= 0 and index.max() < S
+        assert np.all(np.take_along_axis(np.asarray(targets.mask), index.reshape(len(models), -1), axis=1))
