@@ -1,5 +1,5 @@
 """Two Table 1 runs of the same scenes and seeds (folders of episodes*.jsonl): how many records agree, and per row
-the pooled F1 at move T of each with the paired scene-bootstrap difference (b - a).
+the pooled F1 at move T of each with the paired scene-bootstrap difference (b - a), per classifier and row.
 
     python results/tracking_levels_2026-11-27/compare.py RUN_A RUN_B CLASSES [MOVES]
 """
@@ -33,12 +33,13 @@ def main() -> None:
     a, b = {key(r): r for r in A}, {key(r): r for r in B}
     same = sum(a[k]["path"] == b[k]["path"] and a[k]["refined"] == b[k]["refined"] for k in a if k in b)
     print(f"records {len(a)} / {len(b)}; same path and refined labels: {same}")
-    for row in sorted({k[1] for k in a}):
-        la = protocol.scene_labels([r for r in A if r["row"] == row]).at(moves)
-        lb = protocol.scene_labels([r for r in B if r["row"] == row]).at(moves)
+    several = len({k[0] for k in a}) > 1  # (classifiers named where a run has several)
+    for c, row in sorted({k[:2] for k in a}):
+        la = protocol.scene_labels([r for r in A if key(r)[:2] == (c, row)]).at(moves)
+        lb = protocol.scene_labels([r for r in B if key(r)[:2] == (c, row)]).at(moves)
         (estimate, low, high), = metrics.paired_differences([(lb, la)], classes, resamples=2000)
-        print(f"{row}: F1 {pooled_f1(la, classes):.3f} -> {pooled_f1(lb, classes):.3f}; paired (b - a) "
-              f"{estimate:+.3f} [{low:+.3f}, {high:+.3f}]")
+        print(f"{f'{c} ' if several else ''}{row}: F1 {pooled_f1(la, classes):.3f} -> {pooled_f1(lb, classes):.3f}; "
+              f"paired (b - a) {estimate:+.3f} [{low:+.3f}, {high:+.3f}]")
 
 
 if __name__ == "__main__":
