@@ -307,12 +307,8 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
         with clock("frames (rendered or read)"):
             scene_set.prepare_renderer()
 
-    def loaded() -> None:
-        """Wait for the programs loaded ahead (once): before the first call, or before the first render where
-        the renderer forbids a load beside it."""
-        with episodes_clock():  # (the first call's load, as far as the renderer's set-up and frames did not hide it)
-            while loading:
-                loading.pop(0).result()
+    def loaded() -> None:  # (the first call's load, as far as the renderer's set-up and frames did not hide it)
+        wait_for(loading, episodes_clock)
 
     if not scene_set.loads_beside_renders():
         loaded()
@@ -438,9 +434,7 @@ def run_oracle(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     loading = list(loading)
 
     def loaded() -> None:
-        with clock("the oracle (runs of several scenes a call)"):
-            while loading:
-                loading.pop(0).result()
+        wait_for(loading, lambda: clock("the oracle (runs of several scenes a call)"))
 
     if not scene_set.loads_beside_renders():
         loaded()
@@ -546,6 +540,16 @@ def record_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetCon
                    scoring.Truth.from_scene(views.scene, object_set), on_move=recorder.move)
         written.append(recorder.write(folder / f"{c}_{name}_scene{s:04d}_run{r}.rrd"))
     return written
+
+
+def wait_for(loading: list[Future], timer: Callable[[], contextlib.AbstractContextManager]) -> None:
+    """Wait for the programs being loaded ahead (``compile_cache.ahead``) under ``timer()``'s phase, emptying
+    ``loading`` (a second call waits for nothing): before a row's first call, or before its first render where
+    the renderer forbids a load beside it (``Scenes.loads_beside_renders``)."""
+    if loading:
+        with timer():
+            while loading:
+                loading.pop(0).result()
 
 
 @dataclasses.dataclass(frozen=True)

@@ -195,8 +195,7 @@ def geom_rig(model: mujoco.MjModel) -> GeomRig:
 def posed_geoms(rig: GeomRig, mocap_pos: jax.Array, mocap_quat: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Every geom's world pose with the mocap bodies at ``mocap_pos: [B, nmocap, 3]`` m and ``mocap_quat: [B,
     nmocap, 4]`` (w, x, y, z; normalised here, and a zero one the identity, as MuJoCo does): (xpos [B, G, 3] m,
-    xmat [B, G, 3, 3]), what
-    MuJoCo's kinematics gives a model without joints. Pure JAX, full float32 products."""
+    xmat [B, G, 3, 3]), what MuJoCo's kinematics gives a model without joints. Pure JAX, full float32 products."""
     q = mocap_quat.astype(jnp.float32)
     norm = jnp.linalg.norm(q, axis=-1, keepdims=True)
     q = jnp.where(norm < 1e-10, jnp.array([1.0, 0.0, 0.0, 0.0]), q / jnp.maximum(norm, 1e-10))  # (MuJoCo: 0 -> 1)
