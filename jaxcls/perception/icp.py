@@ -226,12 +226,9 @@ def closest(target: Target, x: jax.Array) -> tuple[jax.Array, jax.Array]:
 
 
 def _nearest_of(target: Target, x: jax.Array, candidates: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """The nearest of ``candidates: [P, K]`` sample indices to each point: (index [P], squared distance [P]).
-    The candidates come from the grid's and the neighbours' tables, which name real samples only (built from
-    them: ``model_target``), so only their points are gathered, not the mask: GR's lookup is the batched move's
-    largest gather (BENCHMARKS.md, "Where a batched move's GPU time goes")."""
-    points = target._rows(target.points, candidates)
-    d2 = jnp.sum((points - x[:, None, :]) ** 2, axis=-1)
+    """The nearest of ``candidates: [P, K]`` sample indices to each point: (index [P], squared distance [P])."""
+    points, _, real = target._at(candidates)
+    d2 = jnp.where(real, jnp.sum((points - x[:, None, :]) ** 2, axis=-1), jnp.inf)
     best = jnp.argmin(d2, axis=1)[:, None]
     return jnp.take_along_axis(candidates, best, axis=1)[:, 0], jnp.take_along_axis(d2, best, axis=1)[:, 0]
 
