@@ -76,9 +76,10 @@ def table_rows(total: float, rows: list[tuple[str, str, float]], moves: int) -> 
     return out
 
 
-def trace_program(frames: str, batch: int, moves: int, workdir: Path) -> tuple[Path, Path, float, str]:
-    """Trace one call of Table 1's program at ``batch`` episodes of the scene in ``frames``; returns (trace, HLO,
-    untraced moves/s, device)."""
+def trace_program(frames: str, batch: int, moves: int, workdir: Path,
+                  product: str = "bfloat16") -> tuple[Path, Path, float, str]:
+    """Trace one call of Table 1's program at ``batch`` episodes of the scene in ``frames``, PointNet's products
+    in ``product`` (``perception.classification_precision``); returns (trace, HLO, untraced moves/s, device)."""
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + f" --xla_dump_to={workdir / 'dump'} "
                                "--xla_dump_hlo_as_text --xla_dump_hlo_module_re=jit__one "
                                "--xla_gpu_enable_command_buffer=")
@@ -99,10 +100,10 @@ def trace_program(frames: str, batch: int, moves: int, workdir: Path) -> tuple[P
         depth = jnp.asarray(f["depth_mm"].astype(np.float32) / 1000.0)[None]
         T_wc = jnp.asarray(f["T_wc"], jnp.float32)[None]
         scene = Scene.from_dict(json.loads(str(f["scene_json"])), source=frames)
-    perception = setup.episode_perception()  # the scale configs' layout and precision
-    perception = dataclasses.replace(
+    perception = setup.episode_perception()
+    perception = dataclasses.replace(  # the scale configs' layout (jaxcls/configs/table1_*_scale.yaml)
         perception, volume=dataclasses.replace(perception.volume, storage="compact", slabs=8),
-        shapes=dataclasses.replace(perception.shapes, segments_per_pass=1), classification_precision="tf32")
+        shapes=dataclasses.replace(perception.shapes, segments_per_pass=1), classification_precision=product)
     episode = setup.make_episode(setup.ActiveConfig(episode=active.EpisodeConfig(moves=moves), perception=perception),
                                  object_set_from_config(scene.object_set), Intrinsics.kinect_v1(), scene.table_height)
     scenes = np.zeros(batch, np.int32)
@@ -131,6 +132,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--moves", type=int, default=10)
     parser.add_argument("--keep", help="keep the trace and the HLO in this folder")
     parser.add_argument("--analyse", nargs=2, metavar=("TRACE", "HLO"), help="attribute a kept trace; run nothing")
+    parser.add_argument("--precision", default="bfloat16", choices=["float32", "tf32", "bfloat16"],
+                        help="perception.classification_precision (the scale configs': bfloat16)")
     parser.add_argument("--out", help="append the table to this Markdown file")
     args = parser.parse_args(argv)
     from jaxcls import report
@@ -140,12 +143,12 @@ def main(argv: list[str] | None = None) -> None:
         intro = f"The kept trace {trace} and HLO {hlo}; {args.batch} episodes x {args.moves} moves assumed."
     else:
         work = Path(tempfile.mkdtemp(prefix="profile_batched_"))
-        trace, hlo, rate, device = trace_program(args.frames, args.batch, args.moves, work)
+        trace, hlo, rate, device = trace_program(args.frames, args.batch, args.moves, work, args.precision)
         if args.keep:
             Path(args.keep).mkdir(parents=True, exist_ok=True)
             trace, hlo = shutil.copy(trace, args.keep), shutil.copy(hlo, args.keep)
         intro = (f"{device}: Table 1's program at {args.batch} episodes x {args.moves} moves of {args.frames}, "
-                 f"{rate:.0f} moves/s untraced; one traced call, CUDA graphs off.")
+                 f"PointNet {args.precision}, {rate:.0f} moves/s untraced; one traced call, CUDA graphs off.")
     total, rows = attribute(trace, hlo)
     moves = args.batch * args.moves
     report.publish(report.section(
