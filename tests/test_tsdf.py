@@ -325,3 +325,54 @@ def test_compact_weights_saturate_and_keep_averaging():
                                atol=1e-5)
     capped = b + (a - b) * (1.0 - 1.0 / tsdf.MAX_COMPACT_WEIGHT) ** then  # a until frame 260, then weight 255
     np.testing.assert_allclose(np.asarray(out["compact"].values)[both], capped[both], atol=2e-3)
+
+
+def _plain_slabs(values, start, size, arrays, *operands):
+    """``tsdf.slabs_in_place``'s reference: JAX's own slice and update of each array."""
+    slabs = [jax.lax.dynamic_slice_in_dim(a, start, size, 0) for a in arrays]
+    new = values(start, *slabs, *operands)
+    return tuple(jax.lax.dynamic_update_slice_in_dim(a, b, start, 0) for a, b in zip(arrays, new, strict=True))
+
+
+def test_slabs_in_place_equals_slice_and_update_under_vmap_loops_and_grad():
+    """The fusion's slabs batched as slices of the batch (not JAX's scatter): the same values as JAX's slice and
+    update, unbatched, vmapped with the slab's start shared or per element, in a loop over slabs, and the same
+    derivatives; the batched program holds no scatter (XLA made it a slab copied twice: BENCHMARKS.md)."""
+    def values(start, a, b, scale):  # depends on the slab's position, both arrays and a traced operand
+        row = (start + jnp.arange(a.shape[0], dtype=jnp.int32)).astype(jnp.float32)[:, None]
+        return a * scale + row, (b + a * scale).astype(b.dtype)
+
+    def looped(form, a, b, scale):
+        return jax.lax.fori_loop(0, 4, lambda n, c: form(values, n * 2, 2, c, scale), (a, b))
+
+    rng = np.random.default_rng(0)
+    a = jnp.asarray(rng.normal(size=(3, 8, 5)), jnp.float32)
+    b = jnp.asarray(rng.integers(0, 50, (3, 8, 5)), jnp.int16)
+    scale = jnp.asarray([0.5, 2.0, -1.0], jnp.float32)
+
+    def same(x, y):
+        for u, v in zip(jax.tree.leaves(x), jax.tree.leaves(y), strict=True):
+            np.testing.assert_array_equal(np.asarray(u), np.asarray(v))
+
+    same(looped(tsdf.slabs_in_place, a[0], b[0], scale[0]), looped(_plain_slabs, a[0], b[0], scale[0]))
+    ours = jax.jit(jax.vmap(lambda a, b, s: looped(tsdf.slabs_in_place, a, b, s)))
+    same(ours(a, b, scale), jax.vmap(lambda a, b, s: looped(_plain_slabs, a, b, s))(a, b, scale))
+    assert "scatter" not in ours.lower(a, b, scale).as_text()
+    # An operand shared by the batch, and an array shared by it (broadcast to the batch).
+    same(jax.vmap(lambda a: looped(tsdf.slabs_in_place, a, b[0], scale[1]))(a),
+         jax.vmap(lambda a: looped(_plain_slabs, a, b[0], scale[1]))(a))
+    same(jax.vmap(lambda s: tsdf.slabs_in_place(values, 2, 2, (a[0], b[0]), s))(scale),
+         jax.vmap(lambda s: _plain_slabs(values, 2, 2, (a[0], b[0]), s))(scale))
+    # Each element its own slab: the general form.
+    starts = jnp.asarray([0, 2, 6], jnp.int32)
+    same(jax.vmap(lambda n, a, b, s: tsdf.slabs_in_place(values, n, 2, (a, b), s))(starts, a, b, scale),
+         jax.vmap(lambda n, a, b, s: _plain_slabs(values, n, 2, (a, b), s))(starts, a, b, scale))
+    # Derivatives: reverse mode (batched too) and forward mode, those of the slice and update.
+    def loss(form):
+        return lambda a, s: jnp.sum(looped(form, a, b[0], s)[0] ** 2)
+    same(jax.grad(loss(tsdf.slabs_in_place), argnums=(0, 1))(a[0], scale[0]),
+         jax.grad(loss(_plain_slabs), argnums=(0, 1))(a[0], scale[0]))
+    same(jax.vmap(jax.grad(loss(tsdf.slabs_in_place), argnums=1))(a, scale),
+         jax.vmap(jax.grad(loss(_plain_slabs), argnums=1))(a, scale))
+    same(jax.jvp(lambda s: loss(tsdf.slabs_in_place)(a[0], s), (scale[0],), (1.0,)),
+         jax.jvp(lambda s: loss(_plain_slabs)(a[0], s), (scale[0],), (1.0,)))

@@ -17,11 +17,13 @@ from __future__ import annotations
 
 import enum
 import functools
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
+from jax import custom_batching
 
 from jaxcls import geometry
 from jaxcls.geometry import Intrinsics
@@ -164,6 +166,57 @@ def check_frame(depth: np.ndarray | jax.Array, intrinsics: Intrinsics, T_wc: np.
                          f"last row 0 0 0 1):\n{np.asarray(T_wc)}")
 
 
+def slabs_in_place(values: Callable[..., tuple[jax.Array, ...]], start: jax.Array, size: int,
+                   arrays: tuple[jax.Array, ...], *operands: jax.Array) -> tuple[jax.Array, ...]:
+    """``arrays`` (each [X, ...]) with their slabs [start, start + size) along axis 0 replaced, in place, by
+    ``values(start, *slabs, *operands)`` (each slab [size, ...]; returns one new slab an array).
+
+    The same as ``dynamic_slice`` and ``dynamic_update_slice`` of each array, and differentiable like them (its
+    derivatives are theirs), but batched otherwise: under ``vmap`` with ``start`` unbatched (a loop's counter),
+    the batched arrays' slabs are sliced and written along axis 1 and ``values`` is vmapped. JAX batches
+    ``dynamic_update_slice`` as a scatter, which XLA turns back into a slice of the slab copied twice and
+    bounds-checked (the batched fusion's largest kernels on a GPU: BENCHMARKS.md, "The fusion's slabs
+    batched in place").
+    """
+    def plain(start: jax.Array, arrays: tuple[jax.Array, ...], operands: tuple[jax.Array, ...]) -> tuple:
+        slabs = [jax.lax.dynamic_slice_in_dim(a, start, size, 0) for a in arrays]
+        new = values(start, *slabs, *operands)
+        return tuple(jax.lax.dynamic_update_slice_in_dim(a, b, start, 0) for a, b in zip(arrays, new, strict=True))
+
+    @custom_batching.custom_vmap
+    def batched(start: jax.Array, arrays: tuple[jax.Array, ...], operands: tuple[jax.Array, ...]) -> tuple:
+        return plain(start, arrays, operands)
+
+    @batched.def_vmap
+    def _(axis_size: int, in_batched: list, start: jax.Array, arrays: tuple[jax.Array, ...],
+          operands: tuple[jax.Array, ...]) -> tuple[tuple, tuple]:
+        start_batched, arrays_batched, operands_batched = in_batched
+        out_batched = (True,) * len(arrays)
+
+        def axes(flags: tuple[bool, ...]) -> tuple[int | None, ...]:
+            return tuple(0 if b else None for b in flags)
+
+        if start_batched:  # a slab of its own an element: the general (gather and scatter) form
+            return jax.vmap(plain, in_axes=(0, axes(arrays_batched), axes(operands_batched)))(
+                start, arrays, operands), out_batched
+        arrays = [a if b else jnp.broadcast_to(a, (axis_size, *a.shape))
+                  for a, b in zip(arrays, arrays_batched, strict=True)]
+        slabs = [jax.lax.dynamic_slice_in_dim(a, start, size, 1) for a in arrays]
+        new = jax.vmap(values, in_axes=(None, *(0,) * len(arrays), *axes(operands_batched)))(start, *slabs, *operands)
+        return tuple(jax.lax.dynamic_update_slice_in_dim(a, b, start, 1)
+                     for a, b in zip(arrays, new, strict=True)), out_batched
+
+    @jax.custom_jvp
+    def differentiable(start: jax.Array, arrays: tuple[jax.Array, ...], operands: tuple[jax.Array, ...]) -> tuple:
+        return batched(start, arrays, operands)
+
+    @differentiable.defjvp
+    def _(primals: tuple, tangents: tuple) -> tuple:
+        return jax.jvp(plain, primals, tangents)
+
+    return differentiable(jnp.asarray(start), tuple(arrays), operands)
+
+
 def _integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_wc: jax.Array,
                max_depth: float | None, slabs: int = 1) -> TSDFVolume:
     """Unjitted body of ``integrate`` (scanned by ``integrate_frames``)."""
@@ -188,13 +241,14 @@ def _integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_w
         raise ValueError(f"integrate: slabs ({slabs}) must divide the volume's {X} voxels along x")
     storage = volume.storage
     sx = X // slabs
-    j = jnp.arange(Y, dtype=jnp.float32)[None, :, None]
-    k = jnp.arange(Z, dtype=jnp.float32)[None, None, :]
 
-    def update_slab(n: int | jax.Array, carry: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array]:
-        """Voxels x in [n sx, (n + 1) sx): their temporaries are a slab's, not the volume's (in float32)."""
-        tsdf, weight = carry
-        i = (n * sx + jnp.arange(sx)).astype(jnp.float32)[:, None, None]
+    def update_slab(start: int | jax.Array, tsdf: jax.Array, weight: jax.Array, depth: jax.Array, base: jax.Array,
+                    step: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """New stored values of voxels x in [start, start + sx) from their old ones (tsdf, weight: [sx, Y, Z]):
+        the temporaries are a slab's, not the volume's (in float32)."""
+        i = (start + jnp.arange(sx)).astype(jnp.float32)[:, None, None]
+        j = jnp.arange(Y, dtype=jnp.float32)[None, :, None]
+        k = jnp.arange(Z, dtype=jnp.float32)[None, None, :]
 
         def camera_coord(row: int) -> jax.Array:
             return base[row] + step[row, 0] * i + step[row, 1] * j + step[row, 2] * k
@@ -210,8 +264,6 @@ def _integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_w
         update = inside & (d > 0) & (sdf >= -volume.truncation)
         observed = jnp.clip(sdf * (1.0 / volume.truncation), -1.0, 1.0)
         # In float32 whatever the storage; a compact volume's weight saturates (MAX_COMPACT_WEIGHT).
-        if slabs > 1:
-            tsdf, weight = (jax.lax.dynamic_slice(a, (n * sx, 0, 0), (sx, Y, Z)) for a in (tsdf, weight))
         old_tsdf, old_weight = storage.decode(tsdf), weight.astype(jnp.float32)
         new_weight = old_weight + update.astype(jnp.float32)
         if storage is VolumeStorage.compact:
@@ -219,16 +271,13 @@ def _integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_w
         new_tsdf = jnp.where(update, old_tsdf + (observed - old_tsdf) / jnp.maximum(new_weight, 1.0), old_tsdf)
         return storage.encode(new_tsdf), new_weight.astype(weight.dtype)
 
-    def update_slab_in_place(n: jax.Array, carry: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array]:
-        tsdf, weight = update_slab(n, carry)
-        start = (n * sx, 0, 0)
-        return (jax.lax.dynamic_update_slice(carry[0], tsdf, start),
-                jax.lax.dynamic_update_slice(carry[1], weight, start))
-
     if slabs == 1:
-        tsdf, weight = update_slab(0, (volume.tsdf, volume.weight))
+        tsdf, weight = update_slab(0, volume.tsdf, volume.weight, depth, base, step)
     else:  # in place, slab after slab: the temporaries (depth gathered per voxel, projections) span a slab
-        tsdf, weight = jax.lax.fori_loop(0, slabs, update_slab_in_place, (volume.tsdf, volume.weight))
+        def in_place(n: jax.Array, carry: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array]:
+            return slabs_in_place(update_slab, n * sx, sx, carry, depth, base, step)
+
+        tsdf, weight = jax.lax.fori_loop(0, slabs, in_place, (volume.tsdf, volume.weight))
     return volume.replace(tsdf=tsdf, weight=weight)
 
 
