@@ -352,15 +352,20 @@ def test_slabs_in_place_equals_slice_and_update_under_vmap_loops_and_grad():
 
     def same(x, y):
         for u, v in zip(jax.tree.leaves(x), jax.tree.leaves(y), strict=True):
-            np.testing.assert_array_equal(np.asarray(u), np.asarray(v))
+            np.testing.assert_array_equal(np.asarray(u), np.asarray(v), strict=True)
+
+    def sliced_in_place(f, *args):  # the batched program slices and updates: no gather, no scatter
+        text = jax.jit(f).lower(*args).as_text()
+        assert "scatter" not in text and "gather" not in text
 
     same(looped(tsdf.slabs_in_place, a[0], b[0], scale[0]), looped(_plain_slabs, a[0], b[0], scale[0]))
-    ours = jax.jit(jax.vmap(lambda a, b, s: looped(tsdf.slabs_in_place, a, b, s)))
-    same(ours(a, b, scale), jax.vmap(lambda a, b, s: looped(_plain_slabs, a, b, s))(a, b, scale))
-    assert "scatter" not in ours.lower(a, b, scale).as_text()
+    ours = jax.vmap(lambda a, b, s: looped(tsdf.slabs_in_place, a, b, s))
+    same(jax.jit(ours)(a, b, scale), jax.vmap(lambda a, b, s: looped(_plain_slabs, a, b, s))(a, b, scale))
+    sliced_in_place(ours, a, b, scale)
     # An operand shared by the batch, and an array shared by it (broadcast to the batch).
-    same(jax.vmap(lambda a: looped(tsdf.slabs_in_place, a, b[0], scale[1]))(a),
-         jax.vmap(lambda a: looped(_plain_slabs, a, b[0], scale[1]))(a))
+    shared = jax.vmap(lambda a: looped(tsdf.slabs_in_place, a, b[0], scale[1]))
+    same(shared(a), jax.vmap(lambda a: looped(_plain_slabs, a, b[0], scale[1]))(a))
+    sliced_in_place(shared, a)
     same(jax.vmap(lambda s: tsdf.slabs_in_place(values, 2, 2, (a[0], b[0]), s))(scale),
          jax.vmap(lambda s: _plain_slabs(values, 2, 2, (a[0], b[0]), s))(scale))
     # Each element its own slab: the general form.
@@ -374,5 +379,56 @@ def test_slabs_in_place_equals_slice_and_update_under_vmap_loops_and_grad():
          jax.grad(loss(_plain_slabs), argnums=(0, 1))(a[0], scale[0]))
     same(jax.vmap(jax.grad(loss(tsdf.slabs_in_place), argnums=1))(a, scale),
          jax.vmap(jax.grad(loss(_plain_slabs), argnums=1))(a, scale))
+    batch_loss = lambda form: lambda s: jnp.sum(jax.vmap(loss(form))(a, s))  # noqa: E731
+    same(jax.grad(batch_loss(tsdf.slabs_in_place))(scale), jax.grad(batch_loss(_plain_slabs))(scale))
     same(jax.jvp(lambda s: loss(tsdf.slabs_in_place)(a[0], s), (scale[0],), (1.0,)),
          jax.jvp(lambda s: loss(_plain_slabs)(a[0], s), (scale[0],), (1.0,)))
+
+
+@pytest.mark.parametrize("storage", list(tsdf.VolumeStorage), ids=lambda s: s.value)  # (its encode is not str.encode)
+def test_fusion_in_slabs_batched_equals_one_pass(scene_frames, storage):
+    """The fusion in slabs (``slabs_in_place`` under vmap: each slab sliced from the batch and written back) fuses
+    a batch of volumes as one pass over each does, with no scatter in the batched program: the weights equal, the
+    values within float32 rounding (XLA fuses the two forms' arithmetic differently)."""
+    _, _, centre, intr, views, depths = scene_frames
+    volume = tsdf.create_volume(centre, resolution=64)
+    if storage is tsdf.VolumeStorage.compact:
+        volume = volume.replace(tsdf=storage.encode(volume.tsdf), weight=volume.weight.astype(jnp.uint8))
+    views, depths = jnp.asarray(views[:3], jnp.float32), jnp.asarray(depths[:3])
+
+    def batch(slabs):
+        return jax.vmap(lambda d, T: tsdf._integrate(volume, d, intr, T, None, slabs=slabs))
+
+    in_slabs, one_pass = jax.jit(batch(8))(depths, views), jax.jit(batch(1))(depths, views)
+    assert "scatter" not in jax.jit(batch(8)).lower(depths, views).as_text()
+    np.testing.assert_array_equal(np.asarray(in_slabs.weight), np.asarray(one_pass.weight))
+    assert np.asarray(one_pass.weight).max() == 1
+    tolerance = 1e-5 if storage is tsdf.VolumeStorage.float32 else 1.5 / tsdf.COMPACT_SCALE  # (< 2 steps)
+    np.testing.assert_allclose(np.asarray(in_slabs.values), np.asarray(one_pass.values), rtol=0, atol=tolerance)
+
+
+@pytest.mark.parametrize("storage", list(tsdf.VolumeStorage), ids=lambda s: s.value)  # (its encode is not str.encode)
+def test_pallas_fusion_equals_the_vectorised_fusion(scene_frames, storage):
+    """``FusionKernel.pallas`` (one kernel a plane of voxels, in place; interpreted off a GPU) fuses the same
+    volume as the vectorised reference: a batch of volumes each fused from its own view (vmapped: the batch a grid
+    axis), and one volume fused from two views in turn (the second reads what the first wrote in place). The
+    weights are equal; the values within float32 rounding (a compact volume: one step of its fixed point)."""
+    _, _, centre, intr, views, depths = scene_frames
+    volume = tsdf.create_volume(centre)
+    if storage is tsdf.VolumeStorage.compact:
+        volume = volume.replace(tsdf=storage.encode(volume.tsdf), weight=volume.weight.astype(jnp.uint8))
+    views, depths = jnp.asarray(views[:3], jnp.float32), jnp.asarray(depths[:3])
+
+    def fused(kernel):
+        batch = jax.vmap(lambda d, T: tsdf.integrate(volume, d, intr, T, kernel=kernel))(depths, views)
+        twice = volume
+        for d, T in zip(depths[:2], views[:2], strict=True):
+            twice = tsdf.integrate(twice, d, intr, T, kernel=kernel)
+        return batch, twice
+
+    tolerance = 1e-5 if storage is tsdf.VolumeStorage.float32 else 1.5 / tsdf.COMPACT_SCALE  # (< 2 steps)
+    for ours, reference in zip(fused(tsdf.FusionKernel.pallas), fused(tsdf.FusionKernel.xla), strict=True):
+        np.testing.assert_array_equal(np.asarray(ours.weight), np.asarray(reference.weight))
+        assert np.asarray(reference.weight).max() >= 1  # (the views see the scene)
+        np.testing.assert_allclose(np.asarray(ours.values), np.asarray(reference.values), rtol=0, atol=tolerance)
+    assert np.asarray(fused(tsdf.FusionKernel.pallas)[1].weight).max() == 2

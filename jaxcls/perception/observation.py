@@ -74,7 +74,7 @@ def fuse(spec: Spec, volume: tsdf.TSDFVolume, depth: jax.Array, T_wc: jax.Array)
     """The frame's foreground integrated into ``volume`` (depth: [H, W] m, 0 = no return; T_wc: [4, 4])."""
     T_wc = jnp.asarray(T_wc, jnp.float32)
     return tsdf.integrate(volume, foreground.foreground_depth(spec, jnp.asarray(depth), T_wc), spec.intrinsics,
-                          T_wc, slabs=spec.config.volume.slabs)
+                          T_wc, slabs=spec.config.volume.slabs, kernel=spec.config.volume.kernel)
 
 
 def classify_segments(spec: Spec, segments: Segments) -> tuple[jax.Array, jax.Array]:

@@ -5,7 +5,8 @@ YAML (the ``perception:`` block of a command's config)::
     perception:
       foreground: {table_eps: 0.01, max_depth: 1.5}        # which pixels are objects
       volume: {center: [0, 0, 0.25], size: 0.6, resolution: 128, truncation_voxels: 4,  # the TSDF cube
-               storage: float32, slabs: 1}         # or compact (tsdf.VolumeStorage): 6.3 MB, not 16.8 MB
+               storage: float32, slabs: 1,         # or compact (tsdf.VolumeStorage): 6.3 MB, not 16.8 MB
+               kernel: xla}                        # or pallas (tsdf.FusionKernel): in place, one kernel
       segmentation: {dbscan_eps: 0.01, ...}                # DBSCAN, footprint votes, K-means, twin bounds
       shapes: {num_segments: 5, points_per_segment: 1024, surface_points: 16384,       # static shapes
                segments_per_pass: 0}                     # PointNet's segments a pass (0: all)
@@ -30,7 +31,7 @@ from flax import struct
 from jaxcls.config import bounded, check_bounds
 from jaxcls.geometry import Intrinsics
 from jaxcls.perception.tracking import TrackingConfig
-from jaxcls.perception.tsdf import VolumeStorage
+from jaxcls.perception.tsdf import FusionKernel, VolumeStorage
 from jaxcls.precision import MatmulPrecision
 
 if TYPE_CHECKING:
@@ -82,6 +83,9 @@ class VolumeConfig:
     # The fusion updates the volume in this many slabs along x, one after another: its float32 temporaries span
     # a slab (what bounds a GPU's batch of episodes); 1 = one pass over the volume (the fastest on a CPU).
     slabs: int = bounded(1, ge=1)
+    # How the fusion runs (tsdf.FusionKernel): xla (vectorised JAX, the reference; differentiable) or pallas (one
+    # kernel a plane of voxels, updated in place, no temporaries; a GPU's Triton, elsewhere interpreted, slowly).
+    kernel: FusionKernel = FusionKernel.xla
 
     def __post_init__(self) -> None:
         check_bounds(self, "volume.")

@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 from jax import custom_batching
+from jax.experimental import pallas as pl
 
 from jaxcls import geometry
 from jaxcls.geometry import Intrinsics
@@ -166,17 +167,21 @@ def check_frame(depth: np.ndarray | jax.Array, intrinsics: Intrinsics, T_wc: np.
                          f"last row 0 0 0 1):\n{np.asarray(T_wc)}")
 
 
-def slabs_in_place(values: Callable[..., tuple[jax.Array, ...]], start: jax.Array, size: int,
+def slabs_in_place(values: Callable[..., tuple[jax.Array, ...]], start: int | jax.Array, size: int,
                    arrays: tuple[jax.Array, ...], *operands: jax.Array) -> tuple[jax.Array, ...]:
     """``arrays`` (each [X, ...]) with their slabs [start, start + size) along axis 0 replaced, in place, by
-    ``values(start, *slabs, *operands)`` (each slab [size, ...]; returns one new slab an array).
+    ``values(start, *slabs, *operands)`` (each slab [size, ...]; returns one new slab an array). ``arrays`` and
+    ``operands`` are arrays (not pytrees), and everything traced that ``values`` reads is passed in ``operands``:
+    ``values`` must not close over traced values (the batching rule below re-traces it apart from its caller).
 
     The same as ``dynamic_slice`` and ``dynamic_update_slice`` of each array, and differentiable like them (its
     derivatives are theirs), but batched otherwise: under ``vmap`` with ``start`` unbatched (a loop's counter),
-    the batched arrays' slabs are sliced and written along axis 1 and ``values`` is vmapped. JAX batches
-    ``dynamic_update_slice`` as a scatter, which XLA turns back into a slice of the slab copied twice and
-    bounds-checked (the batched fusion's largest kernels on a GPU: BENCHMARKS.md, "The fusion's slabs
-    batched in place").
+    the slabs are sliced and written along the batch's axis 1 (an unbatched array first broadcast to the batch)
+    and ``values`` is vmapped; a batched ``start`` takes the general form. JAX batches ``dynamic_slice`` as a
+    gather and ``dynamic_update_slice`` as a scatter, which XLA turned into the slab copied out twice (differently
+    bounds-checked) and written back: the batched fusion's largest kernels on a GPU after its gather (BENCHMARKS.md,
+    "The fusion's slabs batched in place"). Only the innermost ``vmap`` gets this form: an outer one batches the
+    rule's slice and update as JAX does (the project runs one level).
     """
     def plain(start: jax.Array, arrays: tuple[jax.Array, ...], operands: tuple[jax.Array, ...]) -> tuple:
         slabs = [jax.lax.dynamic_slice_in_dim(a, start, size, 0) for a in arrays]
@@ -217,8 +222,83 @@ def slabs_in_place(values: Callable[..., tuple[jax.Array, ...]], start: jax.Arra
     return differentiable(jnp.asarray(start), tuple(arrays), operands)
 
 
+class FusionKernel(enum.StrEnum):
+    """How ``integrate`` updates the voxels (``perception.volume.kernel``): ``xla``, vectorised JAX over the volume
+    (or its ``slabs``), the reference; ``pallas``, one Pallas kernel a plane of voxels reading the volume and
+    writing it in place, no temporaries in memory (a GPU compiles it with Triton; any other backend interprets it,
+    slowly; not differentiable). Both compute the same float32 arithmetic (``_voxel_update``)."""
+
+    xla = "xla"
+    pallas = "pallas"
+
+
+def _camera_coords(base: Callable[[int], jax.Array], step: Callable[[int, int], jax.Array], i: jax.Array,
+                   j: jax.Array, k: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Camera-frame (x, y, z) of the voxel centres at indices (i, j, k) (float32, broadcast together), affine in
+    them: c = R^T (origin - t) + vs R^T[:, a] idx_a; ``base(row)``: the first term's row, ``step(row, a)``: the
+    step of one voxel along world axis a."""
+    def row(r: int) -> jax.Array:
+        return base(r) + step(r, 0) * i + step(r, 1) * j + step(r, 2) * k
+
+    return row(0), row(1), row(2)
+
+
+def _voxel_update(coords: tuple[jax.Array, jax.Array, jax.Array], tsdf: jax.Array, weight: jax.Array,
+                  lookup: Callable[[jax.Array], jax.Array], intrinsics: Intrinsics, truncation: float,
+                  storage: VolumeStorage) -> tuple[jax.Array, jax.Array]:
+    """New stored (tsdf, weight) of voxels at camera coordinates ``coords`` from their stored ones (any shape, the
+    same): each voxel projected to its nearest pixel, whose depth (``lookup(flat pixel index)``; 0 = no return)
+    gives the observed signed distance; updated where observed and not behind the surface by more than
+    ``truncation`` m. In float32 whatever the storage; a compact volume's weight saturates (MAX_COMPACT_WEIGHT)."""
+    H, W = intrinsics.height, intrinsics.width
+    x, y, z = coords
+    in_front = z > 1e-6
+    inv_z = 1.0 / jnp.where(in_front, z, 1.0)
+    u, v = (jnp.round(c) for c in intrinsics.project(x, y, inv_z))
+    inside = in_front & (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
+    d = lookup(jnp.where(inside, v * W + u, 0.0).astype(jnp.int32))
+    sdf = d - z
+    update = inside & (d > 0) & (sdf >= -truncation)
+    observed = jnp.clip(sdf * (1.0 / truncation), -1.0, 1.0)
+    old_tsdf, old_weight = storage.decode(tsdf), weight.astype(jnp.float32)
+    new_weight = old_weight + update.astype(jnp.float32)
+    if storage is VolumeStorage.compact:
+        new_weight = jnp.minimum(new_weight, MAX_COMPACT_WEIGHT)
+    new_tsdf = jnp.where(update, old_tsdf + (observed - old_tsdf) / jnp.maximum(new_weight, 1.0), old_tsdf)
+    return storage.encode(new_tsdf), new_weight.astype(weight.dtype)
+
+
+def _fuse_in_kernel(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, base: jax.Array,
+                    step: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """``FusionKernel.pallas``: (tsdf, weight) of ``volume`` updated by one Pallas kernel a plane of voxels (x
+    fixed: Y x Z voxels a program), in place. depth: [H W] m (0 = no return); base: [3], step: [3, 3] as in
+    ``_camera_coords``. Under vmap, the batch is a grid axis of the same kernel."""
+    X, Y, Z = volume.shape
+    plane = Y * Z
+    params = jnp.concatenate([base, step.reshape(-1), jnp.zeros(4, jnp.float32)])  # [16]: base, step row-major
+    storage = volume.storage
+
+    def kernel(params_ref, depth_ref, tsdf_ref, weight_ref, tsdf_out, weight_out) -> None:  # (Pallas refs)
+        flat = jax.lax.iota(jnp.int32, plane)
+        i = pl.program_id(0).astype(jnp.float32)
+        j, k = (flat // Z).astype(jnp.float32), (flat % Z).astype(jnp.float32)
+        coords = _camera_coords(lambda r: params_ref[r], lambda r, a: params_ref[3 + 3 * r + a], i, j, k)
+        tsdf_out[...], weight_out[...] = _voxel_update(coords, tsdf_ref[...], weight_ref[...],
+                                                       lambda pixel: depth_ref[pixel], intrinsics,
+                                                       volume.truncation, storage)
+
+    planes = pl.BlockSpec((plane,), lambda n: (n,))
+    whole = [pl.BlockSpec((a.size,), lambda n: (0,)) for a in (params, depth)]
+    tsdf, weight = pl.pallas_call(
+        kernel, grid=(X,), in_specs=[*whole, planes, planes], out_specs=[planes, planes],
+        out_shape=[jax.ShapeDtypeStruct((X * plane,), a.dtype) for a in (volume.tsdf, volume.weight)],
+        input_output_aliases={2: 0, 3: 1}, interpret=jax.default_backend() != "gpu",
+        name="tsdf_fusion")(params, depth, volume.tsdf.reshape(-1), volume.weight.reshape(-1))
+    return tsdf.reshape(volume.shape), weight.reshape(volume.shape)
+
+
 def _integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_wc: jax.Array,
-               max_depth: float | None, slabs: int = 1) -> TSDFVolume:
+               max_depth: float | None, slabs: int = 1, kernel: FusionKernel = FusionKernel.xla) -> TSDFVolume:
     """Unjitted body of ``integrate`` (scanned by ``integrate_frames``)."""
     H, W = intrinsics.height, intrinsics.width
     if tuple(depth.shape) != (H, W) or tuple(T_wc.shape) != (4, 4):
@@ -232,14 +312,15 @@ def _integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_w
         good &= depth <= max_depth
     depth = jnp.where(good, depth, 0.0).reshape(-1)
 
-    # Camera coordinates of voxel centres are affine in (i, j, k): c = R^T (origin - t) + vs * R^T[:, axis] * idx.
     R, t = T_wc[:3, :3], T_wc[:3, 3]
     base = R.T @ (volume.origin - t)
     step = volume.voxel_size * R.T  # column a: camera-frame step of one voxel along world axis a
+    if FusionKernel(kernel) is FusionKernel.pallas:
+        tsdf, weight = _fuse_in_kernel(volume, depth, intrinsics, base, step)
+        return volume.replace(tsdf=tsdf, weight=weight)
     X, Y, Z = volume.shape
     if X % slabs:
         raise ValueError(f"integrate: slabs ({slabs}) must divide the volume's {X} voxels along x")
-    storage = volume.storage
     sx = X // slabs
 
     def update_slab(start: int | jax.Array, tsdf: jax.Array, weight: jax.Array, depth: jax.Array, base: jax.Array,
@@ -249,27 +330,9 @@ def _integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_w
         i = (start + jnp.arange(sx)).astype(jnp.float32)[:, None, None]
         j = jnp.arange(Y, dtype=jnp.float32)[None, :, None]
         k = jnp.arange(Z, dtype=jnp.float32)[None, None, :]
-
-        def camera_coord(row: int) -> jax.Array:
-            return base[row] + step[row, 0] * i + step[row, 1] * j + step[row, 2] * k
-
-        x, y, z = camera_coord(0), camera_coord(1), camera_coord(2)
-        in_front = z > 1e-6
-        inv_z = 1.0 / jnp.where(in_front, z, 1.0)
-        u, v = (jnp.round(c) for c in intrinsics.project(x, y, inv_z))
-        inside = in_front & (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
-        pixel = jnp.where(inside, v * W + u, 0.0).astype(jnp.int32)
-        d = depth.at[pixel].get(mode="promise_in_bounds")
-        sdf = d - z
-        update = inside & (d > 0) & (sdf >= -volume.truncation)
-        observed = jnp.clip(sdf * (1.0 / volume.truncation), -1.0, 1.0)
-        # In float32 whatever the storage; a compact volume's weight saturates (MAX_COMPACT_WEIGHT).
-        old_tsdf, old_weight = storage.decode(tsdf), weight.astype(jnp.float32)
-        new_weight = old_weight + update.astype(jnp.float32)
-        if storage is VolumeStorage.compact:
-            new_weight = jnp.minimum(new_weight, MAX_COMPACT_WEIGHT)
-        new_tsdf = jnp.where(update, old_tsdf + (observed - old_tsdf) / jnp.maximum(new_weight, 1.0), old_tsdf)
-        return storage.encode(new_tsdf), new_weight.astype(weight.dtype)
+        coords = _camera_coords(lambda r: base[r], lambda r, a: step[r, a], i, j, k)
+        return _voxel_update(coords, tsdf, weight, lambda pixel: depth.at[pixel].get(mode="promise_in_bounds"),
+                             intrinsics, volume.truncation, volume.storage)
 
     if slabs == 1:
         tsdf, weight = update_slab(0, volume.tsdf, volume.weight, depth, base, step)
@@ -281,25 +344,28 @@ def _integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_w
     return volume.replace(tsdf=tsdf, weight=weight)
 
 
-_integrate_jit = jax.jit(_integrate, static_argnames=("intrinsics", "max_depth", "slabs"))
+_integrate_jit = jax.jit(_integrate, static_argnames=("intrinsics", "max_depth", "slabs", "kernel"))
 
 
 def integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_wc: jax.Array,
-              max_depth: float | None = None, slabs: int = 1) -> TSDFVolume:
+              max_depth: float | None = None, slabs: int = 1,
+              kernel: FusionKernel = FusionKernel.xla) -> TSDFVolume:
     """Fuse one depth map: projective TSDF with a running average of weight-1 observations.
 
     depth: [H, W] z-depth, m (0, negative, NaN or inf = no return; returns beyond ``max_depth`` m are
     dropped); T_wc: [4, 4] camera-to-world. Voxels in front of the observed surface, or behind it by less
     than the truncation, are updated; the others keep their value. Differentiable w.r.t. ``depth``.
     ``slabs`` (static; divides the voxels along x): the update in that many passes over slabs along x, the
-    same values, its temporaries a slab's (``perception.volume.slabs``).
+    same values, its temporaries a slab's (``perception.volume.slabs``). ``kernel`` (static,
+    ``perception.volume.kernel``): vectorised JAX (``xla``) or a Pallas kernel updating the volume in place
+    (``pallas``: no temporaries, ``slabs`` unused; not differentiable).
 
     Pure and jit-able (a module-level jit: called under another jit it inlines); it cannot raise on values,
     so a host frame is validated first with ``check_frame`` (shapes, a rigid finite pose), as
     ``observation.observe`` does (the shapes, being static, are checked here).
     """
     check_frame_shapes(depth, intrinsics, T_wc, "integrate")
-    return _integrate_jit(volume, depth, intrinsics, T_wc, max_depth, slabs)
+    return _integrate_jit(volume, depth, intrinsics, T_wc, max_depth, slabs, FusionKernel(kernel))
 
 
 @functools.partial(jax.jit, static_argnames=("intrinsics", "max_depth"))
