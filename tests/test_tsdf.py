@@ -432,3 +432,17 @@ def test_pallas_fusion_equals_the_vectorised_fusion(scene_frames, storage):
         assert np.asarray(reference.weight).max() >= 1  # (the views see the scene)
         np.testing.assert_allclose(np.asarray(ours.values), np.asarray(reference.values), rtol=0, atol=tolerance)
     assert np.asarray(fused(tsdf.FusionKernel.pallas)[1].weight).max() == 2
+
+
+def test_round_half_even_is_jnp_round():
+    """The Pallas fusion's rounding (floor and compares: Triton has no rounding op) gives ``jnp.round``'s values
+    (a zero's sign aside, which neither a pixel index nor a stored value keeps): ties to even both signs, values
+    near the ties, large and tiny magnitudes, integers, signed zeros."""
+    rng = np.random.default_rng(0)
+    ties = np.arange(-70.5, 71.0, 1.0)
+    near = np.concatenate([np.nextafter(ties, np.inf), np.nextafter(ties, -np.inf)])
+    x = np.concatenate([ties, near, rng.normal(scale=500.0, size=20_000), rng.uniform(-1, 1, 20_000) * 32767.0,
+                        [0.0, -0.0, 0.49999997, -0.49999997, 2.0 ** 23 + 1, -(2.0 ** 23) - 1, 2.0 ** 24, 3e9, -3e9,
+                         1e-30, 8388607.5, -8388607.5]]).astype(np.float32)
+    ours, reference = jax.jit(tsdf.round_half_even)(x), jnp.round(x)
+    np.testing.assert_array_equal(np.asarray(ours), np.asarray(reference), strict=True)  # (-0.0 == 0.0)

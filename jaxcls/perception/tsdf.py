@@ -56,11 +56,12 @@ class VolumeStorage(enum.StrEnum):
         """(tsdf dtype, weight dtype)."""
         return (jnp.float32, jnp.float32) if self is VolumeStorage.float32 else (jnp.int16, jnp.uint8)
 
-    def encode(self, values: jax.Array) -> jax.Array:
-        """float32 tsdf values in [-1, 1] as stored."""
+    def encode(self, values: jax.Array, rounding: Callable[[jax.Array], jax.Array] = jnp.round) -> jax.Array:
+        """float32 tsdf values in [-1, 1] as stored (a compact volume's rounded by ``rounding``: to nearest, ties
+        to even; ``round_half_even`` in a Pallas kernel)."""
         if self is VolumeStorage.float32:
             return values.astype(jnp.float32)
-        return jnp.round(values * COMPACT_SCALE).astype(jnp.int16)
+        return rounding(values * COMPACT_SCALE).astype(jnp.int16)
 
     def decode(self, stored: jax.Array) -> jax.Array:
         """Stored tsdf values as float32 in [-1, 1]."""
@@ -232,6 +233,16 @@ class FusionKernel(enum.StrEnum):
     pallas = "pallas"
 
 
+def round_half_even(x: jax.Array) -> jax.Array:
+    """``jnp.round`` (to the nearest integer, ties to even) of float32 ``x`` from floor and compares, the same value
+    for every finite one (a zero's sign aside: -0.4 gives +0): what a Pallas kernel on a GPU lowers (Triton has
+    no rounding op)."""
+    r = jnp.floor(x)
+    frac = x - r  # (exact)
+    odd = r - 2.0 * jnp.floor(r * 0.5) == 1.0  # (exact below 2^24; above, every float32 is even)
+    return jnp.where((frac > 0.5) | ((frac == 0.5) & odd), r + 1.0, r)
+
+
 def _camera_coords(base: Callable[[int], jax.Array], step: Callable[[int, int], jax.Array], i: jax.Array,
                    j: jax.Array, k: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Camera-frame (x, y, z) of the voxel centres at indices (i, j, k) (float32, broadcast together), affine in
@@ -245,16 +256,18 @@ def _camera_coords(base: Callable[[int], jax.Array], step: Callable[[int, int], 
 
 def _voxel_update(coords: tuple[jax.Array, jax.Array, jax.Array], tsdf: jax.Array, weight: jax.Array,
                   lookup: Callable[[jax.Array], jax.Array], intrinsics: Intrinsics, truncation: float,
-                  storage: VolumeStorage) -> tuple[jax.Array, jax.Array]:
+                  storage: VolumeStorage, rounding: Callable[[jax.Array], jax.Array] = jnp.round
+                  ) -> tuple[jax.Array, jax.Array]:
     """New stored (tsdf, weight) of voxels at camera coordinates ``coords`` from their stored ones (any shape, the
     same): each voxel projected to its nearest pixel, whose depth (``lookup(flat pixel index)``; 0 = no return)
     gives the observed signed distance; updated where observed and not behind the surface by more than
-    ``truncation`` m. In float32 whatever the storage; a compact volume's weight saturates (MAX_COMPACT_WEIGHT)."""
+    ``truncation`` m. In float32 whatever the storage; a compact volume's weight saturates (MAX_COMPACT_WEIGHT).
+    ``rounding``: to the nearest pixel and fixed-point step, ties to even (``jnp.round``, or ``round_half_even``)."""
     H, W = intrinsics.height, intrinsics.width
     x, y, z = coords
     in_front = z > 1e-6
     inv_z = 1.0 / jnp.where(in_front, z, 1.0)
-    u, v = (jnp.round(c) for c in intrinsics.project(x, y, inv_z))
+    u, v = (rounding(c) for c in intrinsics.project(x, y, inv_z))
     inside = in_front & (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
     d = lookup(jnp.where(inside, v * W + u, 0.0).astype(jnp.int32))
     sdf = d - z
@@ -265,7 +278,7 @@ def _voxel_update(coords: tuple[jax.Array, jax.Array, jax.Array], tsdf: jax.Arra
     if storage is VolumeStorage.compact:
         new_weight = jnp.minimum(new_weight, MAX_COMPACT_WEIGHT)
     new_tsdf = jnp.where(update, old_tsdf + (observed - old_tsdf) / jnp.maximum(new_weight, 1.0), old_tsdf)
-    return storage.encode(new_tsdf), new_weight.astype(weight.dtype)
+    return storage.encode(new_tsdf, rounding), new_weight.astype(weight.dtype)
 
 
 def _fuse_in_kernel(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, base: jax.Array,
@@ -285,7 +298,7 @@ def _fuse_in_kernel(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics
         coords = _camera_coords(lambda r: params_ref[r], lambda r, a: params_ref[3 + 3 * r + a], i, j, k)
         tsdf_out[...], weight_out[...] = _voxel_update(coords, tsdf_ref[...], weight_ref[...],
                                                        lambda pixel: depth_ref[pixel], intrinsics,
-                                                       volume.truncation, storage)
+                                                       volume.truncation, storage, round_half_even)
 
     planes = pl.BlockSpec((plane,), lambda n: (n,))
     whole = [pl.BlockSpec((a.size,), lambda n: (0,)) for a in (params, depth)]
