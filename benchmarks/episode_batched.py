@@ -9,13 +9,14 @@ Every combination of camera tracking (``perception.tracking.mode``), the volume'
 (``perception.volume.storage``) and PointNet's products (``perception.classification_precision``) is a
 variant, and so are the batch's memory layouts (``--slabs``, ``--segments-per-pass``; by default 8 and 1, the fusion in
 slabs and PointNet a segment at a time, as the scale configs run it), the tracking's pyramid levels
-(``--tracking-levels``) and the fusion's kernel (``--fusion xla pallas``); each batch size runs every variant,
-their repeats interleaved. Reports episodes/s and moves/s, the first call (compilation), the program's device memory per
-episode (XLA's temporaries of the batch over B: ``compiled.memory_analysis``), the final F1 of the target
-objects pooled over the batch (prior and refined), and the share of episodes whose path and final labels equal
-the first variant's; ``--trace FILE`` writes each episode's path and final labels (JSON) to compare with another
-device. ``--fit B ...`` compiles Table 1's own program (``episode.batched``) at B episodes, checks it against the
-device's memory and times one call where it fits.
+(``--tracking-levels``), the fusion's kernel (``--fusion xla pallas``) and PointNet's pooling (``--pooling xla
+pallas``); each batch size runs every variant, their repeats interleaved. Reports episodes/s and moves/s, the
+first call (compilation), the program's device memory per episode (XLA's temporaries of the batch over B:
+``compiled.memory_analysis``), the final F1 of the target objects pooled over the batch (prior and refined), and
+the share of episodes whose path and final labels equal the first variant's; ``--trace FILE`` writes each
+episode's path and final labels (JSON) to compare with another device. ``--fit B ...`` compiles Table 1's own
+program (``episode.batched``) at B episodes, checks it against the device's memory and times one call where it
+fits.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ import numpy as np
 from jaxcls import io, metrics, precision, report
 from jaxcls.episode import active, batched, scoring, setup
 from jaxcls.geometry import Intrinsics
+from jaxcls.perception.pointnet import PoolingKernel
 from jaxcls.perception.tsdf import FusionKernel
 from jaxcls.precision import MatmulPrecision
 
@@ -71,6 +73,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--fusion", nargs="+", default=["xla"], choices=[k.value for k in FusionKernel],
                         help="perception.volume.kernel (tsdf.FusionKernel: the fusion vectorised or one Pallas kernel "
                              "in place; several: compared, interleaved)")
+    parser.add_argument("--pooling", nargs="+", default=["xla"], choices=[k.value for k in PoolingKernel],
+                        help="perception.classification_pooling (pointnet.PoolingKernel: PointNet's pooled layers as "
+                             "XLA's product then max, or one Pallas kernel; bfloat16 only; several: compared, "
+                             "interleaved)")
     parser.add_argument("--segments-per-pass", type=int, nargs="+", default=[1],
                         help="perception.shapes.segments_per_pass (PointNet; the library's default is 0: all; "
                              "several: compared, interleaved)")
@@ -112,17 +118,19 @@ def main(argv: list[str] | None = None) -> None:
     perception = setup.episode_perception()
     episodes = {}
     levels = args.tracking_levels or [perception.tracking.levels]
-    for mode, storage, product, slabs, per_pass, level, fusion in itertools.product(
-            args.tracking, args.storage, args.precision, args.slabs, args.segments_per_pass, levels, args.fusion):
+    for mode, storage, product, slabs, per_pass, level, fusion, pooling in itertools.product(
+            args.tracking, args.storage, args.precision, args.slabs, args.segments_per_pass, levels, args.fusion,
+            args.pooling):
         settings = setup.ActiveConfig(episode=active.EpisodeConfig(moves=args.moves), perception=dataclasses.replace(
             perception, tracking=dataclasses.replace(perception.tracking, mode=mode, levels=level),
             volume=dataclasses.replace(perception.volume, storage=storage, slabs=slabs, kernel=FusionKernel(fusion)),
             shapes=dataclasses.replace(perception.shapes, segments_per_pass=per_pass),
-            classification_precision=product))
+            classification_precision=product, classification_pooling=PoolingKernel(pooling)))
         name = f"{mode}/{storage}/{product}"  # (the layout named where several are compared)
         name += f"/slabs {slabs}" if len(args.slabs) > 1 else ""
         name += f"/segments a pass {per_pass}" if len(args.segments_per_pass) > 1 else ""
         name += f"/fusion {fusion}" if len(args.fusion) > 1 or fusion != "xla" else ""
+        name += f"/pooling {pooling}" if len(args.pooling) > 1 or pooling != "xla" else ""
         name += f"/tracking levels {level}" if len(levels) > 1 or level != perception.tracking.levels else ""
         episodes[name] = setup.make_episode(settings, object_set, Intrinsics.kinect_v1(),
                                                                      scene.table_height)

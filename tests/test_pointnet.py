@@ -269,3 +269,56 @@ def test_pooled_inference_equals_the_layers_then_the_max():
             np.asarray(pooled.apply(flipped, x[..., :cin], mask, train=False)),
             np.asarray(pointnet.masked_max(layers.apply(flipped, x[..., :cin], mask, train=False), mask)),
             rtol=1e-4, atol=1e-4, err_msg=f"{path}, negative scales")
+
+
+def _has_pallas_call(f, *args) -> bool:
+    return "pallas_call" in str(jax.make_jaxpr(f)(*args))
+
+
+def test_pallas_pooling_equals_the_product_then_the_max():
+    """``PoolingKernel.pallas`` (one kernel a block of channels, a running max over the points; interpreted off a
+    GPU) pools as the product then the max does, in bfloat16: the shipped weights' three pooled MLPs over clouds
+    with padding and an empty one; it runs only where it applies (bfloat16, powers of two), else the product."""
+    variables = jax.tree.map(lambda a: a.astype(jnp.bfloat16) if jnp.issubdtype(a.dtype, jnp.floating) else a,
+                             pointnet.load_classifier().variables)
+    x = jax.random.normal(jax.random.key(5), (3, 256, 128)).astype(jnp.bfloat16)
+    mask = jnp.ones((3, 256), bool).at[1, 100:].set(False).at[2].set(False)
+    for path in (("TNet_0", "_SharedMLP_0"), ("TNet_1", "_SharedMLP_0"), ("_SharedMLP_1",)):
+        sub = {name: variables[name] for name in ("params", "batch_stats")}
+        for key in path:
+            sub = {name: tree[key] for name, tree in sub.items()}
+        cin = sub["params"]["Dense_0"]["kernel"].shape[0]
+        runs = {k: functools.partial(pointnet._SharedMLP((64, 128, 1024), 0.9, pool=True, pooling=k).apply, sub,
+                                     train=False) for k in pointnet.PoolingKernel}
+        got, want = (np.asarray(runs[k](x[..., :cin], mask), np.float32) for k in pointnet.PoolingKernel)
+        np.testing.assert_allclose(got, want, rtol=1e-2, atol=1e-2, err_msg=str(path))  # (bfloat16: ~4e-3)
+        assert not np.any(got[2]) and np.any(got[1] > 0), path
+        assert _has_pallas_call(runs[pointnet.PoolingKernel.pallas], x[..., :cin], mask), path
+        # 90 points (not a power of two), or float32: the product then the max, the kernel not traced
+        assert not _has_pallas_call(runs[pointnet.PoolingKernel.pallas], x[:, :90, :cin], mask[:, :90]), path
+        assert not _has_pallas_call(runs[pointnet.PoolingKernel.pallas], x[..., :cin].astype(jnp.float32), mask)
+    # The kernel alone: exactly the max over the real points of the product, -inf for none.
+    w = jax.random.normal(jax.random.key(6), (128, 256)) * 0.1
+    ours = pointnet._max_product_in_kernel(x, mask, w)
+    z = np.asarray(x, np.float32) @ np.asarray(w.astype(jnp.bfloat16), np.float32)  # [3, 256, 256]
+    reference = np.where(np.asarray(mask)[..., None], z, -np.inf).max(axis=1)
+    assert ours.dtype == jnp.bfloat16 and ours.shape == (3, 256)
+    np.testing.assert_allclose(np.asarray(ours, np.float32), reference.astype(jnp.bfloat16).astype(np.float32),
+                               rtol=1e-2, atol=1e-3)
+    assert np.all(np.isneginf(np.asarray(ours[2], np.float32)))
+
+
+def test_pallas_pooling_predicts_as_the_product_does():
+    """Through ``predict`` in bfloat16: the shipped weights classify held-out complete clouds with the Pallas
+    pooling as with the product (the same labels, probabilities within bfloat16's rounding)."""
+    from jaxcls.precision import MatmulPrecision
+
+    classifier = pointnet.load_classifier()
+    rng = np.random.default_rng(1)
+    points = np.stack([m.surface_points[rng.permutation(len(m.surface_points))[:256]]
+                       for m in builtin_object_set(surface_samples=600).test[:6]])
+    mask = np.ones(points.shape[:2], bool)
+    out = {k: pointnet.predict(classifier, points, mask, MatmulPrecision.bfloat16, k) for k in pointnet.PoolingKernel}
+    probs, reference = (np.asarray(out[k][0]) for k in pointnet.PoolingKernel)
+    np.testing.assert_array_equal(np.argmax(probs, -1), np.argmax(reference, -1))
+    np.testing.assert_allclose(probs, reference, atol=0.02)

@@ -86,7 +86,8 @@ def classify_segments(spec: Spec, segments: Segments) -> tuple[jax.Array, jax.Ar
         return empty, empty
 
     def classify(points: jax.Array, mask: jax.Array) -> tuple[jax.Array, jax.Array]:
-        return pointnet.predict(spec.classifier, points, mask, spec.config.classification_precision)
+        return pointnet.predict(spec.classifier, points, mask, spec.config.classification_precision,
+                                spec.config.classification_pooling)
 
     per_pass = spec.config.shapes.segments_per_pass
     if per_pass == 0 or per_pass >= spec.num_segments:

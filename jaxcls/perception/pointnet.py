@@ -18,6 +18,7 @@ loads the weights shipped for the builtin object set.
 from __future__ import annotations
 
 import dataclasses
+import enum
 import functools
 import json
 from collections.abc import Sequence
@@ -29,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import linen as nn
 from flax import serialization, struct
+from jax.experimental import pallas as pl
 
 from jaxcls import io
 from jaxcls.config import bounded, check_bounds
@@ -84,6 +86,57 @@ def masked_max(features: jax.Array, mask: jax.Array) -> jax.Array:
 _BN_EPSILON = 1e-5  # the shared MLPs' batch norm (flax's default), which ``_pooled_inference`` folds too
 
 
+class PoolingKernel(enum.StrEnum):
+    """How the network's pooled layers run at inference (``perception.classification_pooling``): ``xla``, the
+    product [B, C, P] written out and its max over the points taken (the reference); ``pallas``, one Pallas
+    kernel a block of 128 channels keeping a running max over the points, the product never written. The kernel
+    runs where the network computes in bfloat16 (``MatmulPrecision.bfloat16``) and the points, the layer's inputs
+    and channels are powers of two (>= 16); elsewhere ``xla``. A GPU compiles it with Triton; any other backend
+    interprets it, slowly."""
+
+    xla = "xla"
+    pallas = "pallas"
+
+
+_POOL_CHANNELS, _POOL_POINTS = 128, 64  # the Pallas kernel's block: channels a program, points a step
+
+
+def _max_product_in_kernel(x: jax.Array, mask: jax.Array, w: jax.Array) -> jax.Array | None:
+    """[..., C] max over the real points p of ``x[..., p, :] @ w`` (-inf where none is real) by one Pallas kernel,
+    accumulated and compared in float32 and returned in ``x``'s type; None where the kernel does not apply
+    (``PoolingKernel``). x: [..., P, Cin] bfloat16; mask: [..., P] bool; w: [Cin, C]."""
+    P, Cin = x.shape[-2:]
+    C = w.shape[-1]
+    power = lambda n: n >= 16 and n & (n - 1) == 0  # noqa: E731
+    if x.dtype != jnp.bfloat16 or not (power(P) and power(Cin) and power(C)):
+        return None
+    BC, BP = min(C, _POOL_CHANNELS), min(P, _POOL_POINTS)
+
+    def kernel(x_ref, mask_ref, w_ref, out_ref) -> None:  # (Pallas refs)
+        block = w_ref[...]
+
+        def step(t: jax.Array, best: jax.Array) -> jax.Array:
+            points = pl.ds(t * BP, BP)
+            z = jnp.dot(x_ref[points, :], block, preferred_element_type=jnp.float32)  # [BP, BC]
+            real = mask_ref[points] > 0
+            return jnp.maximum(best, jnp.max(jnp.where(real[:, None], z, -jnp.inf), axis=0))
+
+        best = jax.lax.fori_loop(0, P // BP, step, jnp.full((BC,), -jnp.inf, jnp.float32))
+        out_ref[...] = best.astype(out_ref.dtype)
+
+    def one(x: jax.Array, mask: jax.Array) -> jax.Array:  # x: [P, Cin], mask: [P] f32
+        return pl.pallas_call(
+            kernel, grid=(C // BC,),
+            in_specs=[pl.BlockSpec((P, Cin), lambda j: (0, 0)), pl.BlockSpec((P,), lambda j: (0,)),
+                      pl.BlockSpec((Cin, BC), lambda j: (0, j))],
+            out_specs=pl.BlockSpec((BC,), lambda j: (j,)), out_shape=jax.ShapeDtypeStruct((C,), x.dtype),
+            interpret=jax.default_backend() != "gpu", name="pointnet_max_product")(x, mask, w.astype(x.dtype))
+
+    batch = x.shape[:-2]
+    flat = jax.vmap(one)(x.reshape(-1, P, Cin), mask.reshape(-1, P).astype(jnp.float32))
+    return flat.reshape(*batch, C)
+
+
 class _SharedMLP(nn.Module):
     """Per-point Dense + batch norm (over real points) + ReLU, for each width; with ``pool``, then the max over
     the real points (``masked_max``): [B, C] instead of [B, P, C].
@@ -95,6 +148,7 @@ class _SharedMLP(nn.Module):
     widths: Sequence[int]
     momentum: float
     pool: bool = False
+    pooling: PoolingKernel = PoolingKernel.xla
 
     @nn.compact
     def __call__(self, x: jax.Array, mask: jax.Array, train: bool) -> jax.Array:
@@ -103,7 +157,7 @@ class _SharedMLP(nn.Module):
             if i == last and self.pool and not train and not self.is_initializing():
                 return _pooled_inference(x, mask, self.variables["params"][f"Dense_{i}"],
                                          self.variables["params"][f"BatchNorm_{i}"],
-                                         self.variables["batch_stats"][f"BatchNorm_{i}"])
+                                         self.variables["batch_stats"][f"BatchNorm_{i}"], self.pooling)
             x = nn.Dense(width)(x)
             x = nn.BatchNorm(use_running_average=not train, momentum=self.momentum, epsilon=_BN_EPSILON)(
                 x, mask=mask[..., None])
@@ -111,15 +165,19 @@ class _SharedMLP(nn.Module):
         return masked_max(x, mask) if self.pool else x
 
 
-def _pooled_inference(x: jax.Array, mask: jax.Array, dense: dict, norm: dict, stats: dict) -> jax.Array:
+def _pooled_inference(x: jax.Array, mask: jax.Array, dense: dict, norm: dict, stats: dict,
+                      pooling: PoolingKernel = PoolingKernel.xla) -> jax.Array:
     """[B, C] ``masked_max(relu(batch_norm(x W + b)), mask)`` at inference (running statistics), computed as
     ``relu(max_p (x W') + c)``: W' = W a, c = a (b - mean) + beta, a = gamma / sqrt(var + eps) (the norm folded
     into the Dense; ReLU and the shift commute with the max). x: [B, P, Cin]; mask: [B, P]; dense: the Dense's
-    {kernel [Cin, C], bias [C]}; norm: {scale, bias} [C]; stats: {mean, var} [C]. 0 for an empty cloud."""
+    {kernel [Cin, C], bias [C]}; norm: {scale, bias} [C]; stats: {mean, var} [C]. 0 for an empty cloud.
+    ``pooling``: the max of the product as XLA's product and reduction, or one Pallas kernel (``PoolingKernel``)."""
     a = norm["scale"] * jax.lax.rsqrt(stats["var"] + _BN_EPSILON)
     shift = a * (dense["bias"] - stats["mean"]) + norm["bias"]
-    z = jnp.einsum("...pi,io->...op", x, dense["kernel"] * a)  # [B, C, P]: the max runs along the minor axis
-    pooled = jnp.max(jnp.where(mask[..., None, :], z, -jnp.inf), axis=-1)
+    pooled = _max_product_in_kernel(x, mask, dense["kernel"] * a) if pooling is PoolingKernel.pallas else None
+    if pooled is None:
+        z = jnp.einsum("...pi,io->...op", x, dense["kernel"] * a)  # [B, C, P]: the max runs along the minor axis
+        pooled = jnp.max(jnp.where(mask[..., None, :], z, -jnp.inf), axis=-1)
     return jnp.where(jnp.any(mask, axis=-1)[..., None], nn.relu(pooled + shift), 0.0)
 
 
@@ -155,10 +213,11 @@ class TNet(nn.Module):
 
     k: int
     momentum: float
+    pooling: PoolingKernel = PoolingKernel.xla
 
     @nn.compact
     def __call__(self, x: jax.Array, mask: jax.Array, train: bool) -> jax.Array:
-        h = _SharedMLP((64, 128, 1024), self.momentum, pool=True)(x, mask, train)
+        h = _SharedMLP((64, 128, 1024), self.momentum, pool=True, pooling=self.pooling)(x, mask, train)
         out = _Head((512, 256), self.k * self.k, self.momentum, out_kernel_init=nn.initializers.zeros,
                     out_bias_init=_identity_init(self.k))
         return out(h, train).reshape(*x.shape[:-2], self.k, self.k)
@@ -175,14 +234,16 @@ class PointNet(nn.Module):
     dropout: float = 0.3
     momentum: float = 0.9
     yaw_head: bool = False
+    pooling: PoolingKernel = PoolingKernel.xla  # the pooled layers at inference
 
     @nn.compact
     def __call__(self, points: jax.Array, mask: jax.Array, train: bool = False
                  ) -> tuple[jax.Array, jax.Array, jax.Array | None]:
-        x = points @ TNet(3, self.momentum)(points, mask, train)
+        x = points @ TNet(3, self.momentum, self.pooling)(points, mask, train)
         x = _SharedMLP((64, 64), self.momentum)(x, mask, train)
-        feature_transform = TNet(64, self.momentum)(x, mask, train)
-        pooled = _SharedMLP((64, 128, 1024), self.momentum, pool=True)(x @ feature_transform, mask, train)
+        feature_transform = TNet(64, self.momentum, self.pooling)(x, mask, train)
+        pooled = _SharedMLP((64, 128, 1024), self.momentum, pool=True, pooling=self.pooling)(
+            x @ feature_transform, mask, train)
         logits = _Head((512, 256), self.num_classes, self.momentum, self.dropout)(pooled, train)
         yaw = None
         if self.yaw_head:
@@ -198,10 +259,11 @@ def orthogonality_loss(transform: jax.Array) -> jax.Array:
     return jnp.mean(jnp.sum((gram - jnp.eye(k)) ** 2, axis=(-2, -1)))
 
 
-def make_model(num_classes: int, config: ModelConfig) -> PointNet:
-    """The network for ``num_classes`` outputs with ``config``'s dropout and batch-norm momentum."""
+def make_model(num_classes: int, config: ModelConfig, pooling: PoolingKernel = PoolingKernel.xla) -> PointNet:
+    """The network for ``num_classes`` outputs with ``config``'s dropout and batch-norm momentum; ``pooling``: how
+    its pooled layers run at inference (``PoolingKernel``)."""
     return PointNet(num_classes=num_classes, dropout=config.dropout, momentum=config.bn_momentum,
-                    yaw_head=config.yaw_head)
+                    yaw_head=config.yaw_head, pooling=PoolingKernel(pooling))
 
 
 def init_variables(key: jax.Array, num_classes: int, config: ModelConfig) -> dict:
@@ -236,9 +298,11 @@ class Classifier:
                              "matching weights")
 
 
-def _forward(classifier: Classifier, points: jax.Array, mask: jax.Array, dtype: Any = jnp.float32) -> tuple:
+def _forward(classifier: Classifier, points: jax.Array, mask: jax.Array, dtype: Any = jnp.float32,
+             pooling: PoolingKernel = PoolingKernel.xla) -> tuple:
     """The network's outputs (logits, feature transform, yaw head or None; float32) on segments, shapes checked;
-    ``dtype``: the type the network computes in (its weights and the normalised points cast to it)."""
+    ``dtype``: the type the network computes in (its weights and the normalised points cast to it); ``pooling``:
+    its pooled layers' kernel (``PoolingKernel``)."""
     points_shape, mask_shape = tuple(np.shape(points)), tuple(np.shape(mask))
     if len(points_shape) != 3 or points_shape[-1] != 3:
         raise ValueError(f"classify: points must be [N, P, 3] (N segments of P points), got shape {points_shape}")
@@ -246,7 +310,7 @@ def _forward(classifier: Classifier, points: jax.Array, mask: jax.Array, dtype: 
         raise ValueError(f"classify: mask must be [N, P] = {list(points_shape[:2])} like the points, got shape "
                          f"{mask_shape}")
     points, mask = normalise(jnp.asarray(points, jnp.float32), jnp.asarray(mask, bool))
-    model = make_model(len(classifier.classes), classifier.config)
+    model = make_model(len(classifier.classes), classifier.config, pooling)
     variables = classifier.variables
     if jnp.dtype(dtype) != jnp.float32:
         points = points.astype(dtype)
@@ -309,16 +373,18 @@ def classify(classifier: Classifier, points: jax.Array, mask: jax.Array) -> jax.
     return _calibrated(classifier, logits(classifier, points, mask), points, mask)
 
 
-@functools.partial(jax.jit, static_argnames=("precision",))
+@functools.partial(jax.jit, static_argnames=("precision", "pooling"))
 def predict(classifier: Classifier, points: jax.Array, mask: jax.Array,
-            precision: MatmulPrecision = MatmulPrecision.float32) -> tuple[jax.Array, jax.Array]:
+            precision: MatmulPrecision = MatmulPrecision.float32,
+            pooling: PoolingKernel = PoolingKernel.xla) -> tuple[jax.Array, jax.Array]:
     """(probs [N, M] as ``classify``, yaw [N, M] rad as ``estimate_yaw``, zeros without a yaw head) from
     ONE forward pass: what a move needs for refinement with learned yaws. ``precision``: the network's
     products on an accelerator (``MatmulPrecision``; float32 and tf32 the same on a CPU; bfloat16 computes in
-    bfloat16 everywhere)."""
+    bfloat16 everywhere); ``pooling``: the pooled layers' kernel (``PoolingKernel``: its Pallas kernel runs in
+    bfloat16 only)."""
     precision = MatmulPrecision(precision)
     with precision.products():
-        scores, _, head = _forward(classifier, points, mask, precision.dtype)
+        scores, _, head = _forward(classifier, points, mask, precision.dtype, PoolingKernel(pooling))
     yaw = _yaw_angles(classifier, head) if head is not None else jnp.zeros(scores.shape, jnp.float32)
     return _calibrated(classifier, scores, points, mask), yaw
 

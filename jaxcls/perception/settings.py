@@ -13,6 +13,7 @@ YAML (the ``perception:`` block of a command's config)::
       segmenter: jax                                       # or reference (scikit-learn, host)
       tracking: {mode: frame_to_model, ...}                # each frame registered to the model before fusion
       classification_precision: float32                    # or tf32, bfloat16: PointNet on a GPU's tensor cores
+      classification_pooling: xla                          # or pallas: its pooled layers as one kernel (bfloat16)
 
 The table height is not here: it belongs to the world (``SceneConfig.table_height``, a dataset's scene, a
 recording's ``meta.json``) and reaches perception through ``Spec.create(..., table_height=...)``. The
@@ -30,6 +31,7 @@ from flax import struct
 
 from jaxcls.config import bounded, check_bounds
 from jaxcls.geometry import Intrinsics
+from jaxcls.perception.pointnet import PoolingKernel
 from jaxcls.perception.tracking import TrackingConfig
 from jaxcls.perception.tsdf import FusionKernel, VolumeStorage
 from jaxcls.precision import MatmulPrecision
@@ -202,6 +204,9 @@ class PerceptionConfig:
     tracking: TrackingConfig = dataclasses.field(default_factory=TrackingConfig)  # the camera pose, before fusion
     # PointNet's products on an accelerator: float32 (the reference) or tf32 (tensor cores; jaxcls.precision)
     classification_precision: MatmulPrecision = MatmulPrecision.float32
+    # PointNet's pooled layers at inference: xla (the reference) or pallas (one kernel, the product never written;
+    # in bfloat16 only, elsewhere xla: pointnet.PoolingKernel)
+    classification_pooling: PoolingKernel = PoolingKernel.xla
 
     def __post_init__(self) -> None:
         check_bounds(self, "perception.")
