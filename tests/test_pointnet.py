@@ -234,6 +234,17 @@ def test_classification_precision_sets_the_networks_products(classifier, clouds)
         np.testing.assert_allclose(np.asarray(scores[0]), np.asarray(scores[1]), atol=1e-6)
 
 
+def _pooled_mlps(variables: dict) -> list[tuple[tuple[str, ...], dict, int]]:
+    """The network's three pooled shared MLPs: (their path, their {params, batch_stats}, their input width)."""
+    out = []
+    for path in (("TNet_0", "_SharedMLP_0"), ("TNet_1", "_SharedMLP_0"), ("_SharedMLP_1",)):
+        sub = {name: variables[name] for name in ("params", "batch_stats")}
+        for key in path:
+            sub = {name: tree[key] for name, tree in sub.items()}
+        out.append((path, sub, sub["params"]["Dense_0"]["kernel"].shape[0]))
+    return out
+
+
 def test_pooled_inference_equals_the_layers_then_the_max():
     """At inference the pooled shared MLPs fold their last batch norm into the Dense and take the max before
     the shift and the ReLU (``_pooled_inference``): on the shipped weights' three pooled MLPs, the same [B, C]
@@ -241,11 +252,7 @@ def test_pooled_inference_equals_the_layers_then_the_max():
     variables = pointnet.load_classifier().variables
     x = jax.random.normal(jax.random.key(5), (3, 90, 64))
     mask = jnp.ones((3, 90), bool).at[1, 40:].set(False).at[2].set(False)
-    for path in (("TNet_0", "_SharedMLP_0"), ("TNet_1", "_SharedMLP_0"), ("_SharedMLP_1",)):
-        sub = {name: variables[name] for name in ("params", "batch_stats")}
-        for key in path:
-            sub = {name: tree[key] for name, tree in sub.items()}
-        cin = sub["params"]["Dense_0"]["kernel"].shape[0]
+    for path, sub, cin in _pooled_mlps(variables):
         layers = pointnet._SharedMLP((64, 128, 1024), 0.9)
         pooled = pointnet._SharedMLP((64, 128, 1024), 0.9, pool=True)
         want = pointnet.masked_max(layers.apply(sub, x[..., :cin], mask, train=False), mask)
@@ -283,11 +290,7 @@ def test_pallas_pooling_equals_the_product_then_the_max():
                              pointnet.load_classifier().variables)
     x = jax.random.normal(jax.random.key(5), (3, 256, 128)).astype(jnp.bfloat16)
     mask = jnp.ones((3, 256), bool).at[1, 100:].set(False).at[2].set(False)
-    for path in (("TNet_0", "_SharedMLP_0"), ("TNet_1", "_SharedMLP_0"), ("_SharedMLP_1",)):
-        sub = {name: variables[name] for name in ("params", "batch_stats")}
-        for key in path:
-            sub = {name: tree[key] for name, tree in sub.items()}
-        cin = sub["params"]["Dense_0"]["kernel"].shape[0]
+    for path, sub, cin in _pooled_mlps(variables):
         runs = {k: functools.partial(pointnet._SharedMLP((64, 128, 1024), 0.9, pool=True, pooling=k).apply, sub,
                                      train=False) for k in pointnet.PoolingKernel}
         got, want = (np.asarray(runs[k](x[..., :cin], mask), np.float32) for k in pointnet.PoolingKernel)
