@@ -36,8 +36,8 @@ import numpy as np
 from jaxcls import io, metrics, precision, report
 from jaxcls.episode import active, batched, scoring, setup
 from jaxcls.geometry import Intrinsics
+from jaxcls.perception import tsdf
 from jaxcls.perception.pointnet import PoolingKernel
-from jaxcls.perception.tsdf import FusionKernel
 from jaxcls.precision import MatmulPrecision
 
 
@@ -70,7 +70,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--slabs", type=int, nargs="+", default=[8],
                         help="perception.volume.slabs (the batch's memory layout; the library's default is 1; "
                              "several: compared, interleaved)")
-    parser.add_argument("--fusion", nargs="+", default=["xla"], choices=[k.value for k in FusionKernel],
+    parser.add_argument("--fusion", nargs="+", default=["xla"], choices=[k.value for k in tsdf.FusionKernel],
                         help="perception.volume.kernel (tsdf.FusionKernel: the fusion vectorised or one Pallas kernel "
                              "in place; several: compared, interleaved)")
     parser.add_argument("--pooling", nargs="+", default=["xla"], choices=[k.value for k in PoolingKernel],
@@ -123,7 +123,8 @@ def main(argv: list[str] | None = None) -> None:
             args.pooling):
         settings = setup.ActiveConfig(episode=active.EpisodeConfig(moves=args.moves), perception=dataclasses.replace(
             perception, tracking=dataclasses.replace(perception.tracking, mode=mode, levels=level),
-            volume=dataclasses.replace(perception.volume, storage=storage, slabs=slabs, kernel=FusionKernel(fusion)),
+            volume=dataclasses.replace(perception.volume, storage=storage, slabs=slabs,
+                                       kernel=tsdf.FusionKernel(fusion)),
             shapes=dataclasses.replace(perception.shapes, segments_per_pass=per_pass),
             classification_precision=product, classification_pooling=PoolingKernel(pooling)))
         name = f"{mode}/{storage}/{product}"  # (the layout named where several are compared)
@@ -142,6 +143,9 @@ def main(argv: list[str] | None = None) -> None:
         starts = jnp.asarray(np.random.default_rng(B).integers(0, T_wc.shape[0], B), jnp.int32)
         keys = jax.random.split(jax.random.PRNGKey(B), B)
         first, times, final, trace, memory = {}, {m: [] for m in episodes}, {}, {}, {}
+        for episode in episodes.values():
+            volume = episode.spec.config.volume
+            tsdf.check_kernel_batch(volume.kernel, volume.storage, volume.resolution, B)
         for mode, episode in episodes.items():
             states = jax.eval_shape(reset, episode, T_wc, starts, keys)
             analysis = rollout.lower(episode, states, depth, T_wc).compile().memory_analysis()

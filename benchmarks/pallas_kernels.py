@@ -1,12 +1,13 @@
 """The move's two Pallas kernels against the XLA programs they replace, each alone, batched as in Table 1's
-program: the fusion (``perception.volume.kernel: pallas``: one kernel a plane of voxels, in place) against the
+program: the fusion (``perception.volume.kernel: pallas``: one kernel over blocks of 2,048 voxels, in place) against the
 vectorised fusion in slabs, and PointNet's pooled product (``perception.classification_pooling: pallas``: a
 running max over the points, the product never written) against XLA's product then max.
 
-    python benchmarks/pallas_kernels.py --batch 512 [--repeats 5] [--out BENCHMARKS.md]
+    python benchmarks/pallas_kernels.py --batch 512 [--frames 4] [--repeats 5] [--out BENCHMARKS.md]
 
-The fusion: B compact 128^3 volumes (the scale configs' storage), each fusing one synthetic 640x480 frame (a
-tilted plane of depths seen from a camera 0.8-1.2 m away), ``tsdf.integrate`` vmapped; the pooling: B segments of
+The fusion: B compact 128^3 volumes (the scale configs' storage), each of its own, fusing ``--frames`` synthetic
+640x480 frames in turn (a tilted plane of depths seen from a camera 0.8-1.2 m away) under ``lax.scan``, vmapped,
+as an episode carries its volume; the pooling: B segments of
 256 points x 128 channels into 1,024 (the pooled MLPs' widest), bfloat16. Each pair jitted apart, called in
 turns (``--repeats``), median milliseconds a call after a compiling call; the outputs compared (fusion: the
 weights' share equal, the values' share differing and largest difference; pooling: the largest difference,
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import statistics
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -27,34 +29,41 @@ from jaxcls.geometry import Intrinsics, look_at
 from jaxcls.perception import pointnet, tsdf
 
 
-def fusion_inputs(batch: int, seed: int = 0) -> tuple[tsdf.TSDFVolume, jax.Array, jax.Array]:
-    """(a compact 128^3 volume, [B, 480, 640] depths, [B, 4, 4] poses): a tilted plane through the volume's
-    centre seen from B cameras 0.8-1.2 m away on a ring (the volume fills the view, as in a move)."""
+def fusion_inputs(batch: int, frames: int, seed: int = 0) -> tuple[tsdf.TSDFVolume, jax.Array, jax.Array]:
+    """(B compact 128^3 volumes [B, ...], [B, F, 480, 640] depths, [B, F, 4, 4] poses): a tilted plane through the
+    volumes' centre seen from cameras 0.8-1.2 m away around it (the volume fills the view, as in a move)."""
     rng = np.random.default_rng(seed)
     intr = Intrinsics.kinect_v1()
     volume = tsdf.create_volume(np.zeros(3))
     storage = tsdf.VolumeStorage.compact
     volume = volume.replace(tsdf=storage.encode(volume.tsdf), weight=volume.weight.astype(jnp.uint8))
-    angles, distances = rng.uniform(0, 2 * np.pi, batch), rng.uniform(0.8, 1.2, batch)
-    eyes = np.stack([distances * np.cos(angles), distances * np.sin(angles), 0.6 * distances], axis=1)
-    poses = np.stack([look_at(eye, np.zeros(3)) for eye in eyes]).astype(np.float32)
+    angles, distances = rng.uniform(0, 2 * np.pi, (batch, frames)), rng.uniform(0.8, 1.2, (batch, frames))
+    eyes = np.stack([distances * np.cos(angles), distances * np.sin(angles), 0.6 * distances], axis=-1)
+    poses = look_at(eyes.reshape(-1, 3), np.zeros(3)).reshape(batch, frames, 4, 4).astype(np.float32)
     v, u = np.mgrid[0:intr.height, 0:intr.width]
-    depths = np.stack([d + 0.1 * (u - intr.cx) / intr.fx + 0.05 * (v - intr.cy) / intr.fy
-                       for d in distances]).astype(np.float32)
-    return volume, jnp.asarray(depths), jnp.asarray(poses)
+    plane = (0.1 * (u - intr.cx) / intr.fx + 0.05 * (v - intr.cy) / intr.fy).astype(np.float32)
+    depths = jnp.asarray(distances, jnp.float32)[..., None, None] + jnp.asarray(plane)
+    return jax.tree.map(lambda a: jnp.broadcast_to(a, (batch, *a.shape)) + 0, volume), depths, jnp.asarray(poses)
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--batch", type=int, default=512, help="volumes (fusion) and segments (pooling) a call")
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--frames", type=int, default=4, help="frames each volume fuses a call (the fusion)")
     parser.add_argument("--out", help="append the table to this Markdown file")
     args = parser.parse_args(argv)
     intr = Intrinsics.kinect_v1()
-    volume, depths, poses = fusion_inputs(args.batch)
+    volumes, depths, poses = fusion_inputs(args.batch, args.frames)
 
-    def fuse(kernel: tsdf.FusionKernel, slabs: int):
-        return jax.jit(jax.vmap(lambda d, T: tsdf.integrate(volume, d, intr, T, slabs=slabs, kernel=kernel)))
+    def fuse(kernel: tsdf.FusionKernel, slabs: int) -> Callable[..., tsdf.TSDFVolume]:
+        def episode(volume: tsdf.TSDFVolume, depth: jax.Array, T_wc: jax.Array) -> tsdf.TSDFVolume:
+            def frame(v: tsdf.TSDFVolume, f: tuple[jax.Array, jax.Array]) -> tuple[tsdf.TSDFVolume, None]:
+                return tsdf.integrate(v, f[0], intr, f[1], slabs=slabs, kernel=kernel), None
+
+            return jax.lax.scan(frame, volume, (depth, T_wc))[0]
+
+        return jax.jit(jax.vmap(episode))
 
     rng = np.random.default_rng(1)
     x = jnp.asarray(rng.normal(size=(args.batch, 256, 128)), jnp.bfloat16)
@@ -67,7 +76,7 @@ def main(argv: list[str] | None = None) -> None:
 
     pairs = {
         "fusion": (("vectorised, 8 slabs (xla)", fuse(tsdf.FusionKernel.xla, 8)),
-                   ("one kernel in place (pallas)", fuse(tsdf.FusionKernel.pallas, 1)), (depths, poses)),
+                   ("one kernel in place (pallas)", fuse(tsdf.FusionKernel.pallas, 1)), (volumes, depths, poses)),
         "PointNet's pooled product": (("product then max (xla)", jax.jit(product_then_max)),
                                       ("running max (pallas)", jax.jit(pointnet._max_product_in_kernel)),
                                       (x, mask, w)),

@@ -266,7 +266,10 @@ def _exported_module(jitted_program: Callable, args: tuple, kind: str, key: str)
             made["out_tree"] = jax.tree.structure(out := jitted_program(*jax.tree.unflatten(tree, xs)))
             return jax.tree.leaves(out)
 
-        program = export.export(jax.jit(flat, in_shardings=[x.sharding for x in leaves]))(*abstract)
+        # (a Pallas kernel compiled by Triton is a custom call without export's compatibility guarantee: kept
+        # anyway, a kept program being keyed by the JAX and jaxlib versions)
+        program = export.export(jax.jit(flat, in_shardings=[x.sharding for x in leaves]), disabled_checks=(
+            export.DisabledSafetyCheck.custom_call("__gpu$xla.gpu.triton"),))(*abstract)
         entry = {"module": program.serialize(), "out_tree": made["out_tree"]}
         try:
             io.write_bytes(path, pickle.dumps(entry))

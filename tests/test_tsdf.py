@@ -409,29 +409,69 @@ def test_fusion_in_slabs_batched_equals_one_pass(scene_frames, storage):
 
 @pytest.mark.parametrize("storage", list(tsdf.VolumeStorage), ids=lambda s: s.value)  # (its encode is not str.encode)
 def test_pallas_fusion_equals_the_vectorised_fusion(scene_frames, storage):
-    """``FusionKernel.pallas`` (one kernel a plane of voxels, in place; interpreted off a GPU) fuses the same
-    volume as the vectorised reference: a batch of volumes each fused from its own view (vmapped: the batch a grid
-    axis), and one volume fused from two views in turn (the second reads what the first wrote in place). The
-    weights are equal; the values within float32 rounding (a compact volume: one step of its fixed point)."""
+    """``FusionKernel.pallas`` (one kernel over blocks of 2,048 voxels, in place; interpreted off a GPU) fuses the
+    same volumes as the vectorised reference, as an episode holds them: a batch of volumes of their own (vmapped:
+    the batch a grid axis), each fusing three views in turn under ``lax.scan`` (each view reads what the last wrote
+    in place). The weights are equal; the values within float32 rounding (a compact volume: one step of its fixed
+    point). A 48^3 volume (planes of 2,304 voxels: not a power of two) runs the kernel; a 30^3 one (no power-of-two
+    factor of 128) the vectorised fusion."""
     _, _, centre, intr, views, depths = scene_frames
-    volume = tsdf.create_volume(centre)
-    if storage is tsdf.VolumeStorage.compact:
-        volume = volume.replace(tsdf=storage.encode(volume.tsdf), weight=volume.weight.astype(jnp.uint8))
-    views, depths = jnp.asarray(views[:3], jnp.float32), jnp.asarray(depths[:3])
+    views, depths = jnp.asarray(views[:6], jnp.float32), jnp.asarray(depths[:6])
 
-    def fused(kernel):
-        batch = jax.vmap(lambda d, T: tsdf.integrate(volume, d, intr, T, kernel=kernel))(depths, views)
-        twice = volume
-        for d, T in zip(depths[:2], views[:2], strict=True):
-            twice = tsdf.integrate(twice, d, intr, T, kernel=kernel)
-        return batch, twice
+    def empty(resolution):
+        volume = tsdf.create_volume(centre, resolution=resolution)
+        if storage is tsdf.VolumeStorage.compact:
+            volume = volume.replace(tsdf=storage.encode(volume.tsdf), weight=volume.weight.astype(jnp.uint8))
+        return jax.tree.map(lambda a: jnp.stack([a, a]), volume)  # two episodes' volumes
+
+    def episodes(kernel, volumes):  # two episodes, three views each: views 0-2 and 3-5
+        def one(volume, d, T):
+            return jax.lax.scan(lambda v, f: (tsdf.integrate(v, f[0], intr, f[1], kernel=kernel), None),
+                                volume, (d, T))[0]
+        return jax.jit(jax.vmap(one))(volumes, depths.reshape(2, 3, *depths.shape[1:]), views.reshape(2, 3, 4, 4))
 
     tolerance = 1e-5 if storage is tsdf.VolumeStorage.float32 else 1.5 / tsdf.COMPACT_SCALE  # (< 2 steps)
-    for ours, reference in zip(fused(tsdf.FusionKernel.pallas), fused(tsdf.FusionKernel.xla), strict=True):
+    for resolution in (64, 48):
+        volumes = empty(resolution)
+        ours, reference = episodes(tsdf.FusionKernel.pallas, volumes), episodes(tsdf.FusionKernel.xla, volumes)
         np.testing.assert_array_equal(np.asarray(ours.weight), np.asarray(reference.weight))
-        assert np.asarray(reference.weight).max() >= 1  # (the views see the scene)
+        assert np.asarray(reference.weight).max() == 3  # (every view sees the scene)
         np.testing.assert_allclose(np.asarray(ours.values), np.asarray(reference.values), rtol=0, atol=tolerance)
-    assert np.asarray(fused(tsdf.FusionKernel.pallas)[1].weight).max() == 2
+        assert "pallas_call" in str(jax.make_jaxpr(lambda v: episodes(tsdf.FusionKernel.pallas, v))(volumes))
+    assert "pallas_call" not in str(jax.make_jaxpr(lambda v: episodes(tsdf.FusionKernel.pallas, v))(empty(30)))
+
+
+def test_pallas_kernels_lower_for_a_gpu(scene_frames):
+    """Both Pallas kernels lower for a CUDA GPU (Triton) from this CPU, batched as an episode batches them: the
+    fusion of a compact volume and PointNet's pooled product, each a Triton call in the lowered program (not
+    Mosaic GPU, which cannot batch them). The batch sizes whose uint8 weights the kernel's 32-bit offsets cannot
+    address are refused (``check_kernel_batch``)."""
+    from jaxcls.perception import pointnet
+
+    _, _, centre, intr, views, depths = scene_frames
+    storage = tsdf.VolumeStorage.compact
+    volume = tsdf.create_volume(centre)
+    volume = volume.replace(tsdf=storage.encode(volume.tsdf), weight=volume.weight.astype(jnp.uint8))
+    volumes = jax.tree.map(lambda a: jnp.stack([a, a]), volume)
+    fuse = jax.vmap(lambda v, d, T: tsdf.integrate(v, d, intr, T, kernel=tsdf.FusionKernel.pallas))
+    x = jnp.zeros((2, 1, 256, 128), jnp.bfloat16)
+    pool = jax.vmap(lambda x, m, w: pointnet._max_product_in_kernel(x, m, w), in_axes=(0, 0, None))
+    for f, args in ((fuse, (volumes, jnp.asarray(depths[:2]), jnp.asarray(views[:2], jnp.float32))),
+                    (pool, (x, jnp.ones((2, 1, 256), bool), jnp.zeros((128, 1024))))):
+        try:
+            text = jax.jit(f).trace(*args).lower(lowering_platforms=("cuda",)).as_text()
+        except (RuntimeError, NotImplementedError) as e:  # (a jaxlib that cannot lower for CUDA without a GPU)
+            if "cuda" in str(e).lower() and "unknown" in str(e).lower():
+                pytest.skip(f"this jaxlib cannot lower for CUDA here: {e}")
+            raise
+        assert "__gpu$xla.gpu.triton" in text and "mosaic" not in text.lower()
+    for volumes_a_device in (1025, 2048):
+        with pytest.raises(ValueError, match="32-bit offsets"):
+            tsdf.check_kernel_batch(tsdf.FusionKernel.pallas, storage, 128, volumes_a_device)
+    for kernel, kept, count in ((tsdf.FusionKernel.pallas, storage, 1024), (tsdf.FusionKernel.pallas, storage, 4096),
+                                (tsdf.FusionKernel.pallas, tsdf.VolumeStorage.float32, 2048),
+                                (tsdf.FusionKernel.xla, storage, 2048)):
+        tsdf.check_kernel_batch(kernel, kept, 128, count)
 
 
 def test_round_half_even_is_jnp_round():

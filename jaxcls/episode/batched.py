@@ -41,6 +41,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxcls import compile_cache
 from jaxcls.episode import active
+from jaxcls.perception import tsdf
 
 AXIS = "episodes"
 
@@ -219,6 +220,8 @@ def _placed(episode: active.Episode, depth: jax.Array | jax.ShapeDtypeStruct, T_
             start: np.ndarray, keys: jax.Array, device_mesh: Mesh, split_scenes: bool) -> tuple:
     """The program's arguments on their devices (frames split by scene or replicated, the episodes split); a
     ``jax.ShapeDtypeStruct`` ``depth`` (frames not yet rendered) becomes one with its sharding."""
+    volume = episode.spec.config.volume
+    tsdf.check_kernel_batch(volume.kernel, volume.storage, volume.resolution, len(scene) // device_mesh.devices.size)
     split = NamedSharding(device_mesh, PartitionSpec(AXIS))
     frames = split if split_scenes else NamedSharding(device_mesh, PartitionSpec())
     depth = (jax.ShapeDtypeStruct(depth.shape, jnp.float32, sharding=frames) if isinstance(depth, jax.ShapeDtypeStruct)

@@ -35,6 +35,7 @@ from jax.experimental import pallas as pl
 from jaxcls import io
 from jaxcls.config import bounded, check_bounds
 from jaxcls.math import safe_norm
+from jaxcls.perception import kernels
 from jaxcls.precision import MatmulPrecision
 
 WEIGHTS_DIR = Path(__file__).parent / "weights"
@@ -91,8 +92,8 @@ class PoolingKernel(enum.StrEnum):
     product [B, C, P] written out and its max over the points taken (the reference); ``pallas``, one Pallas
     kernel a block of 128 channels keeping a running max over the points, the product never written. The kernel
     runs where the network computes in bfloat16 (``MatmulPrecision.bfloat16``) and the points, the layer's inputs
-    and channels are powers of two (>= 16); elsewhere ``xla``. A GPU compiles it with Triton; any other backend
-    interprets it, slowly."""
+    and channels are powers of two (>= 16); elsewhere ``xla``. ``kernels.pallas_call``: Triton on a GPU,
+    interpreted elsewhere, slowly."""
 
     xla = "xla"
     pallas = "pallas"
@@ -107,8 +108,11 @@ def _max_product_in_kernel(x: jax.Array, mask: jax.Array, w: jax.Array) -> jax.A
     (``PoolingKernel``). x: [..., P, Cin] bfloat16; mask: [..., P] bool; w: [Cin, C]."""
     P, Cin = x.shape[-2:]
     C = w.shape[-1]
-    power = lambda n: n >= 16 and n & (n - 1) == 0  # noqa: E731
-    if x.dtype != jnp.bfloat16 or not (power(P) and power(Cin) and power(C)):
+
+    def power_of_two(n: int) -> bool:  # (Triton's blocks; its products need 16 or more a side)
+        return n >= 16 and n & (n - 1) == 0
+
+    if x.dtype != jnp.bfloat16 or not (power_of_two(P) and power_of_two(Cin) and power_of_two(C)):
         return None
     BC, BP = min(C, _POOL_CHANNELS), min(P, _POOL_POINTS)
 
@@ -125,12 +129,12 @@ def _max_product_in_kernel(x: jax.Array, mask: jax.Array, w: jax.Array) -> jax.A
         out_ref[...] = best.astype(out_ref.dtype)
 
     def one(x: jax.Array, mask: jax.Array) -> jax.Array:  # x: [P, Cin], mask: [P] f32
-        return pl.pallas_call(
+        return kernels.pallas_call(
             kernel, grid=(C // BC,),
             in_specs=[pl.BlockSpec((P, Cin), lambda j: (0, 0)), pl.BlockSpec((P,), lambda j: (0,)),
                       pl.BlockSpec((Cin, BC), lambda j: (0, j))],
             out_specs=pl.BlockSpec((BC,), lambda j: (j,)), out_shape=jax.ShapeDtypeStruct((C,), x.dtype),
-            interpret=jax.default_backend() != "gpu", name="pointnet_max_product")(x, mask, w.astype(x.dtype))
+            name="pointnet_max_product")(x, mask, w.astype(x.dtype))
 
     batch = x.shape[:-2]
     flat = jax.vmap(one)(x.reshape(-1, P, Cin), mask.reshape(-1, P).astype(jnp.float32))
@@ -174,9 +178,10 @@ def _pooled_inference(x: jax.Array, mask: jax.Array, dense: dict, norm: dict, st
     ``pooling``: the max of the product as XLA's product and reduction, or one Pallas kernel (``PoolingKernel``)."""
     a = norm["scale"] * jax.lax.rsqrt(stats["var"] + _BN_EPSILON)
     shift = a * (dense["bias"] - stats["mean"]) + norm["bias"]
-    pooled = _max_product_in_kernel(x, mask, dense["kernel"] * a) if pooling is PoolingKernel.pallas else None
+    kernel = dense["kernel"] * a
+    pooled = _max_product_in_kernel(x, mask, kernel) if PoolingKernel(pooling) is PoolingKernel.pallas else None
     if pooled is None:
-        z = jnp.einsum("...pi,io->...op", x, dense["kernel"] * a)  # [B, C, P]: the max runs along the minor axis
+        z = jnp.einsum("...pi,io->...op", x, kernel)  # [B, C, P]: the max runs along the minor axis
         pooled = jnp.max(jnp.where(mask[..., None, :], z, -jnp.inf), axis=-1)
     return jnp.where(jnp.any(mask, axis=-1)[..., None], nn.relu(pooled + shift), 0.0)
 

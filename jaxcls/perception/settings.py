@@ -86,7 +86,7 @@ class VolumeConfig:
     # a slab (what bounds a GPU's batch of episodes); 1 = one pass over the volume (the fastest on a CPU).
     slabs: int = bounded(1, ge=1)
     # How the fusion runs (tsdf.FusionKernel): xla (vectorised JAX, the reference; differentiable) or pallas (one
-    # kernel a plane of voxels, updated in place, no temporaries; a GPU's Triton, elsewhere interpreted, slowly).
+    # kernel over blocks of voxels, updated in place, no temporaries; a GPU's Triton, elsewhere interpreted, slowly).
     kernel: FusionKernel = FusionKernel.xla
 
     def __post_init__(self) -> None:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import enum
 import functools
+import math
 from collections.abc import Callable
 
 import jax
@@ -29,6 +30,7 @@ from jax.experimental import pallas as pl
 from jaxcls import geometry
 from jaxcls.geometry import Intrinsics
 from jaxcls.math import normalize, safe_norm
+from jaxcls.perception import kernels
 
 # Voxel pairs whose values are this close to +-1 sit on a truncation edge, not on the surface.
 _TRUNCATION_EDGE = 0.99
@@ -225,12 +227,27 @@ def slabs_in_place(values: Callable[..., tuple[jax.Array, ...]], start: int | ja
 
 class FusionKernel(enum.StrEnum):
     """How ``integrate`` updates the voxels (``perception.volume.kernel``): ``xla``, vectorised JAX over the volume
-    (or its ``slabs``), the reference; ``pallas``, one Pallas kernel a plane of voxels reading the volume and
-    writing it in place, no temporaries in memory (a GPU compiles it with Triton; any other backend interprets it,
-    slowly; not differentiable). Both compute the same float32 arithmetic (``_voxel_update``)."""
+    (or its ``slabs``), the reference; ``pallas``, one Pallas kernel over blocks of 2,048 voxels reading the volume
+    and writing it in place, no temporaries in memory (``kernels.pallas_call``: Triton on a GPU, interpreted
+    elsewhere, slowly; not differentiable; a volume whose voxel count has no power-of-two factor of 128 or more
+    takes ``xla``). Both compute the same float32 arithmetic (``_voxel_update``). A limit of JAX's Triton lowering:
+    a compact volume's uint8 weights batched 1,025 to 2,048 to a device (2^31 to 2^32 bytes of 128^3 volumes) are
+    addressed with 32-bit offsets that overflow; ``check_kernel_batch`` refuses that batch."""
 
     xla = "xla"
     pallas = "pallas"
+
+
+def check_kernel_batch(kernel: FusionKernel, storage: VolumeStorage, resolution: int, volumes: int) -> None:
+    """Raise ValueError where ``volumes`` volumes of ``resolution``^3 voxels fused together on one device by the
+    Pallas kernel would overflow its 32-bit offsets (``FusionKernel``: a uint8 weights array of more than 2^31 and
+    at most 2^32 bytes)."""
+    if FusionKernel(kernel) is FusionKernel.pallas and VolumeStorage(storage) is VolumeStorage.compact:
+        size = volumes * resolution ** 3  # (bytes of the batch's weights)
+        if 2 ** 31 < size <= 2 ** 32:
+            raise ValueError(f"perception.volume.kernel=pallas: {volumes} compact {resolution}^3 volumes on one "
+                             f"device ({size} bytes of weights) overflow the kernel's 32-bit offsets (JAX's Triton "
+                             "lowering); run at most 2^31 bytes or more than 2^32 a device, or volume.kernel=xla")
 
 
 def round_half_even(x: jax.Array) -> jax.Array:
@@ -281,32 +298,40 @@ def _voxel_update(coords: tuple[jax.Array, jax.Array, jax.Array], tsdf: jax.Arra
     return storage.encode(new_tsdf, rounding), new_weight.astype(weight.dtype)
 
 
+_KERNEL_VOXELS = 2048  # the Pallas fusion's voxels a program (a power of two: Triton's blocks)
+
+
 def _fuse_in_kernel(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, base: jax.Array,
-                    step: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """``FusionKernel.pallas``: (tsdf, weight) of ``volume`` updated by one Pallas kernel a plane of voxels (x
-    fixed: Y x Z voxels a program), in place. depth: [H W] m (0 = no return); base: [3], step: [3, 3] as in
-    ``_camera_coords``. Under vmap, the batch is a grid axis of the same kernel."""
+                    step: jax.Array) -> tuple[jax.Array, jax.Array] | None:
+    """``FusionKernel.pallas``: (tsdf, weight) of ``volume`` updated by one Pallas kernel, ``_KERNEL_VOXELS``
+    consecutive voxels (x-major) a program, in place; None where the volume's voxel count has no power-of-two
+    factor of at least 128 (the caller fuses with XLA). depth: [H W] m (0 = no return); base: [3], step: [3, 3]
+    as in ``_camera_coords``. Under vmap, the batch is a grid axis of the same kernel."""
     X, Y, Z = volume.shape
-    plane = Y * Z
+    count = X * Y * Z
+    block = math.gcd(count, _KERNEL_VOXELS)
+    if block < 128:
+        return None
     params = jnp.concatenate([base, step.reshape(-1), jnp.zeros(4, jnp.float32)])  # [16]: base, step row-major
     storage = volume.storage
 
     def kernel(params_ref, depth_ref, tsdf_ref, weight_ref, tsdf_out, weight_out) -> None:  # (Pallas refs)
-        flat = jax.lax.iota(jnp.int32, plane)
-        i = pl.program_id(0).astype(jnp.float32)
-        j, k = (flat // Z).astype(jnp.float32), (flat % Z).astype(jnp.float32)
+        voxel = pl.program_id(0) * block + jax.lax.iota(jnp.int32, block)  # (flat index, x-major)
+        i = (voxel // (Y * Z)).astype(jnp.float32)
+        j = (voxel // Z % Y).astype(jnp.float32)
+        k = (voxel % Z).astype(jnp.float32)
         coords = _camera_coords(lambda r: params_ref[r], lambda r, a: params_ref[3 + 3 * r + a], i, j, k)
         tsdf_out[...], weight_out[...] = _voxel_update(coords, tsdf_ref[...], weight_ref[...],
                                                        lambda pixel: depth_ref[pixel], intrinsics,
                                                        volume.truncation, storage, round_half_even)
 
-    planes = pl.BlockSpec((plane,), lambda n: (n,))
+    blocks = pl.BlockSpec((block,), lambda n: (n,))
     whole = [pl.BlockSpec((a.size,), lambda n: (0,)) for a in (params, depth)]
-    tsdf, weight = pl.pallas_call(
-        kernel, grid=(X,), in_specs=[*whole, planes, planes], out_specs=[planes, planes],
-        out_shape=[jax.ShapeDtypeStruct((X * plane,), a.dtype) for a in (volume.tsdf, volume.weight)],
-        input_output_aliases={2: 0, 3: 1}, interpret=jax.default_backend() != "gpu",
-        name="tsdf_fusion")(params, depth, volume.tsdf.reshape(-1), volume.weight.reshape(-1))
+    tsdf, weight = kernels.pallas_call(
+        kernel, grid=(count // block,), in_specs=[*whole, blocks, blocks], out_specs=[blocks, blocks],
+        out_shape=[jax.ShapeDtypeStruct((count,), a.dtype) for a in (volume.tsdf, volume.weight)],
+        input_output_aliases={2: 0, 3: 1}, name="tsdf_fusion")(
+            params, depth, volume.tsdf.reshape(-1), volume.weight.reshape(-1))
     return tsdf.reshape(volume.shape), weight.reshape(volume.shape)
 
 
@@ -328,9 +353,11 @@ def _integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_w
     R, t = T_wc[:3, :3], T_wc[:3, 3]
     base = R.T @ (volume.origin - t)
     step = volume.voxel_size * R.T  # column a: camera-frame step of one voxel along world axis a
+    fused = None
     if FusionKernel(kernel) is FusionKernel.pallas:
-        tsdf, weight = _fuse_in_kernel(volume, depth, intrinsics, base, step)
-        return volume.replace(tsdf=tsdf, weight=weight)
+        fused = _fuse_in_kernel(volume, depth, intrinsics, base, step)
+    if fused is not None:
+        return volume.replace(tsdf=fused[0], weight=fused[1])
     X, Y, Z = volume.shape
     if X % slabs:
         raise ValueError(f"integrate: slabs ({slabs}) must divide the volume's {X} voxels along x")
