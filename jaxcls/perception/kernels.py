@@ -14,12 +14,13 @@ from typing import Any
 
 import jax
 from jax.experimental import pallas as pl
-from jax.experimental.pallas import triton as plgpu
 
 
 def pallas_call(kernel: Callable[..., None], *, num_warps: int = 4, **kwargs: Any) -> Callable[..., Any]:
     """``pl.pallas_call(kernel, **kwargs)``, compiled by Triton (``num_warps`` warps a program) where the program
     is lowered for a CUDA GPU and interpreted elsewhere; its batching under ``vmap`` is Pallas' (a grid axis)."""
+    from jax.experimental.pallas import triton as plgpu  # (here: the package imports whatever Pallas' backends)
+
     compiled = pl.pallas_call(kernel, compiler_params=plgpu.CompilerParams(num_warps=num_warps), **kwargs)
     interpreted = pl.pallas_call(kernel, interpret=True, **kwargs)
 
