@@ -379,7 +379,9 @@ def test_slabs_in_place_equals_slice_and_update_under_vmap_loops_and_grad():
          jax.grad(loss(_plain_slabs), argnums=(0, 1))(a[0], scale[0]))
     same(jax.vmap(jax.grad(loss(tsdf.slabs_in_place), argnums=1))(a, scale),
          jax.vmap(jax.grad(loss(_plain_slabs), argnums=1))(a, scale))
-    batch_loss = lambda form: lambda s: jnp.sum(jax.vmap(loss(form))(a, s))  # noqa: E731
+    def batch_loss(form):
+        return lambda s: jnp.sum(jax.vmap(loss(form))(a, s))
+
     same(jax.grad(batch_loss(tsdf.slabs_in_place))(scale), jax.grad(batch_loss(_plain_slabs))(scale))
     same(jax.jvp(lambda s: loss(tsdf.slabs_in_place)(a[0], s), (scale[0],), (1.0,)),
          jax.jvp(lambda s: loss(_plain_slabs)(a[0], s), (scale[0],), (1.0,)))
