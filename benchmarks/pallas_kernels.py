@@ -17,6 +17,7 @@ bfloat16). Off a GPU the kernels are interpreted (slow: use a small ``--batch``)
 from __future__ import annotations
 
 import argparse
+import functools
 import statistics
 from collections.abc import Callable
 
@@ -71,14 +72,16 @@ def main(argv: list[str] | None = None) -> None:
     w = jnp.asarray(rng.normal(size=(128, 1024)) * 0.1, jnp.float32)
 
     def product_then_max(x: jax.Array, mask: jax.Array, w: jax.Array) -> jax.Array:
-        z = jnp.einsum("...pi,io->...op", x, w.astype(x.dtype))
-        return jnp.max(jnp.where(mask[..., None, :], z, -jnp.inf), axis=-1)
+        return pointnet._max_product(x, mask, w.astype(x.dtype))
 
+    on_gpu = jax.default_backend() == "gpu"  # (elsewhere the kernels' `pallas` would be the XLA programs)
+    fusion = tsdf.FusionKernel.pallas if on_gpu else tsdf.FusionKernel.interpreted
     pairs = {
         "fusion": (("vectorised, 8 slabs (xla)", fuse(tsdf.FusionKernel.xla, 8)),
-                   ("one kernel in place (pallas)", fuse(tsdf.FusionKernel.pallas, 1)), (volumes, depths, poses)),
+                   (f"one kernel in place ({fusion})", fuse(fusion, 1)), (volumes, depths, poses)),
         "PointNet's pooled product": (("product then max (xla)", jax.jit(product_then_max)),
-                                      ("running max (pallas)", jax.jit(pointnet._max_product_in_kernel)),
+                                      (f"running max ({fusion})", jax.jit(functools.partial(
+                                          pointnet._max_product_in_kernel, interpreted=not on_gpu))),
                                       (x, mask, w)),
     }
     rows = []

@@ -97,8 +97,9 @@ def test_one_program_runs_every_row_as_its_own_program_does(data, tmp_path):
     one = batched.fetch(batched.dispatch(chosen, *padded, scene[:1], start[:1], keys[:1], size=len(scene)), 1)
     assert program._cache_size() == 1
     assert records(one, truths, scene[:1], start[:1], moves) == together[:1]
-    # Table 1's runner on four CPU-simulated devices (the frames split by scene, a resumed scene's call padded):
-    # the records of the row's own program on one device, each episode once, one compiled program.
+    # Table 1's runner on four CPU-simulated devices (the frames split by scene, a resumed scene's call padded;
+    # the scale configs' Pallas settings): the records of the row's own program on one device, each episode once,
+    # one compiled program.
     four = four_devices_run_table1(tmp_path)
     assert four["devices"] == 4 and four["programs"] == 1
     runs = np.tile(np.arange(RUNS), len(worlds))
@@ -114,7 +115,7 @@ def test_one_program_runs_every_row_as_its_own_program_does(data, tmp_path):
 
 
 _SHARDED = """
-import json, sys
+import dataclasses, json, sys
 from pathlib import Path
 import jax
 from tqdm.auto import tqdm
@@ -125,12 +126,15 @@ from jaxcls.episode import batched
 from jaxcls.experiments.table1 import runner
 from jaxcls.experiments.table1.config import Table1Config
 from jaxcls.experiments.table1.data import Chunk
-from jaxcls.perception import pointnet
+from jaxcls.perception import pointnet, tsdf
 from jaxcls.world.dataset import DatasetConfig
 
 depth, T_wc, worlds = t.scenes()
+# The scale configs' Pallas kernels, which off a GPU are the XLA programs: the records stay the reference's.
+perception = dataclasses.replace(t.SETTINGS.perception, classification_pooling=pointnet.PoolingKernel.pallas,
+                                 volume=dataclasses.replace(t.SETTINGS.perception.volume, kernel=tsdf.FusionKernel.pallas))
 config = Table1Config(out_dir={out!r}, runs=t.RUNS, moves=t.MOVES, rows=("vis_occl_hist_gr",), scene_chunk=4,
-                      classifiers={{"shipped": ""}}, perception=t.SETTINGS.perception)
+                      classifiers={{"shipped": ""}}, perception=perception)
 
 
 class Frames:  # the scenes' frames, handed out as Table 1's scene set does

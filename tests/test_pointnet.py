@@ -283,9 +283,10 @@ def _has_pallas_call(f, *args) -> bool:
 
 
 def test_pallas_pooling_equals_the_product_then_the_max():
-    """``PoolingKernel.pallas`` (one kernel a block of channels, a running max over the points; interpreted off a
-    GPU) pools as the product then the max does, in bfloat16: the shipped weights' three pooled MLPs over clouds
-    with padding and an empty one; it runs only where it applies (bfloat16, powers of two), else the product."""
+    """The Pallas pooling (one kernel a block of channels, a running max over the points; here
+    ``PoolingKernel.interpreted``) pools as the product then the max does, in bfloat16: the shipped weights' three
+    pooled MLPs over clouds with padding and an empty one; it runs only where it applies (bfloat16, powers of two),
+    else the product. ``PoolingKernel.pallas`` off a GPU is the product then the max, bit for bit."""
     variables = jax.tree.map(lambda a: a.astype(jnp.bfloat16) if jnp.issubdtype(a.dtype, jnp.floating) else a,
                              pointnet.load_classifier().variables)
     x = jax.random.normal(jax.random.key(5), (3, 256, 128)).astype(jnp.bfloat16)
@@ -293,16 +294,20 @@ def test_pallas_pooling_equals_the_product_then_the_max():
     for path, sub, cin in _pooled_mlps(variables):
         runs = {k: functools.partial(pointnet._SharedMLP((64, 128, 1024), 0.9, pool=True, pooling=k).apply, sub,
                                      train=False) for k in pointnet.PoolingKernel}
-        got, want = (np.asarray(runs[k](x[..., :cin], mask), np.float32) for k in pointnet.PoolingKernel)
+        got, fallback, want = (np.asarray(runs[k](x[..., :cin], mask), np.float32) for k in
+                               (pointnet.PoolingKernel.interpreted, pointnet.PoolingKernel.pallas,
+                                pointnet.PoolingKernel.xla))
         np.testing.assert_allclose(got, want, rtol=1e-2, atol=1e-2, err_msg=str(path))  # (bfloat16: ~4e-3)
+        np.testing.assert_array_equal(fallback, want, err_msg=str(path))
         assert not np.any(got[2]) and np.any(got[1] > 0), path
+        assert _has_pallas_call(runs[pointnet.PoolingKernel.interpreted], x[..., :cin], mask), path
         assert _has_pallas_call(runs[pointnet.PoolingKernel.pallas], x[..., :cin], mask), path
         # 90 points (not a power of two), or float32: the product then the max, the kernel not traced
         assert not _has_pallas_call(runs[pointnet.PoolingKernel.pallas], x[:, :90, :cin], mask[:, :90]), path
         assert not _has_pallas_call(runs[pointnet.PoolingKernel.pallas], x[..., :cin].astype(jnp.float32), mask)
     # The kernel alone: exactly the max over the real points of the product, -inf for none.
     w = jax.random.normal(jax.random.key(6), (128, 256)) * 0.1
-    ours = pointnet._max_product_in_kernel(x, mask, w)
+    ours = pointnet._max_product_in_kernel(x, mask, w, interpreted=True)
     z = np.asarray(x, np.float32) @ np.asarray(w.astype(jnp.bfloat16), np.float32)  # [3, 256, 256]
     reference = np.where(np.asarray(mask)[..., None], z, -np.inf).max(axis=1)
     assert ours.dtype == jnp.bfloat16 and ours.shape == (3, 256)
@@ -321,7 +326,7 @@ def test_pallas_pooling_predicts_as_the_product_does():
     points = np.stack([m.surface_points[rng.permutation(len(m.surface_points))[:256]]
                        for m in builtin_object_set(surface_samples=600).test[:6]])
     mask = np.ones(points.shape[:2], bool)
-    out = {k: pointnet.predict(classifier, points, mask, MatmulPrecision.bfloat16, k) for k in pointnet.PoolingKernel}
-    probs, reference = (np.asarray(out[k][0]) for k in pointnet.PoolingKernel)
+    probs, reference = (np.asarray(pointnet.predict(classifier, points, mask, MatmulPrecision.bfloat16, k)[0])
+                        for k in (pointnet.PoolingKernel.interpreted, pointnet.PoolingKernel.xla))
     np.testing.assert_array_equal(np.argmax(probs, -1), np.argmax(reference, -1))
     np.testing.assert_allclose(probs, reference, atol=0.02)

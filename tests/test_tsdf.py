@@ -411,12 +411,12 @@ def test_fusion_in_slabs_batched_equals_one_pass(scene_frames, storage):
 
 @pytest.mark.parametrize("storage", list(tsdf.VolumeStorage), ids=lambda s: s.value)  # (its encode is not str.encode)
 def test_pallas_fusion_equals_the_vectorised_fusion(scene_frames, storage):
-    """``FusionKernel.pallas`` (one kernel over blocks of 2,048 voxels, in place; interpreted off a GPU) fuses the
-    same volumes as the vectorised reference, as an episode holds them: a batch of volumes of their own (vmapped:
+    """The Pallas fusion (one kernel over blocks of 2,048 voxels, in place; here ``FusionKernel.interpreted``) fuses
+    the same volumes as the vectorised reference, as an episode holds them: a batch of volumes of their own (vmapped:
     the batch a grid axis), each fusing three views in turn under ``lax.scan`` (each view reads what the last wrote
     in place). The weights are equal; the values within float32 rounding (a compact volume: one step of its fixed
     point). A 48^3 volume (planes of 2,304 voxels: not a power of two) runs the kernel; a 30^3 one (no power-of-two
-    factor of 128) the vectorised fusion."""
+    factor of 128) the vectorised fusion. ``FusionKernel.pallas`` off a GPU is the vectorised fusion, bit for bit."""
     _, _, centre, intr, views, depths = scene_frames
     views, depths = jnp.asarray(views[:6], jnp.float32), jnp.asarray(depths[:6])
 
@@ -435,11 +435,15 @@ def test_pallas_fusion_equals_the_vectorised_fusion(scene_frames, storage):
     tolerance = 1e-5 if storage is tsdf.VolumeStorage.float32 else 1.5 / tsdf.COMPACT_SCALE  # (< 2 steps)
     for resolution in (64, 48):
         volumes = empty(resolution)
-        ours, reference = episodes(tsdf.FusionKernel.pallas, volumes), episodes(tsdf.FusionKernel.xla, volumes)
+        ours, reference = (episodes(k, volumes) for k in (tsdf.FusionKernel.interpreted, tsdf.FusionKernel.xla))
         np.testing.assert_array_equal(np.asarray(ours.weight), np.asarray(reference.weight))
         assert np.asarray(reference.weight).max() == 3  # (every view sees the scene)
         np.testing.assert_allclose(np.asarray(ours.values), np.asarray(reference.values), rtol=0, atol=tolerance)
-        assert "pallas_call" in str(jax.make_jaxpr(lambda v: episodes(tsdf.FusionKernel.pallas, v))(volumes))
+        fallback = episodes(tsdf.FusionKernel.pallas, volumes)
+        for a, b in zip(jax.tree.leaves(fallback), jax.tree.leaves(reference), strict=True):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        for kernel in (tsdf.FusionKernel.interpreted, tsdf.FusionKernel.pallas):
+            assert "pallas_call" in str(jax.make_jaxpr(lambda v, k=kernel: episodes(k, v))(volumes))
     assert "pallas_call" not in str(jax.make_jaxpr(lambda v: episodes(tsdf.FusionKernel.pallas, v))(empty(30)))
 
 

@@ -89,23 +89,34 @@ _BN_EPSILON = 1e-5  # the shared MLPs' batch norm (flax's default), which ``_poo
 
 class PoolingKernel(enum.StrEnum):
     """How the network's pooled layers run at inference (``perception.classification_pooling``): ``xla``, the
-    product [B, C, P] written out and its max over the points taken (the reference); ``pallas``, one Pallas
-    kernel a block of 128 channels keeping a running max over the points, the product never written. The kernel
-    runs where the network computes in bfloat16 (``MatmulPrecision.bfloat16``) and the points, the layer's inputs
-    and channels are powers of two (>= 16); elsewhere ``xla``. ``kernels.pallas_call``: Triton on a GPU,
-    interpreted elsewhere, slowly."""
+    product [B, C, P] written out and its max over the points taken (the reference); ``pallas``, on a GPU one
+    Pallas kernel a block of 128 channels keeping a running max over the points, the product never written
+    (Triton), on any other platform ``xla`` (``kernels.pallas_call``); ``interpreted``, that kernel interpreted on
+    every platform (slow: to check the kernel off a GPU). The kernel runs where the network computes in bfloat16
+    (``MatmulPrecision.bfloat16``) and the points, the layer's inputs and channels are powers of two (>= 16);
+    elsewhere ``xla``."""
 
     xla = "xla"
     pallas = "pallas"
+    interpreted = "interpreted"
 
 
 _POOL_CHANNELS, _POOL_POINTS = 128, 64  # the Pallas kernel's block: channels a program, points a step
 
 
-def _max_product_in_kernel(x: jax.Array, mask: jax.Array, w: jax.Array) -> jax.Array | None:
+def _max_product(x: jax.Array, mask: jax.Array, w: jax.Array) -> jax.Array:
+    """[..., C] max over the real points p of ``x[..., p, :] @ w`` (-inf where none is real), the product
+    [..., C, P] written out (``PoolingKernel.xla``). x: [..., P, Cin]; mask: [..., P] bool; w: [Cin, C]."""
+    z = jnp.einsum("...pi,io->...op", x, w)  # [..., C, P]: the max runs along the minor axis
+    return jnp.max(jnp.where(mask[..., None, :], z, -jnp.inf), axis=-1)
+
+
+def _max_product_in_kernel(x: jax.Array, mask: jax.Array, w: jax.Array,
+                           interpreted: bool = False) -> jax.Array | None:
     """[..., C] max over the real points p of ``x[..., p, :] @ w`` (-inf where none is real) by one Pallas kernel,
-    accumulated and compared in float32 and returned in ``x``'s type; None where the kernel does not apply
-    (``PoolingKernel``). x: [..., P, Cin] bfloat16; mask: [..., P] bool; w: [Cin, C]."""
+    accumulated and compared in float32 and returned in ``x``'s type (off a GPU, ``_max_product`` unless
+    ``interpreted``); None where the kernel does not apply (``PoolingKernel``). x: [..., P, Cin] bfloat16; mask:
+    [..., P] bool; w: [Cin, C]."""
     P, Cin = x.shape[-2:]
     C = w.shape[-1]
 
@@ -128,9 +139,12 @@ def _max_product_in_kernel(x: jax.Array, mask: jax.Array, w: jax.Array) -> jax.A
         best = jax.lax.fori_loop(0, P // BP, step, jnp.full((BC,), -jnp.inf, jnp.float32))
         out_ref[...] = best.astype(out_ref.dtype)
 
+    def product(x: jax.Array, mask: jax.Array, w: jax.Array) -> jax.Array:  # (the kernel's arguments and result)
+        return _max_product(x, mask > 0, w)
+
     def one(x: jax.Array, mask: jax.Array) -> jax.Array:  # x: [P, Cin], mask: [P] f32
         return kernels.pallas_call(
-            kernel, grid=(C // BC,),
+            kernel, fallback=None if interpreted else product, grid=(C // BC,),
             in_specs=[pl.BlockSpec((P, Cin), lambda j: (0, 0)), pl.BlockSpec((P,), lambda j: (0,)),
                       pl.BlockSpec((Cin, BC), lambda j: (0, j))],
             out_specs=pl.BlockSpec((BC,), lambda j: (j,)), out_shape=jax.ShapeDtypeStruct((C,), x.dtype),
@@ -179,10 +193,12 @@ def _pooled_inference(x: jax.Array, mask: jax.Array, dense: dict, norm: dict, st
     a = norm["scale"] * jax.lax.rsqrt(stats["var"] + _BN_EPSILON)
     shift = a * (dense["bias"] - stats["mean"]) + norm["bias"]
     kernel = dense["kernel"] * a
-    pooled = _max_product_in_kernel(x, mask, kernel) if PoolingKernel(pooling) is PoolingKernel.pallas else None
+    pooling = PoolingKernel(pooling)
+    pooled = None
+    if pooling is not PoolingKernel.xla:
+        pooled = _max_product_in_kernel(x, mask, kernel, pooling is PoolingKernel.interpreted)
     if pooled is None:
-        z = jnp.einsum("...pi,io->...op", x, kernel)  # [B, C, P]: the max runs along the minor axis
-        pooled = jnp.max(jnp.where(mask[..., None, :], z, -jnp.inf), axis=-1)
+        pooled = _max_product(x, mask, kernel)
     return jnp.where(jnp.any(mask, axis=-1)[..., None], nn.relu(pooled + shift), 0.0)
 
 

@@ -227,15 +227,17 @@ def slabs_in_place(values: Callable[..., tuple[jax.Array, ...]], start: int | ja
 
 class FusionKernel(enum.StrEnum):
     """How ``integrate`` updates the voxels (``perception.volume.kernel``): ``xla``, vectorised JAX over the volume
-    (or its ``slabs``), the reference; ``pallas``, one Pallas kernel over blocks of 2,048 voxels reading the volume
-    and writing it in place, no temporaries in memory (``kernels.pallas_call``: Triton on a GPU, interpreted
-    elsewhere, slowly; not differentiable; a volume whose voxel count has no power-of-two factor of 128 or more
-    takes ``xla``). Both compute the same float32 arithmetic (``_voxel_update``). A limit of JAX's Triton lowering:
-    a compact volume's uint8 weights batched 1,025 to 2,048 to a device (2^31 to 2^32 bytes of 128^3 volumes) are
-    addressed with 32-bit offsets that overflow; ``check_kernel_batch`` refuses that batch."""
+    (or its ``slabs``), the reference; ``pallas``, on a GPU one Pallas kernel over blocks of 2,048 voxels reading
+    the volume and writing it in place, no temporaries in memory (Triton), on any other platform ``xla``
+    (``kernels.pallas_call``); ``interpreted``, that kernel interpreted on every platform (slow: to check the
+    kernel off a GPU). The kernel is not differentiable; a volume whose voxel count has no power-of-two factor of
+    128 or more takes ``xla``. Both compute the same float32 arithmetic (``_voxel_update``). A limit of JAX's
+    Triton lowering: a compact volume's uint8 weights batched 1,025 to 2,048 to a device (2^31 to 2^32 bytes of
+    128^3 volumes) are addressed with 32-bit offsets that overflow; ``check_kernel_batch`` refuses that batch."""
 
     xla = "xla"
     pallas = "pallas"
+    interpreted = "interpreted"
 
 
 def check_kernel_batch(kernel: FusionKernel, storage: VolumeStorage, resolution: int, volumes: int) -> None:
@@ -301,11 +303,42 @@ def _voxel_update(coords: tuple[jax.Array, jax.Array, jax.Array], tsdf: jax.Arra
 _KERNEL_VOXELS = 2048  # the Pallas fusion's voxels a program (a power of two: Triton's blocks)
 
 
+def _fuse_vectorised(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, base: jax.Array,
+                     step: jax.Array, slabs: int) -> tuple[jax.Array, jax.Array]:
+    """``FusionKernel.xla``: (tsdf, weight) of ``volume`` updated by vectorised JAX, in ``slabs`` passes along x
+    (in place, slab after slab: the temporaries span a slab). depth: [H W] m (0 = no return), flattened; base:
+    [3], step: [3, 3] as in ``_camera_coords``."""
+    X, Y, Z = volume.shape
+    if X % slabs:
+        raise ValueError(f"integrate: slabs ({slabs}) must divide the volume's {X} voxels along x")
+    sx = X // slabs
+
+    def update_slab(start: int | jax.Array, tsdf: jax.Array, weight: jax.Array, depth: jax.Array, base: jax.Array,
+                    step: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """New stored values of voxels x in [start, start + sx) from their old ones (tsdf, weight: [sx, Y, Z]):
+        the temporaries are a slab's, not the volume's (in float32)."""
+        i = (start + jnp.arange(sx)).astype(jnp.float32)[:, None, None]
+        j = jnp.arange(Y, dtype=jnp.float32)[None, :, None]
+        k = jnp.arange(Z, dtype=jnp.float32)[None, None, :]
+        coords = _camera_coords(lambda r: base[r], lambda r, a: step[r, a], i, j, k)
+        return _voxel_update(coords, tsdf, weight, lambda pixel: depth.at[pixel].get(mode="promise_in_bounds"),
+                             intrinsics, volume.truncation, volume.storage)
+
+    if slabs == 1:
+        return update_slab(0, volume.tsdf, volume.weight, depth, base, step)
+
+    def in_place(n: jax.Array, carry: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array]:
+        return slabs_in_place(update_slab, n * sx, sx, carry, depth, base, step)
+
+    return jax.lax.fori_loop(0, slabs, in_place, (volume.tsdf, volume.weight))
+
+
 def _fuse_in_kernel(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, base: jax.Array,
-                    step: jax.Array) -> tuple[jax.Array, jax.Array] | None:
-    """``FusionKernel.pallas``: (tsdf, weight) of ``volume`` updated by one Pallas kernel, ``_KERNEL_VOXELS``
-    consecutive voxels (x-major) a program, in place; None where the volume's voxel count has no power-of-two
-    factor of at least 128 (the caller fuses with XLA). depth: [H W] m (0 = no return); base: [3], step: [3, 3]
+                    step: jax.Array, slabs: int, interpreted: bool) -> tuple[jax.Array, jax.Array] | None:
+    """``FusionKernel.pallas`` / ``interpreted``: (tsdf, weight) of ``volume`` updated by one Pallas kernel,
+    ``_KERNEL_VOXELS`` consecutive voxels (x-major) a program, in place (off a GPU, ``_fuse_vectorised`` in
+    ``slabs`` passes, unless ``interpreted``); None where the volume's voxel count has no power-of-two factor of
+    at least 128 (the caller fuses with XLA). depth: [H W] m (0 = no return), flattened; base: [3], step: [3, 3]
     as in ``_camera_coords``. Under vmap, the batch is a grid axis of the same kernel."""
     X, Y, Z = volume.shape
     count = X * Y * Z
@@ -325,10 +358,17 @@ def _fuse_in_kernel(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics
                                                        lambda pixel: depth_ref[pixel], intrinsics,
                                                        volume.truncation, storage, round_half_even)
 
+    def vectorised(params: jax.Array, depth: jax.Array, tsdf: jax.Array,
+                   weight: jax.Array) -> tuple[jax.Array, jax.Array]:  # (the kernel's arguments and results)
+        flat = volume.replace(tsdf=tsdf.reshape(volume.shape), weight=weight.reshape(volume.shape))
+        fused = _fuse_vectorised(flat, depth, intrinsics, params[:3], params[3:12].reshape(3, 3), slabs)
+        return fused[0].reshape(-1), fused[1].reshape(-1)
+
     blocks = pl.BlockSpec((block,), lambda n: (n,))
     whole = [pl.BlockSpec((a.size,), lambda n: (0,)) for a in (params, depth)]
     tsdf, weight = kernels.pallas_call(
-        kernel, grid=(count // block,), in_specs=[*whole, blocks, blocks], out_specs=[blocks, blocks],
+        kernel, fallback=None if interpreted else vectorised, grid=(count // block,),
+        in_specs=[*whole, blocks, blocks], out_specs=[blocks, blocks],
         out_shape=[jax.ShapeDtypeStruct((count,), a.dtype) for a in (volume.tsdf, volume.weight)],
         input_output_aliases={2: 0, 3: 1}, name="tsdf_fusion")(
             params, depth, volume.tsdf.reshape(-1), volume.weight.reshape(-1))
@@ -353,35 +393,13 @@ def _integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_w
     R, t = T_wc[:3, :3], T_wc[:3, 3]
     base = R.T @ (volume.origin - t)
     step = volume.voxel_size * R.T  # column a: camera-frame step of one voxel along world axis a
+    kernel = FusionKernel(kernel)
     fused = None
-    if FusionKernel(kernel) is FusionKernel.pallas:
-        fused = _fuse_in_kernel(volume, depth, intrinsics, base, step)
-    if fused is not None:
-        return volume.replace(tsdf=fused[0], weight=fused[1])
-    X, Y, Z = volume.shape
-    if X % slabs:
-        raise ValueError(f"integrate: slabs ({slabs}) must divide the volume's {X} voxels along x")
-    sx = X // slabs
-
-    def update_slab(start: int | jax.Array, tsdf: jax.Array, weight: jax.Array, depth: jax.Array, base: jax.Array,
-                    step: jax.Array) -> tuple[jax.Array, jax.Array]:
-        """New stored values of voxels x in [start, start + sx) from their old ones (tsdf, weight: [sx, Y, Z]):
-        the temporaries are a slab's, not the volume's (in float32)."""
-        i = (start + jnp.arange(sx)).astype(jnp.float32)[:, None, None]
-        j = jnp.arange(Y, dtype=jnp.float32)[None, :, None]
-        k = jnp.arange(Z, dtype=jnp.float32)[None, None, :]
-        coords = _camera_coords(lambda r: base[r], lambda r, a: step[r, a], i, j, k)
-        return _voxel_update(coords, tsdf, weight, lambda pixel: depth.at[pixel].get(mode="promise_in_bounds"),
-                             intrinsics, volume.truncation, volume.storage)
-
-    if slabs == 1:
-        tsdf, weight = update_slab(0, volume.tsdf, volume.weight, depth, base, step)
-    else:  # in place, slab after slab: the temporaries (depth gathered per voxel, projections) span a slab
-        def in_place(n: jax.Array, carry: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array]:
-            return slabs_in_place(update_slab, n * sx, sx, carry, depth, base, step)
-
-        tsdf, weight = jax.lax.fori_loop(0, slabs, in_place, (volume.tsdf, volume.weight))
-    return volume.replace(tsdf=tsdf, weight=weight)
+    if kernel is not FusionKernel.xla:
+        fused = _fuse_in_kernel(volume, depth, intrinsics, base, step, slabs, kernel is FusionKernel.interpreted)
+    if fused is None:
+        fused = _fuse_vectorised(volume, depth, intrinsics, base, step, slabs)
+    return volume.replace(tsdf=fused[0], weight=fused[1])
 
 
 _integrate_jit = jax.jit(_integrate, static_argnames=("intrinsics", "max_depth", "slabs", "kernel"))
@@ -397,8 +415,8 @@ def integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_wc
     than the truncation, are updated; the others keep their value. Differentiable w.r.t. ``depth``.
     ``slabs`` (static; divides the voxels along x): the update in that many passes over slabs along x, the
     same values, its temporaries a slab's (``perception.volume.slabs``). ``kernel`` (static,
-    ``perception.volume.kernel``): vectorised JAX (``xla``) or a Pallas kernel updating the volume in place
-    (``pallas``: no temporaries, ``slabs`` unused; not differentiable).
+    ``perception.volume.kernel``): vectorised JAX (``xla``) or, on a GPU, a Pallas kernel updating the volume in
+    place (``pallas``: no temporaries, ``slabs`` unused there; not differentiable; ``FusionKernel``).
 
     Pure and jit-able (a module-level jit: called under another jit it inlines); it cannot raise on values,
     so a host frame is validated first with ``check_frame`` (shapes, a rigid finite pose), as
