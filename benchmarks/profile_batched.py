@@ -78,8 +78,9 @@ def table_rows(total: float, rows: list[tuple[str, str, float]], moves: int) -> 
 
 def trace_program(frames: str, batch: int, moves: int, workdir: Path,
                   product: str = "bfloat16") -> tuple[Path, Path, float, str]:
-    """Trace one call of Table 1's program at ``batch`` episodes of the scene in ``frames``, PointNet's products
-    in ``product`` (``perception.classification_precision``); returns (trace, HLO, untraced moves/s, device)."""
+    """Trace one call of Table 1's program at ``batch`` episodes of the scene in ``frames``, with the real-like
+    scale config's perception (``table1_real_like_scale``), PointNet's products in ``product``
+    (``perception.classification_precision``); returns (trace, HLO, untraced moves/s, device)."""
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + f" --xla_dump_to={workdir / 'dump'} "
                                "--xla_dump_hlo_as_text --xla_dump_hlo_module_re=jit__one "
                                "--xla_gpu_enable_command_buffer=")
@@ -90,7 +91,9 @@ def trace_program(frames: str, batch: int, moves: int, workdir: Path,
     import numpy as np
 
     from jaxcls import precision, report
+    from jaxcls.config import load_config
     from jaxcls.episode import active, batched, setup
+    from jaxcls.experiments.table1.config import Table1Config
     from jaxcls.geometry import Intrinsics
     from jaxcls.world.objects import object_set_from_config
     from jaxcls.world.scenes import Scene
@@ -100,10 +103,9 @@ def trace_program(frames: str, batch: int, moves: int, workdir: Path,
         depth = jnp.asarray(f["depth_mm"].astype(np.float32) / 1000.0)[None]
         T_wc = jnp.asarray(f["T_wc"], jnp.float32)[None]
         scene = Scene.from_dict(json.loads(str(f["scene_json"])), source=frames)
-    perception = setup.episode_perception()
-    perception = dataclasses.replace(  # the scale configs' layout (jaxcls/configs/table1_*_scale.yaml)
-        perception, volume=dataclasses.replace(perception.volume, storage="compact", slabs=8),
-        shapes=dataclasses.replace(perception.shapes, segments_per_pass=1), classification_precision=product)
+    # The real-like scale config's perception (its layout, tracking and kernels), PointNet's products in `product`
+    perception = dataclasses.replace(load_config(Table1Config, "table1_real_like_scale", []).perception,
+                                     classification_precision=product)
     episode = setup.make_episode(setup.ActiveConfig(episode=active.EpisodeConfig(moves=moves), perception=perception),
                                  object_set_from_config(scene.object_set), Intrinsics.kinect_v1(), scene.table_height)
     scenes = np.zeros(batch, np.int32)
