@@ -1,23 +1,26 @@
 """The move's two Pallas kernels against the XLA programs they replace, each alone, batched as in Table 1's
-program: the fusion (``perception.volume.kernel: pallas``: one kernel over blocks of 2,048 voxels, in place) against the
+program: the fusion (``perception.volume.kernel: pallas``: one kernel over blocks of voxels, in place) against the
 vectorised fusion in slabs, and PointNet's pooled product (``perception.classification_pooling: pallas``: a
 running max over the points, the product never written) against XLA's product then max.
 
     python benchmarks/pallas_kernels.py --batch 512 [--frames 4] [--repeats 5] [--out BENCHMARKS.md]
+    python benchmarks/pallas_kernels.py --batch 512 --fusion-blocks 2048w4 8192w8 --pool-blocks 128x64w4 128x32w4a
 
 The fusion: B compact 128^3 volumes (the scale configs' storage), each of its own, fusing ``--frames`` synthetic
-640x480 frames in turn (a tilted plane of depths seen from a camera 0.8-1.2 m away) under ``lax.scan``, vmapped,
-as an episode carries its volume; the pooling: B segments of
-256 points x 128 channels into 1,024 (the pooled MLPs' widest), bfloat16. Each pair jitted apart, called in
-turns (``--repeats``), median milliseconds a call after a compiling call; the outputs compared (fusion: the
-weights' share equal, the values' share differing and largest difference; pooling: the largest difference,
-bfloat16). Off a GPU the kernels are interpreted (slow: use a small ``--batch``).
+640x480 frames in turn (a tilted plane of depths seen from a camera 0.8-1.2 m away) under ``lax.scan``, vmapped, as
+an episode carries its volume, by each of ``--fusion-blocks`` (``tsdf.FusionBlocks``; default the move's
+``FUSION_BLOCKS``); the pooling: B segments of 256 points x 128 channels into 1,024 (the pooled MLPs' widest),
+bfloat16, by each of ``--pool-blocks`` (``pointnet.PoolBlocks``; default the networks' ``POOL_BLOCKS``). Each
+program jitted apart, called in turns (``--repeats``), median milliseconds a call after a compiling call; the
+outputs compared (fusion: the weights' share equal, the values' share differing and largest difference; pooling: the
+largest difference, bfloat16). Off a GPU the kernels are interpreted (slow: use a small ``--batch``).
 """
 
 from __future__ import annotations
 
 import argparse
 import functools
+import re
 import statistics
 from collections.abc import Callable
 
@@ -47,20 +50,58 @@ def fusion_inputs(batch: int, frames: int, seed: int = 0) -> tuple[tsdf.TSDFVolu
     return jax.tree.map(lambda a: jnp.broadcast_to(a, (batch, *a.shape)) + 0, volume), depths, jnp.asarray(poses)
 
 
+def agreement(stage: str, a, b) -> str:
+    """How a kernel's output ``b`` agrees with the XLA program's ``a``."""
+    if stage == "fusion":
+        same = float(np.mean(np.asarray(a.weight) == np.asarray(b.weight)))
+        gap = np.abs(np.asarray(a.values) - np.asarray(b.values))
+        return (f"weights equal {same:.6f}; values: {np.mean(gap > 1e-4):.2e} of voxels differ by > 1e-4 "
+                f"(a voxel projected to a neighbouring pixel), at most {gap.max():.2g}")
+    real = np.isfinite(np.asarray(a, np.float32))
+    return f"within {float(np.max(np.abs(np.asarray(a, np.float32) - np.asarray(b, np.float32))[real])):.2g}"
+
+
+def parse_blocks(text: str) -> pointnet.PoolBlocks:
+    """``CxPwW[a]`` (e.g. ``128x64w4``, ``256x32w8a``): channels, points, warps, ``a`` = accumulate."""
+    match = re.fullmatch(r"(\d+)x(\d+)w(\d+)(a?)", text)
+    if not match:
+        raise argparse.ArgumentTypeError(f"--pool-blocks: {text!r} is not CxPwW[a] (e.g. 128x64w4, 256x32w8a)")
+    return pointnet.PoolBlocks(int(match[1]), int(match[2]), int(match[3]), bool(match[4]))
+
+
+def parse_fusion_blocks(text: str) -> tsdf.FusionBlocks:
+    """``VwW`` (e.g. ``2048w4``): voxels a program, warps."""
+    match = re.fullmatch(r"(\d+)w(\d+)", text)
+    if not match:
+        raise argparse.ArgumentTypeError(f"--fusion-blocks: {text!r} is not VwW (e.g. 2048w4, 4096w8)")
+    return tsdf.FusionBlocks(int(match[1]), int(match[2]))
+
+
+def block_name(blocks: pointnet.PoolBlocks) -> str:
+    return f"{blocks.channels}x{blocks.points}w{blocks.warps}{'a' if blocks.accumulate else ''}"
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--batch", type=int, default=512, help="volumes (fusion) and segments (pooling) a call")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--frames", type=int, default=4, help="frames each volume fuses a call (the fusion)")
+    parser.add_argument("--fusion-blocks", nargs="+", type=parse_fusion_blocks, default=[tsdf.FUSION_BLOCKS],
+                        help="the fusion kernel's blocks to compare (tsdf.FusionBlocks as VwW: voxels a program, "
+                             "warps)")
+    parser.add_argument("--pool-blocks", nargs="+", type=parse_blocks, default=[pointnet.POOL_BLOCKS],
+                        help="the pooling kernel's blocks to compare (pointnet.PoolBlocks as CxPwW[a]: channels a "
+                             "program, points a step, warps, a = the max over the points at the end)")
     parser.add_argument("--out", help="append the table to this Markdown file")
     args = parser.parse_args(argv)
     intr = Intrinsics.kinect_v1()
     volumes, depths, poses = fusion_inputs(args.batch, args.frames)
 
-    def fuse(kernel: tsdf.FusionKernel, slabs: int) -> Callable[..., tsdf.TSDFVolume]:
+    def fuse(kernel: tsdf.FusionKernel, slabs: int,
+             blocks: tsdf.FusionBlocks = tsdf.FUSION_BLOCKS) -> Callable[..., tsdf.TSDFVolume]:
         def episode(volume: tsdf.TSDFVolume, depth: jax.Array, T_wc: jax.Array) -> tsdf.TSDFVolume:
             def frame(v: tsdf.TSDFVolume, f: tuple[jax.Array, jax.Array]) -> tuple[tsdf.TSDFVolume, None]:
-                return tsdf.integrate(v, f[0], intr, f[1], slabs=slabs, kernel=kernel), None
+                return tsdf.integrate(v, f[0], intr, f[1], slabs=slabs, kernel=kernel, blocks=blocks), None
 
             return jax.lax.scan(frame, volume, (depth, T_wc))[0]
 
@@ -76,37 +117,31 @@ def main(argv: list[str] | None = None) -> None:
 
     on_gpu = jax.default_backend() == "gpu"  # (elsewhere the kernels' `pallas` would be the XLA programs)
     fusion = tsdf.FusionKernel.pallas if on_gpu else tsdf.FusionKernel.interpreted
-    pairs = {
+    def pooling(blocks: pointnet.PoolBlocks) -> Callable[..., jax.Array]:
+        return jax.jit(functools.partial(pointnet._max_product_in_kernel, interpreted=not on_gpu, blocks=blocks))
+
+    stages = {  # stage: (the XLA program, the kernels, inputs)
         "fusion": (("vectorised, 8 slabs (xla)", fuse(tsdf.FusionKernel.xla, 8)),
-                   (f"one kernel in place ({fusion})", fuse(fusion, 1)), (volumes, depths, poses)),
+                   [(f"one kernel in place ({fusion}, {b.voxels}w{b.warps})", fuse(fusion, 1, b))
+                    for b in args.fusion_blocks], (volumes, depths, poses)),
         "PointNet's pooled product": (("product then max (xla)", jax.jit(product_then_max)),
-                                      (f"running max ({fusion})", jax.jit(functools.partial(
-                                          pointnet._max_product_in_kernel, interpreted=not on_gpu))),
-                                      (x, mask, w)),
+                                      [(f"running max ({fusion}, {block_name(b)})", pooling(b))
+                                       for b in args.pool_blocks], (x, mask, w)),
     }
     rows = []
-    for stage, (reference, ours, inputs) in pairs.items():
-        for _, f in (reference, ours):  # (compiled first)
+    for stage, (reference, ours, inputs) in stages.items():
+        programs = dict([reference, *ours])
+        for f in programs.values():  # (compiled first)
             jax.block_until_ready(f(*inputs))
         seconds, outputs = report.interleaved(
-            {name: lambda f=f, inputs=inputs: f(*inputs) for name, f in (reference, ours)}, args.repeats)
+            {name: lambda f=f, inputs=inputs: f(*inputs) for name, f in programs.items()}, args.repeats)
         times = {name: [1e3 * s for s in t] for name, t in seconds.items()}
-        a, b = outputs[reference[0]], outputs[ours[0]]
-        if stage == "fusion":
-            same = float(np.mean(np.asarray(a.weight) == np.asarray(b.weight)))
-            gap = np.abs(np.asarray(a.values) - np.asarray(b.values))
-            agreement = (f"weights equal {same:.6f}; values: {np.mean(gap > 1e-4):.2e} of voxels differ by > 1e-4 "
-                         f"(a voxel projected to a neighbouring pixel), at most {gap.max():.2g}")
-        else:
-            real = np.isfinite(np.asarray(a, np.float32))
-            diff = float(np.max(np.abs(np.asarray(a, np.float32) - np.asarray(b, np.float32))[real]))
-            agreement = f"within {diff:.2g}"
         base = statistics.median(times[reference[0]])
-        for name in (reference[0], ours[0]):
+        for name in programs:
             ms = statistics.median(times[name])
             rows.append((stage, name, report.device_name(), args.batch, f"{ms:.2f}",
                          f"{min(times[name]):.2f}-{max(times[name]):.2f}", f"{base / ms:.2f}x",
-                         agreement if name == ours[0] else "-"))
+                         "-" if name == reference[0] else agreement(stage, outputs[reference[0]], outputs[name])))
     report.publish(report.section(
         "The move's Pallas kernels against XLA's", argv,
         ("stage", "program", "device", "batch", "median ms a call", "range", "speed-up", "agreement"), rows,

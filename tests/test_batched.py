@@ -131,8 +131,9 @@ from jaxcls.world.dataset import DatasetConfig
 
 depth, T_wc, worlds = t.scenes()
 # The scale configs' Pallas kernels, which off a GPU are the XLA programs: the records stay the reference's.
+volume = dataclasses.replace(t.SETTINGS.perception.volume, kernel=tsdf.FusionKernel.pallas)
 perception = dataclasses.replace(t.SETTINGS.perception, classification_pooling=pointnet.PoolingKernel.pallas,
-                                 volume=dataclasses.replace(t.SETTINGS.perception.volume, kernel=tsdf.FusionKernel.pallas))
+                                 volume=volume)
 config = Table1Config(out_dir={out!r}, runs=t.RUNS, moves=t.MOVES, rows=("vis_occl_hist_gr",), scene_chunk=4,
                       classifiers={{"shipped": ""}}, perception=perception)
 

@@ -426,10 +426,10 @@ def test_pallas_fusion_equals_the_vectorised_fusion(scene_frames, storage):
             volume = volume.replace(tsdf=storage.encode(volume.tsdf), weight=volume.weight.astype(jnp.uint8))
         return jax.tree.map(lambda a: jnp.stack([a, a]), volume)  # two episodes' volumes
 
-    def episodes(kernel, volumes):  # two episodes, three views each: views 0-2 and 3-5
+    def episodes(kernel, volumes, blocks=tsdf.FUSION_BLOCKS):  # two episodes, three views each: views 0-2, 3-5
         def one(volume, d, T):
-            return jax.lax.scan(lambda v, f: (tsdf.integrate(v, f[0], intr, f[1], kernel=kernel), None),
-                                volume, (d, T))[0]
+            return jax.lax.scan(lambda v, f: (tsdf.integrate(v, f[0], intr, f[1], kernel=kernel, blocks=blocks),
+                                              None), volume, (d, T))[0]
         return jax.jit(jax.vmap(one))(volumes, depths.reshape(2, 3, *depths.shape[1:]), views.reshape(2, 3, 4, 4))
 
     tolerance = 1e-5 if storage is tsdf.VolumeStorage.float32 else 1.5 / tsdf.COMPACT_SCALE  # (< 2 steps)
@@ -444,14 +444,21 @@ def test_pallas_fusion_equals_the_vectorised_fusion(scene_frames, storage):
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
         for kernel in (tsdf.FusionKernel.interpreted, tsdf.FusionKernel.pallas):
             assert "pallas_call" in str(jax.make_jaxpr(lambda v, k=kernel: episodes(k, v))(volumes))
+    # Other blocks (8,192 voxels: 4,096 of a 48^3 volume's, the largest power of two dividing it): the same volumes;
+    # blocks that are not powers of two refused by name.
+    other = episodes(tsdf.FusionKernel.interpreted, volumes, tsdf.FusionBlocks(8192, 8))
+    np.testing.assert_array_equal(np.asarray(other.weight), np.asarray(ours.weight))
+    np.testing.assert_allclose(np.asarray(other.values), np.asarray(ours.values), rtol=0, atol=tolerance)
+    with pytest.raises(ValueError, match="blocks"):
+        episodes(tsdf.FusionKernel.interpreted, volumes, tsdf.FusionBlocks(1000, 4))
     assert "pallas_call" not in str(jax.make_jaxpr(lambda v: episodes(tsdf.FusionKernel.pallas, v))(empty(30)))
 
 
 def test_pallas_kernels_lower_for_a_gpu(scene_frames):
     """Both Pallas kernels lower for a CUDA GPU (Triton) from this CPU, batched as an episode batches them: the
-    fusion of a compact volume and PointNet's pooled product, each a Triton call in the lowered program (not
-    Mosaic GPU, which cannot batch them). The batch sizes whose uint8 weights the kernel's 32-bit offsets cannot
-    address are refused (``check_kernel_batch``)."""
+    fusion of a compact volume and PointNet's pooled product, each with its default blocks and another, each a
+    Triton call in the lowered program (not Mosaic GPU, which cannot batch them). The batch sizes whose uint8
+    weights the kernel's 32-bit offsets cannot address are refused (``check_kernel_batch``)."""
     from jaxcls.perception import pointnet
 
     _, _, centre, intr, views, depths = scene_frames
@@ -459,11 +466,17 @@ def test_pallas_kernels_lower_for_a_gpu(scene_frames):
     volume = tsdf.create_volume(centre)
     volume = volume.replace(tsdf=storage.encode(volume.tsdf), weight=volume.weight.astype(jnp.uint8))
     volumes = jax.tree.map(lambda a: jnp.stack([a, a]), volume)
-    fuse = jax.vmap(lambda v, d, T: tsdf.integrate(v, d, intr, T, kernel=tsdf.FusionKernel.pallas))
+    def fuse(blocks):
+        return jax.vmap(lambda v, d, T: tsdf.integrate(v, d, intr, T, kernel=tsdf.FusionKernel.pallas, blocks=blocks))
+
+    def pool(blocks):
+        return jax.vmap(lambda x, m, w: pointnet._max_product_in_kernel(x, m, w, blocks=blocks), in_axes=(0, 0, None))
+
     x = jnp.zeros((2, 1, 256, 128), jnp.bfloat16)
-    pool = jax.vmap(lambda x, m, w: pointnet._max_product_in_kernel(x, m, w), in_axes=(0, 0, None))
-    for f, args in ((fuse, (volumes, jnp.asarray(depths[:2]), jnp.asarray(views[:2], jnp.float32))),
-                    (pool, (x, jnp.ones((2, 1, 256), bool), jnp.zeros((128, 1024))))):
+    frames = (volumes, jnp.asarray(depths[:2]), jnp.asarray(views[:2], jnp.float32))
+    segments = (x, jnp.ones((2, 1, 256), bool), jnp.zeros((128, 1024)))
+    for f, args in ((fuse(tsdf.FUSION_BLOCKS), frames), (fuse(tsdf.FusionBlocks(8192, 8)), frames),
+                    (pool(pointnet.POOL_BLOCKS), segments), (pool(pointnet.PoolBlocks(256, 32, 8, True)), segments)):
         try:
             text = jax.jit(f).trace(*args).lower(lowering_platforms=("cuda",)).as_text()
         except (RuntimeError, NotImplementedError) as e:  # (a jaxlib that cannot lower for CUDA without a GPU)

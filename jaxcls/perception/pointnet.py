@@ -23,7 +23,7 @@ import functools
 import json
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -101,7 +101,20 @@ class PoolingKernel(enum.StrEnum):
     interpreted = "interpreted"
 
 
-_POOL_CHANNELS, _POOL_POINTS = 128, 64  # the Pallas kernel's block: channels a program, points a step
+class PoolBlocks(NamedTuple):
+    """The Pallas pooling's blocks (``PoolingKernel.pallas``; a GPU's speed, not its values, depends on them):
+    ``channels`` a program (its grid: segments x C / channels), ``points`` a step of its loop over the points,
+    ``warps`` a program (Triton), and the max over the points taken each step (``accumulate=False``: a [channels]
+    running max) or once at the end (``True``: a [points, channels] running elementwise max, no reduction across
+    threads in the loop). Powers of two; clipped to the layer's sizes."""
+
+    channels: int = 128
+    points: int = 64
+    warps: int = 4
+    accumulate: bool = False
+
+
+POOL_BLOCKS = PoolBlocks()  # the kernel's blocks in every network (benchmarks/pallas_kernels.py --pool-blocks)
 
 
 def _max_product(x: jax.Array, mask: jax.Array, w: jax.Array) -> jax.Array:
@@ -111,12 +124,12 @@ def _max_product(x: jax.Array, mask: jax.Array, w: jax.Array) -> jax.Array:
     return jnp.max(jnp.where(mask[..., None, :], z, -jnp.inf), axis=-1)
 
 
-def _max_product_in_kernel(x: jax.Array, mask: jax.Array, w: jax.Array,
-                           interpreted: bool = False) -> jax.Array | None:
-    """[..., C] max over the real points p of ``x[..., p, :] @ w`` (-inf where none is real) by one Pallas kernel,
-    accumulated and compared in float32 and returned in ``x``'s type (off a GPU, ``_max_product`` unless
-    ``interpreted``); None where the kernel does not apply (``PoolingKernel``). x: [..., P, Cin] bfloat16; mask:
-    [..., P] bool; w: [Cin, C]."""
+def _max_product_in_kernel(x: jax.Array, mask: jax.Array, w: jax.Array, interpreted: bool = False,
+                           blocks: PoolBlocks = POOL_BLOCKS) -> jax.Array | None:
+    """[..., C] max over the real points p of ``x[..., p, :] @ w`` (-inf where none is real) by one Pallas kernel
+    (``blocks``), accumulated and compared in float32 and returned in ``x``'s type (off a GPU, ``_max_product``
+    unless ``interpreted``); None where the kernel does not apply (``PoolingKernel``). x: [..., P, Cin] bfloat16;
+    mask: [..., P] bool; w: [Cin, C]."""
     P, Cin = x.shape[-2:]
     C = w.shape[-1]
 
@@ -125,7 +138,9 @@ def _max_product_in_kernel(x: jax.Array, mask: jax.Array, w: jax.Array,
 
     if x.dtype != jnp.bfloat16 or not (power_of_two(P) and power_of_two(Cin) and power_of_two(C)):
         return None
-    BC, BP = min(C, _POOL_CHANNELS), min(P, _POOL_POINTS)
+    if not all(map(power_of_two, blocks[:2])):
+        raise ValueError(f"pointnet: the pooling kernel's blocks {blocks} need powers of two of 16 or more")
+    BC, BP = min(C, blocks.channels), min(P, blocks.points)
 
     def kernel(x_ref, mask_ref, w_ref, out_ref) -> None:  # (Pallas refs)
         block = w_ref[...]
@@ -133,18 +148,19 @@ def _max_product_in_kernel(x: jax.Array, mask: jax.Array, w: jax.Array,
         def step(t: jax.Array, best: jax.Array) -> jax.Array:
             points = pl.ds(t * BP, BP)
             z = jnp.dot(x_ref[points, :], block, preferred_element_type=jnp.float32)  # [BP, BC]
-            real = mask_ref[points] > 0
-            return jnp.maximum(best, jnp.max(jnp.where(real[:, None], z, -jnp.inf), axis=0))
+            z = jnp.where((mask_ref[points] > 0)[:, None], z, -jnp.inf)
+            return jnp.maximum(best, z if blocks.accumulate else jnp.max(z, axis=0))
 
-        best = jax.lax.fori_loop(0, P // BP, step, jnp.full((BC,), -jnp.inf, jnp.float32))
-        out_ref[...] = best.astype(out_ref.dtype)
+        start = jnp.full((BP, BC) if blocks.accumulate else (BC,), -jnp.inf, jnp.float32)
+        best = jax.lax.fori_loop(0, P // BP, step, start)
+        out_ref[...] = (jnp.max(best, axis=0) if blocks.accumulate else best).astype(out_ref.dtype)
 
     def product(x: jax.Array, mask: jax.Array, w: jax.Array) -> jax.Array:  # (the kernel's arguments and result)
         return _max_product(x, mask > 0, w)
 
     def one(x: jax.Array, mask: jax.Array) -> jax.Array:  # x: [P, Cin], mask: [P] f32
         return kernels.pallas_call(
-            kernel, fallback=None if interpreted else product, grid=(C // BC,),
+            kernel, fallback=None if interpreted else product, num_warps=blocks.warps, grid=(C // BC,),
             in_specs=[pl.BlockSpec((P, Cin), lambda j: (0, 0)), pl.BlockSpec((P,), lambda j: (0,)),
                       pl.BlockSpec((Cin, BC), lambda j: (0, j))],
             out_specs=pl.BlockSpec((BC,), lambda j: (j,)), out_shape=jax.ShapeDtypeStruct((C,), x.dtype),

@@ -19,6 +19,7 @@ import enum
 import functools
 import math
 from collections.abc import Callable
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -227,13 +228,13 @@ def slabs_in_place(values: Callable[..., tuple[jax.Array, ...]], start: int | ja
 
 class FusionKernel(enum.StrEnum):
     """How ``integrate`` updates the voxels (``perception.volume.kernel``): ``xla``, vectorised JAX over the volume
-    (or its ``slabs``), the reference; ``pallas``, on a GPU one Pallas kernel over blocks of 2,048 voxels reading
-    the volume and writing it in place, no temporaries in memory (Triton), on any other platform ``xla``
-    (``kernels.pallas_call``); ``interpreted``, that kernel interpreted on every platform (slow: to check the
-    kernel off a GPU). The kernel is not differentiable; a volume whose voxel count has no power-of-two factor of
-    128 or more takes ``xla``. Both compute the same float32 arithmetic (``_voxel_update``). A limit of JAX's
-    Triton lowering: a compact volume's uint8 weights batched 1,025 to 2,048 to a device (2^31 to 2^32 bytes of
-    128^3 volumes) are addressed with 32-bit offsets that overflow; ``check_kernel_batch`` refuses that batch."""
+    (or its ``slabs``), the reference; ``pallas``, on a GPU one Pallas kernel over blocks of voxels
+    (``FusionBlocks``) reading the volume and writing it in place, no temporaries in memory (Triton), on any other
+    platform ``xla`` (``kernels.pallas_call``); ``interpreted``, that kernel interpreted on every platform (slow: to
+    check the kernel off a GPU). The kernel is not differentiable; a volume whose voxel count has no power-of-two
+    factor of 128 or more takes ``xla``. Both compute the same float32 arithmetic (``_voxel_update``). A limit of
+    JAX's Triton lowering: a compact volume's uint8 weights batched 1,025 to 2,048 to a device (2^31 to 2^32 bytes
+    of 128^3 volumes) are addressed with 32-bit offsets that overflow; ``check_kernel_batch`` refuses that batch."""
 
     xla = "xla"
     pallas = "pallas"
@@ -300,7 +301,16 @@ def _voxel_update(coords: tuple[jax.Array, jax.Array, jax.Array], tsdf: jax.Arra
     return storage.encode(new_tsdf, rounding), new_weight.astype(weight.dtype)
 
 
-_KERNEL_VOXELS = 2048  # the Pallas fusion's voxels a program (a power of two: Triton's blocks)
+class FusionBlocks(NamedTuple):
+    """The Pallas fusion's blocks (``FusionKernel.pallas``; a GPU's speed, not its values, depends on them):
+    ``voxels`` consecutive voxels a program (a power of two of 128 or more: Triton's blocks; a volume whose voxel
+    count it does not divide takes the largest power of two that does) and ``warps`` a program (Triton)."""
+
+    voxels: int = 2048
+    warps: int = 4
+
+
+FUSION_BLOCKS = FusionBlocks()  # the fusion's blocks wherever it runs (benchmarks/pallas_kernels.py --fusion-blocks)
 
 
 def _fuse_vectorised(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, base: jax.Array,
@@ -334,15 +344,18 @@ def _fuse_vectorised(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsic
 
 
 def _fuse_in_kernel(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, base: jax.Array,
-                    step: jax.Array, slabs: int, interpreted: bool) -> tuple[jax.Array, jax.Array] | None:
+                    step: jax.Array, slabs: int, interpreted: bool,
+                    blocks: FusionBlocks = FUSION_BLOCKS) -> tuple[jax.Array, jax.Array] | None:
     """``FusionKernel.pallas`` / ``interpreted``: (tsdf, weight) of ``volume`` updated by one Pallas kernel,
-    ``_KERNEL_VOXELS`` consecutive voxels (x-major) a program, in place (off a GPU, ``_fuse_vectorised`` in
+    ``blocks.voxels`` consecutive voxels (x-major) a program, in place (off a GPU, ``_fuse_vectorised`` in
     ``slabs`` passes, unless ``interpreted``); None where the volume's voxel count has no power-of-two factor of
     at least 128 (the caller fuses with XLA). depth: [H W] m (0 = no return), flattened; base: [3], step: [3, 3]
     as in ``_camera_coords``. Under vmap, the batch is a grid axis of the same kernel."""
     X, Y, Z = volume.shape
     count = X * Y * Z
-    block = math.gcd(count, _KERNEL_VOXELS)
+    if blocks.voxels < 128 or blocks.voxels & (blocks.voxels - 1):
+        raise ValueError(f"integrate: the fusion kernel's blocks {blocks} need a power of two of 128 or more voxels")
+    block = math.gcd(count, blocks.voxels)
     if block < 128:
         return None
     params = jnp.concatenate([base, step.reshape(-1), jnp.zeros(4, jnp.float32)])  # [16]: base, step row-major
@@ -364,11 +377,11 @@ def _fuse_in_kernel(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics
         fused = _fuse_vectorised(flat, depth, intrinsics, params[:3], params[3:12].reshape(3, 3), slabs)
         return fused[0].reshape(-1), fused[1].reshape(-1)
 
-    blocks = pl.BlockSpec((block,), lambda n: (n,))
+    voxels = pl.BlockSpec((block,), lambda n: (n,))
     whole = [pl.BlockSpec((a.size,), lambda n: (0,)) for a in (params, depth)]
     tsdf, weight = kernels.pallas_call(
-        kernel, fallback=None if interpreted else vectorised, grid=(count // block,),
-        in_specs=[*whole, blocks, blocks], out_specs=[blocks, blocks],
+        kernel, fallback=None if interpreted else vectorised, num_warps=blocks.warps, grid=(count // block,),
+        in_specs=[*whole, voxels, voxels], out_specs=[voxels, voxels],
         out_shape=[jax.ShapeDtypeStruct((count,), a.dtype) for a in (volume.tsdf, volume.weight)],
         input_output_aliases={2: 0, 3: 1}, name="tsdf_fusion")(
             params, depth, volume.tsdf.reshape(-1), volume.weight.reshape(-1))
@@ -376,7 +389,8 @@ def _fuse_in_kernel(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics
 
 
 def _integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_wc: jax.Array,
-               max_depth: float | None, slabs: int = 1, kernel: FusionKernel = FusionKernel.xla) -> TSDFVolume:
+               max_depth: float | None, slabs: int = 1, kernel: FusionKernel = FusionKernel.xla,
+               blocks: FusionBlocks = FUSION_BLOCKS) -> TSDFVolume:
     """Unjitted body of ``integrate`` (scanned by ``integrate_frames``)."""
     H, W = intrinsics.height, intrinsics.width
     if tuple(depth.shape) != (H, W) or tuple(T_wc.shape) != (4, 4):
@@ -396,18 +410,19 @@ def _integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_w
     kernel = FusionKernel(kernel)
     fused = None
     if kernel is not FusionKernel.xla:
-        fused = _fuse_in_kernel(volume, depth, intrinsics, base, step, slabs, kernel is FusionKernel.interpreted)
+        fused = _fuse_in_kernel(volume, depth, intrinsics, base, step, slabs, kernel is FusionKernel.interpreted,
+                                blocks)
     if fused is None:
         fused = _fuse_vectorised(volume, depth, intrinsics, base, step, slabs)
     return volume.replace(tsdf=fused[0], weight=fused[1])
 
 
-_integrate_jit = jax.jit(_integrate, static_argnames=("intrinsics", "max_depth", "slabs", "kernel"))
+_integrate_jit = jax.jit(_integrate, static_argnames=("intrinsics", "max_depth", "slabs", "kernel", "blocks"))
 
 
 def integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_wc: jax.Array,
               max_depth: float | None = None, slabs: int = 1,
-              kernel: FusionKernel = FusionKernel.xla) -> TSDFVolume:
+              kernel: FusionKernel = FusionKernel.xla, blocks: FusionBlocks = FUSION_BLOCKS) -> TSDFVolume:
     """Fuse one depth map: projective TSDF with a running average of weight-1 observations.
 
     depth: [H, W] z-depth, m (0, negative, NaN or inf = no return; returns beyond ``max_depth`` m are
@@ -416,14 +431,15 @@ def integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_wc
     ``slabs`` (static; divides the voxels along x): the update in that many passes over slabs along x, the
     same values, its temporaries a slab's (``perception.volume.slabs``). ``kernel`` (static,
     ``perception.volume.kernel``): vectorised JAX (``xla``) or, on a GPU, a Pallas kernel updating the volume in
-    place (``pallas``: no temporaries, ``slabs`` unused there; not differentiable; ``FusionKernel``).
+    place (``pallas``: no temporaries, ``slabs`` unused there; not differentiable; ``FusionKernel``) over
+    ``blocks`` (static; ``FusionBlocks``).
 
     Pure and jit-able (a module-level jit: called under another jit it inlines); it cannot raise on values,
     so a host frame is validated first with ``check_frame`` (shapes, a rigid finite pose), as
     ``observation.observe`` does (the shapes, being static, are checked here).
     """
     check_frame_shapes(depth, intrinsics, T_wc, "integrate")
-    return _integrate_jit(volume, depth, intrinsics, T_wc, max_depth, slabs, FusionKernel(kernel))
+    return _integrate_jit(volume, depth, intrinsics, T_wc, max_depth, slabs, FusionKernel(kernel), blocks)
 
 
 @functools.partial(jax.jit, static_argnames=("intrinsics", "max_depth"))
