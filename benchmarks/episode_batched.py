@@ -145,7 +145,7 @@ def main(argv: list[str] | None = None) -> None:
         first, times, final, trace, memory = {}, {m: [] for m in episodes}, {}, {}, {}
         for episode in episodes.values():
             volume = episode.spec.config.volume
-            tsdf.check_kernel_batch(volume.kernel, volume.storage, volume.resolution, B)
+            tsdf.check_kernel_batch(volume.kernel, volume.storage, volume.resolution, B, jax.devices()[0].platform)
         for mode, episode in episodes.items():
             states = jax.eval_shape(reset, episode, T_wc, starts, keys)
             analysis = rollout.lower(episode, states, depth, T_wc).compile().memory_analysis()

@@ -117,15 +117,17 @@ def main(argv: list[str] | None = None) -> None:
 
     on_gpu = jax.default_backend() == "gpu"  # (elsewhere the kernels' `pallas` would be the XLA programs)
     fusion = tsdf.FusionKernel.pallas if on_gpu else tsdf.FusionKernel.interpreted
+    kernel_name = "pallas" if on_gpu else "interpreted"
+
     def pooling(blocks: pointnet.PoolBlocks) -> Callable[..., jax.Array]:
         return jax.jit(functools.partial(pointnet._max_product_in_kernel, interpreted=not on_gpu, blocks=blocks))
 
     stages = {  # stage: (the XLA program, the kernels, inputs)
         "fusion": (("vectorised, 8 slabs (xla)", fuse(tsdf.FusionKernel.xla, 8)),
-                   [(f"one kernel in place ({fusion}, {b.voxels}w{b.warps})", fuse(fusion, 1, b))
+                   [(f"one kernel in place ({kernel_name}, {b.voxels}w{b.warps})", fuse(fusion, 1, b))
                     for b in args.fusion_blocks], (volumes, depths, poses)),
         "PointNet's pooled product": (("product then max (xla)", jax.jit(product_then_max)),
-                                      [(f"running max ({fusion}, {block_name(b)})", pooling(b))
+                                      [(f"running max ({kernel_name}, {block_name(b)})", pooling(b))
                                        for b in args.pool_blocks], (x, mask, w)),
     }
     rows = []

@@ -298,7 +298,8 @@ def test_pallas_pooling_equals_the_product_then_the_max():
                                (pointnet.PoolingKernel.interpreted, pointnet.PoolingKernel.pallas,
                                 pointnet.PoolingKernel.xla))
         np.testing.assert_allclose(got, want, rtol=1e-2, atol=1e-2, err_msg=str(path))  # (bfloat16: ~4e-3)
-        np.testing.assert_array_equal(fallback, want, err_msg=str(path))
+        if jax.default_backend() == "cpu":  # (on a GPU, `pallas` is the Triton kernel)
+            np.testing.assert_array_equal(fallback, want, err_msg=str(path))
         assert not np.any(got[2]) and np.any(got[1] > 0), path
         assert _has_pallas_call(runs[pointnet.PoolingKernel.interpreted], x[..., :cin], mask), path
         assert _has_pallas_call(runs[pointnet.PoolingKernel.pallas], x[..., :cin], mask), path

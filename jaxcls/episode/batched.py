@@ -221,7 +221,8 @@ def _placed(episode: active.Episode, depth: jax.Array | jax.ShapeDtypeStruct, T_
     """The program's arguments on their devices (frames split by scene or replicated, the episodes split); a
     ``jax.ShapeDtypeStruct`` ``depth`` (frames not yet rendered) becomes one with its sharding."""
     volume = episode.spec.config.volume
-    tsdf.check_kernel_batch(volume.kernel, volume.storage, volume.resolution, len(scene) // device_mesh.devices.size)
+    tsdf.check_kernel_batch(volume.kernel, volume.storage, volume.resolution, len(scene) // device_mesh.devices.size,
+                            device_mesh.devices.flat[0].platform)
     split = NamedSharding(device_mesh, PartitionSpec(AXIS))
     frames = split if split_scenes else NamedSharding(device_mesh, PartitionSpec())
     depth = (jax.ShapeDtypeStruct(depth.shape, jnp.float32, sharding=frames) if isinstance(depth, jax.ShapeDtypeStruct)

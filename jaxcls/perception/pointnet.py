@@ -90,11 +90,12 @@ _BN_EPSILON = 1e-5  # the shared MLPs' batch norm (flax's default), which ``_poo
 class PoolingKernel(enum.StrEnum):
     """How the network's pooled layers run at inference (``perception.classification_pooling``): ``xla``, the
     product [B, C, P] written out and its max over the points taken (the reference); ``pallas``, on a GPU one
-    Pallas kernel a block of 128 channels keeping a running max over the points, the product never written
-    (Triton), on any other platform ``xla`` (``kernels.pallas_call``); ``interpreted``, that kernel interpreted on
-    every platform (slow: to check the kernel off a GPU). The kernel runs where the network computes in bfloat16
-    (``MatmulPrecision.bfloat16``) and the points, the layer's inputs and channels are powers of two (>= 16);
-    elsewhere ``xla``."""
+    Pallas kernel a block of channels (``PoolBlocks``) keeping a running max over the points, the product never
+    written (Triton), on any other platform the product then the max in XLA (``kernels.pallas_call``; ``xla``'s
+    values where the weights are bfloat16, as the network's are in bfloat16); ``interpreted``, that kernel
+    interpreted on every platform (slow: to check the kernel off a GPU). The kernel runs where the network computes
+    in bfloat16 (``MatmulPrecision.bfloat16``) and the points, the layer's inputs and channels are powers of two
+    (>= 16); elsewhere ``xla``."""
 
     xla = "xla"
     pallas = "pallas"
@@ -114,7 +115,9 @@ class PoolBlocks(NamedTuple):
     accumulate: bool = False
 
 
-POOL_BLOCKS = PoolBlocks()  # the kernel's blocks in every network (benchmarks/pallas_kernels.py --pool-blocks)
+# The kernel's blocks in every network (a default argument: edit it here; benchmarks/pallas_kernels.py --pool-blocks
+# compares others)
+POOL_BLOCKS = PoolBlocks()
 
 
 def _max_product(x: jax.Array, mask: jax.Array, w: jax.Array) -> jax.Array:
@@ -133,13 +136,13 @@ def _max_product_in_kernel(x: jax.Array, mask: jax.Array, w: jax.Array, interpre
     P, Cin = x.shape[-2:]
     C = w.shape[-1]
 
-    def power_of_two(n: int) -> bool:  # (Triton's blocks; its products need 16 or more a side)
-        return n >= 16 and n & (n - 1) == 0
+    def power_of_two(n: int, least: int = 16) -> bool:  # (Triton's blocks; its products need 16 or more a side)
+        return n >= least and n & (n - 1) == 0
 
+    if not (power_of_two(blocks.channels) and power_of_two(blocks.points) and power_of_two(blocks.warps, 1)):
+        raise ValueError(f"pointnet: the pooling kernel's blocks {blocks} need powers of two (16 or more a side)")
     if x.dtype != jnp.bfloat16 or not (power_of_two(P) and power_of_two(Cin) and power_of_two(C)):
         return None
-    if not all(map(power_of_two, blocks[:2])):
-        raise ValueError(f"pointnet: the pooling kernel's blocks {blocks} need powers of two of 16 or more")
     BC, BP = min(C, blocks.channels), min(P, blocks.points)
 
     def kernel(x_ref, mask_ref, w_ref, out_ref) -> None:  # (Pallas refs)

@@ -6,14 +6,14 @@ YAML (the ``perception:`` block of a command's config)::
       foreground: {table_eps: 0.01, max_depth: 1.5}        # which pixels are objects
       volume: {center: [0, 0, 0.25], size: 0.6, resolution: 128, truncation_voxels: 4,  # the TSDF cube
                storage: float32, slabs: 1,         # or compact (tsdf.VolumeStorage): 6.3 MB, not 16.8 MB
-               kernel: xla}                        # or pallas (tsdf.FusionKernel): in place, one GPU kernel
+               kernel: xla}                        # or pallas, interpreted (tsdf.FusionKernel): one GPU kernel
       segmentation: {dbscan_eps: 0.01, ...}                # DBSCAN, footprint votes, K-means, twin bounds
       shapes: {num_segments: 5, points_per_segment: 1024, surface_points: 16384,       # static shapes
                segments_per_pass: 0}                     # PointNet's segments a pass (0: all)
       segmenter: jax                                       # or reference (scikit-learn, host)
       tracking: {mode: frame_to_model, ...}                # each frame registered to the model before fusion
       classification_precision: float32                    # or tf32, bfloat16: PointNet on a GPU's tensor cores
-      classification_pooling: xla                          # or pallas: its pooled layers as one GPU kernel (bf16)
+      classification_pooling: xla                          # or pallas, interpreted: the pooling as a GPU kernel
 
 The table height is not here: it belongs to the world (``SceneConfig.table_height``, a dataset's scene, a
 recording's ``meta.json``) and reaches perception through ``Spec.create(..., table_height=...)``. The
@@ -83,7 +83,8 @@ class VolumeConfig:
     truncation_voxels: float = bounded(4.0, gt=0.0)  # half-width of the TSDF band, in voxels
     storage: VolumeStorage = VolumeStorage.float32  # or compact: i16 values, u8 weights (3 of 8 bytes a voxel)
     # The fusion updates the volume in this many slabs along x, one after another: its float32 temporaries span
-    # a slab (what bounds a GPU's batch of episodes); 1 = one pass over the volume (the fastest on a CPU).
+    # a slab (what bounds a GPU's batch of episodes; the pallas kernel on a GPU has none and ignores them);
+    # 1 = one pass over the volume (the fastest on a CPU).
     slabs: int = bounded(1, ge=1)
     # How the fusion runs (tsdf.FusionKernel): xla (vectorised JAX, the reference; differentiable), pallas (on a GPU
     # one Triton kernel over blocks of voxels, updated in place, no temporaries; elsewhere xla) or interpreted (the

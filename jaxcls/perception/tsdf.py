@@ -241,11 +241,13 @@ class FusionKernel(enum.StrEnum):
     interpreted = "interpreted"
 
 
-def check_kernel_batch(kernel: FusionKernel, storage: VolumeStorage, resolution: int, volumes: int) -> None:
-    """Raise ValueError where ``volumes`` volumes of ``resolution``^3 voxels fused together on one device by the
-    Pallas kernel would overflow its 32-bit offsets (``FusionKernel``: a uint8 weights array of more than 2^31 and
-    at most 2^32 bytes)."""
-    if FusionKernel(kernel) is FusionKernel.pallas and VolumeStorage(storage) is VolumeStorage.compact:
+def check_kernel_batch(kernel: FusionKernel, storage: VolumeStorage, resolution: int, volumes: int,
+                       platform: str) -> None:
+    """Raise ValueError where ``volumes`` volumes of ``resolution``^3 voxels fused together on one device of
+    ``platform`` (``jax.Device.platform``) by the Pallas kernel compiled there would overflow its 32-bit offsets
+    (``FusionKernel``: a uint8 weights array of more than 2^31 and at most 2^32 bytes; only a GPU compiles it)."""
+    if (FusionKernel(kernel) is FusionKernel.pallas and VolumeStorage(storage) is VolumeStorage.compact
+            and platform == "gpu"):
         size = volumes * resolution ** 3  # (bytes of the batch's weights)
         if 2 ** 31 < size <= 2 ** 32:
             raise ValueError(f"perception.volume.kernel=pallas: {volumes} compact {resolution}^3 volumes on one "
@@ -310,7 +312,13 @@ class FusionBlocks(NamedTuple):
     warps: int = 4
 
 
-FUSION_BLOCKS = FusionBlocks()  # the fusion's blocks wherever it runs (benchmarks/pallas_kernels.py --fusion-blocks)
+# The fusion's blocks wherever it runs (a default argument: edit it here; benchmarks/pallas_kernels.py --fusion-blocks
+# compares others)
+FUSION_BLOCKS = FusionBlocks()
+
+
+def _power_of_two(n: int) -> bool:
+    return n >= 1 and n & (n - 1) == 0
 
 
 def _fuse_vectorised(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, base: jax.Array,
@@ -353,8 +361,8 @@ def _fuse_in_kernel(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics
     as in ``_camera_coords``. Under vmap, the batch is a grid axis of the same kernel."""
     X, Y, Z = volume.shape
     count = X * Y * Z
-    if blocks.voxels < 128 or blocks.voxels & (blocks.voxels - 1):
-        raise ValueError(f"integrate: the fusion kernel's blocks {blocks} need a power of two of 128 or more voxels")
+    if not (blocks.voxels >= 128 and _power_of_two(blocks.voxels) and _power_of_two(blocks.warps)):
+        raise ValueError(f"integrate: the fusion kernel's blocks {blocks} need powers of two (128 or more voxels)")
     block = math.gcd(count, blocks.voxels)
     if block < 128:
         return None
@@ -431,8 +439,8 @@ def integrate(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, T_wc
     ``slabs`` (static; divides the voxels along x): the update in that many passes over slabs along x, the
     same values, its temporaries a slab's (``perception.volume.slabs``). ``kernel`` (static,
     ``perception.volume.kernel``): vectorised JAX (``xla``) or, on a GPU, a Pallas kernel updating the volume in
-    place (``pallas``: no temporaries, ``slabs`` unused there; not differentiable; ``FusionKernel``) over
-    ``blocks`` (static; ``FusionBlocks``).
+    place (``pallas``: no temporaries; not differentiable; ``FusionKernel``) over ``blocks`` (static;
+    ``FusionBlocks``); ``slabs`` must divide the volume with either (``pallas`` off a GPU fuses in them).
 
     Pure and jit-able (a module-level jit: called under another jit it inlines); it cannot raise on values,
     so a host frame is validated first with ``check_frame`` (shapes, a rigid finite pose), as
