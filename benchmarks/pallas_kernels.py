@@ -62,11 +62,12 @@ def agreement(stage: str, a, b) -> str:
 
 
 def parse_blocks(text: str) -> pointnet.PoolBlocks:
-    """``CxPwW[a]`` (e.g. ``128x64w4``, ``256x32w8a``): channels, points, warps, ``a`` = accumulate."""
-    match = re.fullmatch(r"(\d+)x(\d+)w(\d+)(a?)", text)
+    """``CxPwW[gS][a]`` (e.g. ``128x64w4``, ``256x32w8g4a``): channels, points, warps, segments a program (1 unless
+    given), ``a`` = accumulate."""
+    match = re.fullmatch(r"(\d+)x(\d+)w(\d+)(?:g(\d+))?(a?)", text)
     if not match:
-        raise argparse.ArgumentTypeError(f"--pool-blocks: {text!r} is not CxPwW[a] (e.g. 128x64w4, 256x32w8a)")
-    return pointnet.PoolBlocks(int(match[1]), int(match[2]), int(match[3]), bool(match[4]))
+        raise argparse.ArgumentTypeError(f"--pool-blocks: {text!r} is not CxPwW[gS][a] (e.g. 128x64w4, 256x32w8g4a)")
+    return pointnet.PoolBlocks(int(match[1]), int(match[2]), int(match[3]), bool(match[5]), int(match[4] or 1))
 
 
 def parse_fusion_blocks(text: str) -> tsdf.FusionBlocks:
@@ -78,7 +79,8 @@ def parse_fusion_blocks(text: str) -> tsdf.FusionBlocks:
 
 
 def block_name(blocks: pointnet.PoolBlocks) -> str:
-    return f"{blocks.channels}x{blocks.points}w{blocks.warps}{'a' if blocks.accumulate else ''}"
+    group = f"g{blocks.segments}" if blocks.segments > 1 else ""
+    return f"{blocks.channels}x{blocks.points}w{blocks.warps}{group}{'a' if blocks.accumulate else ''}"
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -90,8 +92,9 @@ def main(argv: list[str] | None = None) -> None:
                         help="the fusion kernel's blocks to compare (tsdf.FusionBlocks as VwW: voxels a program, "
                              "warps)")
     parser.add_argument("--pool-blocks", nargs="+", type=parse_blocks, default=[pointnet.POOL_BLOCKS],
-                        help="the pooling kernel's blocks to compare (pointnet.PoolBlocks as CxPwW[a]: channels a "
-                             "program, points a step, warps, a = the max over the points at the end)")
+                        help="the pooling kernel's blocks to compare (pointnet.PoolBlocks as CxPwW[gS][a]: channels a "
+                             "program, points a step, warps, S segments a program, a = the max over the points at the "
+                             "end)")
     parser.add_argument("--out", help="append the table to this Markdown file")
     args = parser.parse_args(argv)
     intr = Intrinsics.kinect_v1()

@@ -315,10 +315,10 @@ def test_pallas_pooling_equals_the_product_then_the_max():
     np.testing.assert_allclose(np.asarray(ours, np.float32), reference.astype(jnp.bfloat16).astype(np.float32),
                                rtol=1e-2, atol=1e-3)
     assert np.all(np.isneginf(np.asarray(ours[2], np.float32)))
-    # Other blocks (the max over the points each step or at the end; blocks larger than the layer clipped): the
-    # same maxima; blocks that are not powers of two refused by name.
+    # Other blocks (the max over the points each step or at the end; blocks larger than the layer clipped; two
+    # segments a program, the three padded to four): the same maxima; blocks that are not powers of two refused.
     for blocks in (pointnet.PoolBlocks(256, 32, 8, True), pointnet.PoolBlocks(64, 512, 4, True),
-                   pointnet.PoolBlocks(32, 16, 2, False)):
+                   pointnet.PoolBlocks(32, 16, 2, False), pointnet.PoolBlocks(128, 64, 4, True, segments=2)):
         other = pointnet._max_product_in_kernel(x, mask, w, interpreted=True, blocks=blocks)
         np.testing.assert_allclose(np.asarray(other, np.float32), np.asarray(ours, np.float32), rtol=1e-2,
                                    atol=1e-3, err_msg=str(blocks))

@@ -478,7 +478,7 @@ def test_pallas_kernels_lower_for_a_gpu(scene_frames):
     frames = (volumes, jnp.asarray(depths[:2]), jnp.asarray(views[:2], jnp.float32))
     segments = (x, jnp.ones((2, 1, 256), bool), jnp.zeros((128, 1024)))
     for f, args in ((fuse(tsdf.FUSION_BLOCKS), frames), (fuse(tsdf.FusionBlocks(8192, 8)), frames),
-                    (pool(pointnet.POOL_BLOCKS), segments), (pool(pointnet.PoolBlocks(256, 32, 8, True)), segments)):
+                    (pool(pointnet.POOL_BLOCKS), segments), (pool(pointnet.PoolBlocks(256, 32, 8, True, 4)), segments)):
         try:
             text = jax.jit(f).trace(*args).lower(lowering_platforms=("cuda",)).as_text()
         except (RuntimeError, NotImplementedError) as e:  # (a jaxlib that cannot lower for CUDA without a GPU)

@@ -104,15 +104,17 @@ class PoolingKernel(enum.StrEnum):
 
 class PoolBlocks(NamedTuple):
     """The Pallas pooling's blocks (``PoolingKernel.pallas``; a GPU's speed, not its values, depends on them):
-    ``channels`` a program (its grid: segments x C / channels), ``points`` a step of its loop over the points,
-    ``warps`` a program (Triton), and the max over the points taken each step (``accumulate=False``: a [channels]
-    running max) or once at the end (``True``: a [points, channels] running elementwise max, no reduction across
-    threads in the loop). Powers of two; clipped to the layer's sizes."""
+    ``channels`` a program (its grid: segments / ``segments`` x C / channels), ``points`` a step of its loop over
+    the points, ``warps`` a program (Triton), the max over the points taken each step (``accumulate=False``: a
+    [channels] running max) or once at the end (``True``: a [points, channels] running elementwise max, no
+    reduction across threads in the loop), and ``segments`` a program, one after another (the same channels' weights
+    kept; the batch padded to a multiple). Powers of two; clipped to the layer's sizes."""
 
     channels: int = 128
     points: int = 64
     warps: int = 4
     accumulate: bool = False
+    segments: int = 1
 
 
 # The kernel's blocks in every network (a default argument: edit it here; benchmarks/pallas_kernels.py --pool-blocks
@@ -139,39 +141,49 @@ def _max_product_in_kernel(x: jax.Array, mask: jax.Array, w: jax.Array, interpre
     def power_of_two(n: int, least: int = 16) -> bool:  # (Triton's blocks; its products need 16 or more a side)
         return n >= least and n & (n - 1) == 0
 
-    if not (power_of_two(blocks.channels) and power_of_two(blocks.points) and power_of_two(blocks.warps, 1)):
+    if not (power_of_two(blocks.channels) and power_of_two(blocks.points) and power_of_two(blocks.warps, 1)
+            and power_of_two(blocks.segments, 1)):
         raise ValueError(f"pointnet: the pooling kernel's blocks {blocks} need powers of two (16 or more a side)")
     if x.dtype != jnp.bfloat16 or not (power_of_two(P) and power_of_two(Cin) and power_of_two(C)):
         return None
-    BC, BP = min(C, blocks.channels), min(P, blocks.points)
+    BC, BP, S = min(C, blocks.channels), min(P, blocks.points), blocks.segments
+    group = (S,) if S > 1 else ()  # (a program's segments: one, the refs without that axis)
 
     def kernel(x_ref, mask_ref, w_ref, out_ref) -> None:  # (Pallas refs)
         block = w_ref[...]
+        for s in range(S):  # (unrolled: S is small)
+            at = (s,) if group else ()
 
-        def step(t: jax.Array, best: jax.Array) -> jax.Array:
-            points = pl.ds(t * BP, BP)
-            z = jnp.dot(x_ref[points, :], block, preferred_element_type=jnp.float32)  # [BP, BC]
-            z = jnp.where((mask_ref[points] > 0)[:, None], z, -jnp.inf)
-            return jnp.maximum(best, z if blocks.accumulate else jnp.max(z, axis=0))
+            def step(t: jax.Array, best: jax.Array, at: tuple = at) -> jax.Array:
+                points = pl.ds(t * BP, BP)
+                z = jnp.dot(x_ref[(*at, points, slice(None))], block, preferred_element_type=jnp.float32)  # [BP, BC]
+                z = jnp.where((mask_ref[(*at, points)] > 0)[:, None], z, -jnp.inf)
+                return jnp.maximum(best, z if blocks.accumulate else jnp.max(z, axis=0))
 
-        start = jnp.full((BP, BC) if blocks.accumulate else (BC,), -jnp.inf, jnp.float32)
-        best = jax.lax.fori_loop(0, P // BP, step, start)
-        out_ref[...] = (jnp.max(best, axis=0) if blocks.accumulate else best).astype(out_ref.dtype)
+            start = jnp.full((BP, BC) if blocks.accumulate else (BC,), -jnp.inf, jnp.float32)
+            best = jax.lax.fori_loop(0, P // BP, step, start)
+            out_ref[(*at, slice(None))] = (jnp.max(best, axis=0) if blocks.accumulate else best).astype(out_ref.dtype)
 
     def product(x: jax.Array, mask: jax.Array, w: jax.Array) -> jax.Array:  # (the kernel's arguments and result)
         return _max_product(x, mask > 0, w)
 
-    def one(x: jax.Array, mask: jax.Array) -> jax.Array:  # x: [P, Cin], mask: [P] f32
+    def one(x: jax.Array, mask: jax.Array) -> jax.Array:  # x: [*group, P, Cin], mask: [*group, P] f32
+        zeros = (0,) * len(group)
         return kernels.pallas_call(
             kernel, fallback=None if interpreted else product, num_warps=blocks.warps, grid=(C // BC,),
-            in_specs=[pl.BlockSpec((P, Cin), lambda j: (0, 0)), pl.BlockSpec((P,), lambda j: (0,)),
-                      pl.BlockSpec((Cin, BC), lambda j: (0, j))],
-            out_specs=pl.BlockSpec((BC,), lambda j: (j,)), out_shape=jax.ShapeDtypeStruct((C,), x.dtype),
-            name="pointnet_max_product")(x, mask, w.astype(x.dtype))
+            in_specs=[pl.BlockSpec((*group, P, Cin), lambda j: (*zeros, 0, 0)),
+                      pl.BlockSpec((*group, P), lambda j: (*zeros, 0)), pl.BlockSpec((Cin, BC), lambda j: (0, j))],
+            out_specs=pl.BlockSpec((*group, BC), lambda j: (*zeros, j)),
+            out_shape=jax.ShapeDtypeStruct((*group, C), x.dtype), name="pointnet_max_product")(
+                x, mask, w.astype(x.dtype))
 
     batch = x.shape[:-2]
-    flat = jax.vmap(one)(x.reshape(-1, P, Cin), mask.reshape(-1, P).astype(jnp.float32))
-    return flat.reshape(*batch, C)
+    x, mask = x.reshape(-1, P, Cin), mask.reshape(-1, P).astype(jnp.float32)
+    count = x.shape[0]
+    padding = -count % S  # (segments with no real point: -inf, dropped)
+    x = jnp.pad(x, ((0, padding), (0, 0), (0, 0))).reshape(-1, *group, P, Cin)
+    mask = jnp.pad(mask, ((0, padding), (0, 0))).reshape(-1, *group, P)
+    return jax.vmap(one)(x, mask).reshape(-1, C)[:count].reshape(*batch, C)
 
 
 class _SharedMLP(nn.Module):
