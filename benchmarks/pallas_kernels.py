@@ -71,11 +71,11 @@ def parse_blocks(text: str) -> pointnet.PoolBlocks:
 
 
 def parse_fusion_blocks(text: str) -> tsdf.FusionBlocks:
-    """``VwW`` (e.g. ``2048w4``): voxels a program, warps."""
-    match = re.fullmatch(r"(\d+)w(\d+)", text)
+    """``VwW[sS]`` (e.g. ``2048w4``, ``8192w8s4``): voxels a program, warps, steps (1 unless given)."""
+    match = re.fullmatch(r"(\d+)w(\d+)(?:s(\d+))?", text)
     if not match:
-        raise argparse.ArgumentTypeError(f"--fusion-blocks: {text!r} is not VwW (e.g. 2048w4, 4096w8)")
-    return tsdf.FusionBlocks(int(match[1]), int(match[2]))
+        raise argparse.ArgumentTypeError(f"--fusion-blocks: {text!r} is not VwW[sS] (e.g. 2048w4, 8192w8s4)")
+    return tsdf.FusionBlocks(int(match[1]), int(match[2]), int(match[3] or 1))
 
 
 def block_name(blocks: pointnet.PoolBlocks) -> str:
@@ -89,8 +89,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--frames", type=int, default=4, help="frames each volume fuses a call (the fusion)")
     parser.add_argument("--fusion-blocks", nargs="+", type=parse_fusion_blocks, default=[tsdf.FUSION_BLOCKS],
-                        help="the fusion kernel's blocks to compare (tsdf.FusionBlocks as VwW: voxels a program, "
-                             "warps)")
+                        help="the fusion kernel's blocks to compare (tsdf.FusionBlocks as VwW[sS]: voxels a "
+                             "program, warps, steps a program)")
     parser.add_argument("--pool-blocks", nargs="+", type=parse_blocks, default=[pointnet.POOL_BLOCKS],
                         help="the pooling kernel's blocks to compare (pointnet.PoolBlocks as CxPwW[gS][a]: channels a "
                              "program, points a step, warps, S segments a program, a = the max over the points at the "
@@ -127,7 +127,8 @@ def main(argv: list[str] | None = None) -> None:
 
     stages = {  # stage: (the XLA program, the kernels, inputs)
         "fusion": (("vectorised, 8 slabs (xla)", fuse(tsdf.FusionKernel.xla, 8)),
-                   [(f"one kernel in place ({kernel_name}, {b.voxels}w{b.warps})", fuse(fusion, 1, b))
+                   [(f"one kernel in place ({kernel_name}, {b.voxels}w{b.warps}{f's{b.steps}' * (b.steps > 1)})",
+                     fuse(fusion, 1, b))
                     for b in args.fusion_blocks], (volumes, depths, poses)),
         "PointNet's pooled product": (("product then max (xla)", jax.jit(product_then_max)),
                                       [(f"running max ({kernel_name}, {block_name(b)})", pooling(b))

@@ -445,11 +445,12 @@ def test_pallas_fusion_equals_the_vectorised_fusion(scene_frames, storage):
                 np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
         for kernel in (tsdf.FusionKernel.interpreted, tsdf.FusionKernel.pallas):
             assert "pallas_call" in str(jax.make_jaxpr(lambda v, k=kernel: episodes(k, v))(volumes))
-    # Other blocks (8,192 voxels: 4,096 of a 48^3 volume's, the largest power of two dividing it): the same volumes;
-    # blocks that are not powers of two refused by name.
-    other = episodes(tsdf.FusionKernel.interpreted, volumes, tsdf.FusionBlocks(8192, 8))
-    np.testing.assert_array_equal(np.asarray(other.weight), np.asarray(ours.weight))
-    np.testing.assert_allclose(np.asarray(other.values), np.asarray(ours.values), rtol=0, atol=tolerance)
+    # Other blocks (8,192 voxels: 4,096 of a 48^3 volume's, the largest power of two dividing it; in one step and
+    # in four): the same volumes; blocks that are not powers of two refused by name.
+    for blocks in (tsdf.FusionBlocks(8192, 8), tsdf.FusionBlocks(8192, 8, steps=4)):
+        other = episodes(tsdf.FusionKernel.interpreted, volumes, blocks)
+        np.testing.assert_array_equal(np.asarray(other.weight), np.asarray(ours.weight))
+        np.testing.assert_allclose(np.asarray(other.values), np.asarray(ours.values), rtol=0, atol=tolerance)
     with pytest.raises(ValueError, match="blocks"):
         episodes(tsdf.FusionKernel.interpreted, volumes, tsdf.FusionBlocks(1000, 4))
     assert "pallas_call" not in str(jax.make_jaxpr(lambda v: episodes(tsdf.FusionKernel.pallas, v))(empty(30)))
@@ -477,7 +478,7 @@ def test_pallas_kernels_lower_for_a_gpu(scene_frames):
     x = jnp.zeros((2, 1, 256, 128), jnp.bfloat16)
     frames = (volumes, jnp.asarray(depths[:2]), jnp.asarray(views[:2], jnp.float32))
     segments = (x, jnp.ones((2, 1, 256), bool), jnp.zeros((128, 1024)))
-    for f, args in ((fuse(tsdf.FUSION_BLOCKS), frames), (fuse(tsdf.FusionBlocks(8192, 8)), frames),
+    for f, args in ((fuse(tsdf.FUSION_BLOCKS), frames), (fuse(tsdf.FusionBlocks(8192, 8, 4)), frames),
                     (pool(pointnet.POOL_BLOCKS), segments), (pool(pointnet.PoolBlocks(256, 32, 8, True, 4)), segments)):
         try:
             text = jax.jit(f).trace(*args).lower(lowering_platforms=("cuda",)).as_text()

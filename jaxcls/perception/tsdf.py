@@ -306,10 +306,13 @@ def _voxel_update(coords: tuple[jax.Array, jax.Array, jax.Array], tsdf: jax.Arra
 class FusionBlocks(NamedTuple):
     """The Pallas fusion's blocks (``FusionKernel.pallas``; a GPU's speed, not its values, depends on them):
     ``voxels`` consecutive voxels a program (a power of two of 128 or more: Triton's blocks; a volume whose voxel
-    count it does not divide takes the largest power of two that does) and ``warps`` a program (Triton)."""
+    count it does not divide takes the largest power of two that does), ``warps`` a program (Triton) and ``steps``
+    a program's voxels are updated in, one part after another (a loop Triton may pipeline: the next part's loads
+    beside this one's arithmetic)."""
 
     voxels: int = 2048
     warps: int = 4
+    steps: int = 1
 
 
 # The fusion's blocks wherever it runs (a default argument: edit it here; benchmarks/pallas_kernels.py --fusion-blocks
@@ -361,23 +364,35 @@ def _fuse_in_kernel(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics
     as in ``_camera_coords``. Under vmap, the batch is a grid axis of the same kernel."""
     X, Y, Z = volume.shape
     count = X * Y * Z
-    if not (blocks.voxels >= 128 and _power_of_two(blocks.voxels) and _power_of_two(blocks.warps)):
+    if not (blocks.voxels >= 128 and all(map(_power_of_two, blocks))):
         raise ValueError(f"integrate: the fusion kernel's blocks {blocks} need powers of two (128 or more voxels)")
     block = math.gcd(count, blocks.voxels)
     if block < 128:
         return None
+    part = max(block // blocks.steps, 128)  # voxels a step (a power of two)
     params = jnp.concatenate([base, step.reshape(-1), jnp.zeros(4, jnp.float32)])  # [16]: base, step row-major
     storage = volume.storage
 
     def kernel(params_ref, depth_ref, tsdf_ref, weight_ref, tsdf_out, weight_out) -> None:  # (Pallas refs)
-        voxel = pl.program_id(0) * block + jax.lax.iota(jnp.int32, block)  # (flat index, x-major)
-        i = (voxel // (Y * Z)).astype(jnp.float32)
-        j = (voxel // Z % Y).astype(jnp.float32)
-        k = (voxel % Z).astype(jnp.float32)
-        coords = _camera_coords(lambda r: params_ref[r], lambda r, a: params_ref[3 + 3 * r + a], i, j, k)
-        tsdf_out[...], weight_out[...] = _voxel_update(coords, tsdf_ref[...], weight_ref[...],
-                                                       lambda pixel: depth_ref[pixel], intrinsics,
-                                                       volume.truncation, storage, round_half_even)
+        start = pl.program_id(0) * block  # (read here, not in the loop: the interpreter substitutes it only here)
+
+        def update(first: jax.Array | int, at: slice | pl.Slice) -> None:  # the block's voxels first + [0, part)
+            voxel = start + first + jax.lax.iota(jnp.int32, part)  # (flat index, x-major)
+            i = (voxel // (Y * Z)).astype(jnp.float32)
+            j = (voxel // Z % Y).astype(jnp.float32)
+            k = (voxel % Z).astype(jnp.float32)
+            coords = _camera_coords(lambda r: params_ref[r], lambda r, a: params_ref[3 + 3 * r + a], i, j, k)
+            tsdf_out[at], weight_out[at] = _voxel_update(coords, tsdf_ref[at], weight_ref[at],
+                                                         lambda pixel: depth_ref[pixel], intrinsics,
+                                                         volume.truncation, storage, round_half_even)
+
+        if part == block:
+            update(0, slice(None))
+        else:
+            def step(t: jax.Array, carry: None) -> None:
+                update(t * part, pl.ds(t * part, part))
+
+            jax.lax.fori_loop(0, block // part, step, None)
 
     def vectorised(params: jax.Array, depth: jax.Array, tsdf: jax.Array,
                    weight: jax.Array) -> tuple[jax.Array, jax.Array]:  # (the kernel's arguments and results)
