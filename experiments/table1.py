@@ -66,7 +66,7 @@ from jax.experimental import multihost_utils
 
 from jaxcls import compile_cache, io, precision, report
 from jaxcls.config import load_config, save_config
-from jaxcls.experiments.table1 import data, figure, runner, tables
+from jaxcls.experiments.table1 import data, runner, tables
 from jaxcls.experiments.table1.config import SceneSource, Table1Config, check_out_dir
 from jaxcls.world.objects import object_set_from_config
 
@@ -218,6 +218,8 @@ def _main(argv: list[str] | None, command_line: bool, early: local.Started | Non
         io.write_text(out / "table.md", markdown)
         io.write_text(out / "table.csv", tables.csv_text(csv_rows))
         if curves:
+            from jaxcls.experiments.table1 import figure  # (here: matplotlib's import, ~0.3 s, off the start-up)
+
             figure.figure4(curves, out / "figure4.png")
     finish_run_times(clock, store, started, runner.process_share() if args.local_processes is None else (0, 1),
                      args.local_processes)
