@@ -18,6 +18,11 @@ import jax
 from jax.experimental import pallas as pl
 
 
+def power_of_two(n: int, least: int = 1) -> bool:
+    """Whether ``n`` is a power of two of at least ``least`` (Triton's block sizes)."""
+    return n >= least and n & (n - 1) == 0
+
+
 def pallas_call(kernel: Callable[..., None], *, fallback: Callable[..., Any] | None, num_warps: int = 4,
                 **kwargs: Any) -> Callable[..., Any]:
     """``pl.pallas_call(kernel, **kwargs)``, compiled by Triton (``num_warps`` warps a program) where the program

@@ -139,7 +139,7 @@ def _max_product_in_kernel(x: jax.Array, mask: jax.Array, w: jax.Array, interpre
     C = w.shape[-1]
 
     def power_of_two(n: int, least: int = 16) -> bool:  # (Triton's blocks; its products need 16 or more a side)
-        return n >= least and n & (n - 1) == 0
+        return kernels.power_of_two(n, least)
 
     if not (power_of_two(blocks.channels) and power_of_two(blocks.points) and power_of_two(blocks.warps, 1)
             and power_of_two(blocks.segments, 1)):

@@ -320,10 +320,6 @@ class FusionBlocks(NamedTuple):
 FUSION_BLOCKS = FusionBlocks()
 
 
-def _power_of_two(n: int) -> bool:
-    return n >= 1 and n & (n - 1) == 0
-
-
 def _fuse_vectorised(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics, base: jax.Array,
                      step: jax.Array, slabs: int) -> tuple[jax.Array, jax.Array]:
     """``FusionKernel.xla``: (tsdf, weight) of ``volume`` updated by vectorised JAX, in ``slabs`` passes along x
@@ -364,7 +360,7 @@ def _fuse_in_kernel(volume: TSDFVolume, depth: jax.Array, intrinsics: Intrinsics
     as in ``_camera_coords``. Under vmap, the batch is a grid axis of the same kernel."""
     X, Y, Z = volume.shape
     count = X * Y * Z
-    if not (blocks.voxels >= 128 and all(map(_power_of_two, blocks))):
+    if not (kernels.power_of_two(blocks.voxels, 128) and all(map(kernels.power_of_two, blocks))):
         raise ValueError(f"integrate: the fusion kernel's blocks {blocks} need powers of two (128 or more voxels)")
     block = math.gcd(count, blocks.voxels)
     if block < 128:
