@@ -15,10 +15,12 @@ Each setting gets its own cache folder, filled by one cold run; then the setting
 order reversed every other round), each a fresh process of ``experiments/table1.py`` (its own ``out_dir``).
 Reported per setting: the median of the process's wall time and of its run's phases (``run_times.json``): the
 first call (tracing, lowering, compiling or loading the episode program), when it was dispatched (seconds since
-the process started: a warm run's start) and the whole run; and whether every
-run's records are the same. JAX's cache alone still traces and lowers the program before its lookup; the
-exported program skips both. Default config: 2 scenes of the synthetic set at 320x240, 2 runs of 2 moves of three
-batched rows (the program is the full switched one whatever the size).
+the process started: a warm run's start) and the whole run; and whether every run's records are the same. A
+second table: a warm run's start step by step (the start-up phase, then the run's marks: devices ready,
+classifiers loaded, first frames made, programs loaded, first call dispatched). JAX's cache alone still traces
+and lowers the program before its lookup; the exported program skips both. Default config: 2 scenes of the
+synthetic set at 320x240, 2 runs of 2 moves of three batched rows (the program is the full switched one whatever
+the size).
 """
 
 from __future__ import annotations
@@ -34,7 +36,13 @@ import time
 from pathlib import Path
 
 from jaxcls import compile_cache, report
+from jaxcls.experiments.table1 import runner
 from jaxcls.experiments.table1.runner import FIRST_CALL, FIRST_CALL_DISPATCHED
+
+# A warm run's start, in the order it comes on a GPU (``run_times.json``: the start-up phase, then the marks).
+STARTUP = "start-up (Python, imports, config)"
+TIMELINE = (runner.DEVICES_READY, runner.CLASSIFIERS_LOADED, runner.FIRST_FRAMES_MADE, runner.PROGRAMS_LOADED,
+            FIRST_CALL_DISPATCHED)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -87,7 +95,9 @@ def _run(setting: str, cache: Path, config: str, out: Path, overrides: list[str]
     records = sorted((json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()),
                      key=lambda r: (r["classifier"], r["row"], r["scene"], r["run"]))
     return {"wall": wall, "first": phases["phases_s"].get(FIRST_CALL, 0.0), "run": phases["total_s"],
-            "started": phases.get("marks_s", {}).get(FIRST_CALL_DISPATCHED, float("nan")), "records": records}
+            "started": phases.get("marks_s", {}).get(FIRST_CALL_DISPATCHED, float("nan")), "records": records,
+            "timeline": {STARTUP: phases["phases_s"].get(STARTUP, float("nan")),
+                         **{m: phases.get("marks_s", {}).get(m, float("nan")) for m in TIMELINE}}}
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -116,7 +126,8 @@ def main(argv: list[str] | None = None) -> None:
         for r in range(args.rounds):
             for s in settings if r % 2 == 0 else reversed(settings):
                 runs[s].append(_run(s, tmp / s / "xla", config, tmp / f"{s}_{r}", args.overrides))
-                print(s, r, {k: round(v, 1) for k, v in runs[s][-1].items() if k != "records"}, file=sys.stderr)
+                print(s, r, {k: round(v, 1) for k, v in runs[s][-1].items() if k not in ("records", "timeline")},
+                      file=sys.stderr)
     reference = next(iter(cold.values()))["records"]
     same = all(run["records"] == reference for rs in [*runs.values(), list(cold.values())] for run in rs)
     rows = []
@@ -126,6 +137,9 @@ def main(argv: list[str] | None = None) -> None:
         spread = f"{min(run['first'] for run in rs):.1f}-{max(run['first'] for run in rs):.1f}"
         rows.append((name, report.device_name(), f"{cold[s]['first']:.1f}", f"{med['first']:.1f}", spread,
                      f"{med['started']:.1f}", f"{med['run']:.1f}", f"{med['wall']:.1f}"))
+    timeline = [(name, *(f"{statistics.median(run['timeline'][m] for run in runs[s]):.1f}"
+                         for m in (STARTUP, *TIMELINE))) for s, name in settings.items()]
+    timeline_table = report.table(("cache", "imports and config done", *TIMELINE), timeline)
     report.publish(report.section(
         "Table 1's warm start: " + " against ".join(settings.values()), argv,
         ("cache", "device", "cold first call s", "warm first call s (median)", "range",
@@ -134,7 +148,9 @@ def main(argv: list[str] | None = None) -> None:
         intro=f"{args.rounds} warm runs a setting, alternating, each a fresh process after one cold run a setting "
               f"in its own cache folder; config "
               f"{args.config or 'a 2-scene synthetic one, classifiers ' + ', '.join(args.classifiers)}.",
-        notes=[f"every run's records are {'the same' if same else 'NOT the same'}"]), args.out)
+        notes=[f"every run's records are {'the same' if same else 'NOT the same'}"])
+        + "\nA warm run's start: when each step was done, s after the process started (median; nan: not in this "
+          "run, e.g. frames not made ahead)\n\n" + timeline_table + "\n", args.out)
 
 
 if __name__ == "__main__":

@@ -182,6 +182,7 @@ def _main(argv: list[str] | None, command_line: bool, early: local.Started | Non
         with clock("start-up (devices, renderer)"):  # (the accelerator's runtime and the renderer start here)
             dataset, scene_set = data.open_scenes(config)
             jax.devices()
+        clock.mark(runner.DEVICES_READY)
         if share[0] == 0:
             save_config(config, out / "config.yaml")
         if args.distributed and share[0] == 0:  # (it makes the tables)

@@ -223,7 +223,9 @@ def test_interrupted_experiment_resumes_and_the_same_seed_gives_the_same_numbers
     phases = times[0]["phases_s"]
     assert {table1.STARTUP, "start-up (classifiers, stored episodes)", "tables and figure"} <= set(phases)
     assert 0 < sum(phases.values()) <= times[0]["total_s"] + 0.2  # (disjoint phases, each rounded)
-    assert times[0]["marks_s"][runner.FIRST_CALL_DISPATCHED] > 0  # (this process's age: pytest's)
+    marks = times[0]["marks_s"]  # (this process's age: pytest's; the cache is off here: no programs loaded ahead)
+    assert 0 < marks[runner.CLASSIFIERS_LOADED] <= marks[runner.FIRST_CALL_DISPATCHED]
+    assert runner.PROGRAMS_LOADED not in marks
 
     # The same scenes drawn from the dataset config and rendered where the episodes run (the scene bank; MuJoCo's
     # C caster on a CPU), none read from the files, one compiled program per pass over the scenes (as on a CPU with
@@ -422,6 +424,25 @@ def _memory_maps() -> int | None:
 def _record(row: str, scene: int, run: int, true: list[int], labels: list[list[int]]) -> dict:
     return {"classifier": "c", "row": row, "scene": scene, "run": run, "start": run, "path": list(range(len(labels))),
             "true": true, "prior": labels, "refined": labels}
+
+
+def test_a_run_marks_when_its_loads_are_done_not_when_it_waits_for_them(monkeypatch):
+    """``mark_when_done`` marks once, when the last of its futures is done (on whichever thread finishes it), at
+    the process's age then; none for no futures."""
+    from concurrent.futures import Future
+
+    ages = iter([5.0, 7.0, 9.0])
+    monkeypatch.setattr(runner.report, "process_age", lambda: next(ages))
+    clock = runner.Phases()
+    futures = [Future() for _ in range(3)]
+    runner.mark_when_done(futures, clock, "loaded")
+    runner.mark_when_done([], clock, "nothing")
+    futures[2].set_result(None)
+    threading.Thread(target=futures[0].set_result, args=(None,)).start()
+    time.sleep(0.1)
+    assert clock.marks == {}  # (one still loading)
+    futures[1].set_exception(RuntimeError("a failed load is done too"))
+    assert clock.marks == {"loaded": 5.0}  # (the age when the last was done; asked once)
 
 
 def test_the_oracle_splits_its_calls_not_its_scenes():

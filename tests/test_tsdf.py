@@ -214,6 +214,20 @@ def test_extraction_finds_every_crossing_edge(shape):
     np.testing.assert_allclose(points, expected, atol=1e-6)
 
 
+def test_the_two_ways_to_find_each_slots_word_agree_with_numpy():
+    """``_select_bits``' word of each slot: the CPU's binary search and the GPU's one pass over the words (a write
+    per run of equal values, then a running max) give NumPy's ``searchsorted(..., side="right")``, with runs of
+    empty words, slots no word reaches, values past the slots and a first word already past slot 0."""
+    rng = np.random.default_rng(5)
+    for size, M in [(64, 1000), (512, 300), (16, 16)]:
+        steps = rng.choice([0, 0, 0, 1, 2, 5], M)  # (many empty words: runs of equal values)
+        for first_past in (np.minimum(np.cumsum(steps), size), np.minimum(np.cumsum(steps) + 3, size + 7)):
+            first_past = first_past.astype(np.int32)
+            expected = np.searchsorted(first_past, np.arange(size), side="right")
+            for way in (tsdf._word_of_slot_search, tsdf._word_of_slot_scatter):
+                np.testing.assert_array_equal(np.asarray(way(jnp.asarray(first_past), size)), expected)
+
+
 def test_bad_depth_is_ignored():
     vol = tsdf.create_volume(np.zeros(3), size=0.2, resolution=32)
     T = jnp.asarray(_down_camera(0.5), jnp.float32)

@@ -11,6 +11,7 @@ import functools
 import json
 import operator
 import sys
+import threading
 import time
 import warnings
 from collections.abc import Callable, Sequence
@@ -49,6 +50,12 @@ FIRST_CALL = "batched episodes, first call (compiles)"
 # ``Phases.mark``'s name for the first batched call handed to the devices (a warm run's start: its time since
 # the process started).
 FIRST_CALL_DISPATCHED = "first batched call dispatched"
+# The other marks of a run's start (``Phases.mark``; ``run_times.json``'s ``marks_s``), in the order they come on a
+# warm GPU run: where the seconds before FIRST_CALL_DISPATCHED go (``benchmarks/first_call.py`` tabulates them).
+DEVICES_READY = "devices ready"  # (experiments/table1.py: the accelerator's runtime started)
+CLASSIFIERS_LOADED = "classifiers loaded"
+FIRST_FRAMES_MADE = "first frames made"  # (the batched rows' first chunk, where it is made ahead)
+PROGRAMS_LOADED = "batched programs loaded"  # (every classifier's, where loaded ahead from the cache)
 # The oracle's episodes in one call off the CPU: each tries its 32 candidates at every move, ~18,500 moves a call.
 ORACLE_EPISODES_PER_CALL = 64
 
@@ -154,26 +161,35 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
             devices = batched.mesh().devices.size  # (run_batched's mesh)
             slots = chunk_plan(config, sorted({k[2] for k in batched_todo}), share, devices)[2][0]
             first = FirstFrames(render_order(slots), scene_set.chunk_ahead(render_order(slots)))
-        classifiers = {name: setup.load_classifier(path, object_set, f"classifiers.{name}")
-                       for name, path in config.classifiers.items()}
+            first.frames.add_done_callback(lambda _: clock.mark(FIRST_FRAMES_MADE))
+        # Each classifier's batched programs loaded from the cache as soon as it is (on threads, beside the next
+        # classifier's load and the first frames), not once every classifier is.
+        classifiers, loading = {}, []
+        for name, path in config.classifiers.items():
+            classifiers[name] = setup.load_classifier(path, object_set, f"classifiers.{name}")
+            loading += load_batched_ahead(config, scene_set, dataset, {name: classifiers[name]}, object_set,
+                                          batched_todo, share)
+        clock.mark(CLASSIFIERS_LOADED)
+        mark_when_done(loading, clock, PROGRAMS_LOADED)
     mine = process_store(store, (index, count))  # where this process appends
     with tqdm(total=len(wanted), initial=len(wanted) - len(todo), desc="episodes", unit="episode",
               disable=not show_progress) as bar:
         oracle_todo = [k for k in todo if rows[k[1]].kind is protocol.Kind.ORACLE]
-        loading: list[Future] = []  # the oracle's programs being loaded (run_oracle waits for them)
+        oracle_loading: list[Future] = []  # the oracle's programs being loaded (run_oracle waits for them)
 
         def load_oracle() -> None:
-            loading.extend(load_oracle_ahead(config, scene_set, dataset, classifiers, object_set, oracle_todo, oracle))
+            oracle_loading.extend(load_oracle_ahead(config, scene_set, dataset, classifiers, object_set, oracle_todo,
+                                                    oracle))
 
         if batched_todo:
             # (the oracle's program loaded while the batched rows' last calls run, after their last render)
             stored += run_batched(config, scene_set, dataset, classifiers, object_set, batched_todo, mine, bar, clock,
-                                  share, then=load_oracle, first=first)
+                                  share, then=load_oracle, first=first, loading=loading)
         else:
             load_oracle()
         if oracle_todo:
             stored += run_oracle(config, scene_set, dataset, classifiers, object_set, oracle[index::count], done,
-                                 mine, bar, clock, oracle_frames(config, oracle), loading)
+                                 mine, bar, clock, oracle_frames(config, oracle), oracle_loading)
         todo = [k for k in todo if rows[k[1]].kind not in (*BATCHED, protocol.Kind.ORACLE)]
         programs = [(c, name) for c in classifiers for name in rows if any(k[:2] == (c, name) for k in todo)]
         for group in passes(programs, jax.default_backend()):
@@ -231,7 +247,8 @@ def program_row(row: protocol.Row) -> protocol.Row:
 def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                 classifiers: dict[str, pointnet.Classifier], object_set, todo: list[tuple[str, str, int, int]],
                 store: Path, bar: tqdm, clock: Phases | None = None, planned: int | None = None,
-                then: Callable[[], None] | None = None, first: FirstFrames | None = None) -> list[dict[str, Any]]:
+                then: Callable[[], None] | None = None, first: FirstFrames | None = None,
+                loading: list[Future] | None = None) -> list[dict[str, Any]]:
     """The single-view and policy rows' episodes ``todo`` batched over scenes and runs and sharded over the
     local devices (``episode.batched``): the frames of ``scene_chunk`` of ``todo``'s scenes at a time (rounded up
     to a multiple of the devices), split by scene over the devices (each holds 1/n of them and runs their
@@ -247,7 +264,9 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     (``Scenes.loads_beside_renders``: MuJoCo Warp's own graph capture), before the first render. ``then`` is
     called once the last chunk's frames are rendered and in use, with no render to come here (e.g. to load the
     next rows' programs while the last calls run). ``first``: the first chunk's frames being made already (on a
-    thread, ``Scenes.chunk_ahead``: its renderer built there too), used where they are of its scenes."""
+    thread, ``Scenes.chunk_ahead``: its renderer built there too), used where they are of its scenes.
+    ``loading``: the programs' loads started already (``load_batched_ahead`` with the same ``todo`` and
+    ``planned``: ``run_episodes`` starts each classifier's as soon as it is loaded); default: started here."""
     clock = clock or Phases()
     device_mesh = batched.mesh()
     policies = tuple(dict.fromkeys(program_row(protocol.ROWS[k[1]]).policy for k in todo))
@@ -284,25 +303,11 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
 
     scenes = sorted({k[2] for k in todo})  # (a process of several: its share)
     n = device_mesh.devices.size
-    per, per_call, layouts = chunk_plan(config, scenes, planned, n)
+    _, per_call, layouts = chunk_plan(config, scenes, planned, n)
     size = per_call * n * config.runs
-    loading: list[Future] = []  # the programs loaded ahead: waited for before the first call
-    if compile_cache.enabled():  # the programs loaded while the host builds the renderer
-        intrinsics, table_height, views = scene_set.frame_layout()
-        frames = (n * per, views, intrinsics.height, intrinsics.width)
-
-        def load(c: str, row: protocol.Row) -> None:
-            built = episode(config, row, classifiers[c], object_set, intrinsics, table_height, dataset.scene.split)
-            batched.prepare(built.switched(policies), frames, size, device_mesh, split_scenes=True,
-                            kernels=config.kernels)
-
-        libraries: dict[tuple[str, Any], protocol.Row] = {}  # (classifier, library) -> a row of its program
-        for k in todo:
-            row = program_row(protocol.ROWS[k[1]])
-            libraries.setdefault((k[0], row.library), row)
-        for (c, library), row in libraries.items():
-            loading.append(compile_cache.ahead(functools.partial(load, c, row),
-                                               f"Table 1's batched program ({c}, {library})"))
+    if loading is None:  # (the programs loaded while the host builds the renderer)
+        loading = load_batched_ahead(config, scene_set, dataset, classifiers, object_set, todo, planned)
+    loading = list(loading)  # (waited for before the first call)
     if first is None:
         with clock("frames (rendered or read)"):
             scene_set.prepare_renderer()
@@ -371,6 +376,54 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     if pending:
         finish()  # (every chunk has a call: the last chunk's first finished one has called ``then``)
     return made
+
+
+def load_batched_ahead(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
+                       classifiers: dict[str, pointnet.Classifier], object_set, todo: list[tuple[str, str, int, int]],
+                       planned: int | None = None) -> list[Future]:
+    """With the compilation cache on, the batched program (``Episode.switched``) of each (classifier of
+    ``classifiers``, model library) of ``todo`` read and compiled (loaded) on a background thread
+    (``compile_cache.ahead``) for ``run_batched``'s frames and calls (``chunk_plan`` of ``todo``'s scenes and
+    ``planned``, on every local device), while the host does other work: loads the next classifier, builds the
+    renderer, renders the first chunk. Returns the loads' Futures (``run_batched`` waits for them before its
+    first call, or its first render where the renderer forbids a load beside it); none without the cache."""
+    todo = [k for k in todo if k[0] in classifiers]
+    if not (todo and compile_cache.enabled()):
+        return []
+    device_mesh = batched.mesh()
+    n = device_mesh.devices.size
+    per, per_call, _ = chunk_plan(config, sorted({k[2] for k in todo}), planned, n)
+    policies = tuple(dict.fromkeys(program_row(protocol.ROWS[k[1]]).policy for k in todo))
+    intrinsics, table_height, views = scene_set.frame_layout()
+    frames = (n * per, views, intrinsics.height, intrinsics.width)
+
+    def load(c: str, row: protocol.Row) -> None:
+        built = episode(config, row, classifiers[c], object_set, intrinsics, table_height, dataset.scene.split)
+        batched.prepare(built.switched(policies), frames, per_call * n * config.runs, device_mesh, split_scenes=True,
+                        kernels=config.kernels)
+
+    libraries: dict[tuple[str, Any], protocol.Row] = {}  # (classifier, library) -> a row of its program
+    for k in todo:
+        row = program_row(protocol.ROWS[k[1]])
+        libraries.setdefault((k[0], row.library), row)
+    return [compile_cache.ahead(functools.partial(load, c, row), f"Table 1's batched program ({c}, {library})")
+            for (c, library), row in libraries.items()]
+
+
+def mark_when_done(futures: Sequence[Future], clock: Phases, name: str) -> None:
+    """``clock.mark(name)`` once every one of ``futures`` is done (at once where there are none: nothing)."""
+    left = [len(futures)]
+    lock = threading.Lock()
+
+    def done(_: Future) -> None:
+        with lock:
+            left[0] -= 1
+            last = left[0] == 0
+        if last:
+            clock.mark(name)
+
+    for future in futures:
+        future.add_done_callback(done)
 
 
 def load_oracle_ahead(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
