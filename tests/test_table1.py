@@ -445,6 +445,38 @@ def test_a_run_marks_when_its_loads_are_done_not_when_it_waits_for_them(monkeypa
     assert clock.marks == {"loaded": 5.0}  # (the age when the last was done; asked once)
 
 
+def test_each_classifiers_programs_loaded_ahead_have_the_whole_runs_shapes_and_policies(monkeypatch):
+    """``run_episodes`` loads each classifier's batched programs as soon as it is loaded: those of one classifier
+    take the frames, call size and policies of the whole run's ``todo`` (what ``run_batched`` calls them with),
+    not of that classifier's share of it (e.g. a resumed run where one classifier has less left); one program a
+    (classifier, model library), only the classifiers given."""
+    import types
+
+    from jaxcls.world.dataset import DatasetConfig
+
+    config = Table1Config(rows=("random_gr", "vis_occl_hist_gr"), classifiers={"a": "", "b": ""}, runs=2, scenes=6,
+                          scene_chunk=4)
+    todo = [("a", row, s, r) for s in range(6) for row in config.rows for r in range(2)]
+    todo += [("b", "random_gr", s, r) for s in (4, 5) for r in range(2)]  # (b: two scenes of one row left)
+    prepared = []
+    monkeypatch.setattr(runner.compile_cache, "enabled", lambda: True)
+    monkeypatch.setattr(runner.compile_cache, "ahead", lambda load, what: (load(), what)[1])
+    monkeypatch.setattr(runner, "episode", lambda config, row, classifier, *rest: types.SimpleNamespace(
+        switched=lambda policies: (classifier, policies)))
+    monkeypatch.setattr(runner.batched, "prepare", lambda program, frames, size, mesh, **kw: prepared.append(
+        (program, frames, size)))
+    scenes = types.SimpleNamespace(frame_layout=lambda: (types.SimpleNamespace(height=4, width=5), 0.0, 12))
+    loads = {c: runner.load_batched_ahead(config, scenes, DatasetConfig(), {c: c.upper()}, None, todo, 6)
+             for c in ("b", "a")}
+    assert {c: len(v) for c, v in loads.items()} == {"b": 1, "a": 1}  # (one model library here)
+    per, per_call, _ = runner.chunk_plan(config, list(range(6)), 6, 1)
+    policies = (protocol.ROWS["random_gr"].policy, protocol.ROWS["vis_occl_hist_gr"].policy)
+    whole = ((per, 12, 4, 5), per_call * config.runs)
+    assert prepared == [(("B", policies), *whole), (("A", policies), *whole)], prepared
+    monkeypatch.setattr(runner.compile_cache, "enabled", lambda: False)
+    assert runner.load_batched_ahead(config, scenes, DatasetConfig(), {"a": "A"}, None, todo) == []  # (no cache)
+
+
 def test_the_oracle_splits_its_calls_not_its_scenes():
     """The oracle's calls are the same for every process count (process i of N runs calls i, i + N, ...): each
     classifier's episodes in (scene, run) order, ``oracle_runs_per_call`` a call; a call's frames hold its scenes."""

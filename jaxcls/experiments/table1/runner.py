@@ -386,9 +386,11 @@ def load_batched_ahead(config: Table1Config, scene_set: Scenes, dataset: Dataset
     (``compile_cache.ahead``) for ``run_batched``'s frames and calls (``chunk_plan`` of ``todo``'s scenes and
     ``planned``, on every local device), while the host does other work: loads the next classifier, builds the
     renderer, renders the first chunk. Returns the loads' Futures (``run_batched`` waits for them before its
-    first call, or its first render where the renderer forbids a load beside it); none without the cache."""
-    todo = [k for k in todo if k[0] in classifiers]
-    if not (todo and compile_cache.enabled()):
+    first call, or its first render where the renderer forbids a load beside it); none without the cache. The
+    programs' shapes and policies follow from the whole ``todo``, as ``run_batched``'s do, whichever classifiers
+    ``classifiers`` holds (those of ``todo`` it lacks are loaded by another call: ``run_episodes`` loads each
+    classifier's as soon as that classifier is)."""
+    if not (any(k[0] in classifiers for k in todo) and compile_cache.enabled()):
         return []
     device_mesh = batched.mesh()
     n = device_mesh.devices.size
@@ -405,7 +407,8 @@ def load_batched_ahead(config: Table1Config, scene_set: Scenes, dataset: Dataset
     libraries: dict[tuple[str, Any], protocol.Row] = {}  # (classifier, library) -> a row of its program
     for k in todo:
         row = program_row(protocol.ROWS[k[1]])
-        libraries.setdefault((k[0], row.library), row)
+        if k[0] in classifiers:
+            libraries.setdefault((k[0], row.library), row)
     return [compile_cache.ahead(functools.partial(load, c, row), f"Table 1's batched program ({c}, {library})")
             for (c, library), row in libraries.items()]
 
