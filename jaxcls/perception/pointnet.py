@@ -119,7 +119,7 @@ class PoolBlocks(NamedTuple):
 
 # The kernel's blocks in every network (a default argument: edit it here; benchmarks/pallas_kernels.py --pool-blocks
 # compares others): the max over the points once at the end, 0.31 -> 0.24 ms alone on one H100 at 512 segments, the
-# best of eight (BENCHMARKS.md, "The Pallas kernels' blocks")
+# best of eight (BENCHMARKS.md, "The whole move on one H100: the Pallas kernels, their blocks, ...")
 POOL_BLOCKS = PoolBlocks(accumulate=True)
 
 
