@@ -100,8 +100,10 @@ def test_perceive_vmaps_over_episodes_and_jits():
         for d, T in zip(depth, poses, strict=True):
             alone = perception.observe(spec, alone, d, T)
         np.testing.assert_array_equal(np.asarray(state.segments.labels[i]), np.asarray(alone.segments.labels))
+        # (batched and alone are different XLA:CPU programs, vectorised otherwise: the tracked poses and fused values
+        # may round otherwise, a few micrometres on a point on some CPUs; 2.9e-6 m seen on a Xeon @ 2.5 GHz)
         np.testing.assert_allclose(np.asarray(state.segments.points[i]), np.asarray(alone.segments.points),
-                                   atol=1e-6)
+                                   atol=1e-5)
     assert state.probs.shape == (2, SHAPES.num_segments, 0)  # no classifier: no scores
 
 
