@@ -150,6 +150,7 @@ def _main(argv: list[str] | None, command_line: bool, early: local.Started | Non
     timing = json.loads(timing_file.read_text()) if timing_file.exists() else None
     others = None  # process 0 of several: the other processes' episodes, read while they run
     rows_early = None  # --local-processes: rows tabulated while the processes still run (tables.EarlyRows)
+    classes = None  # the object set's class count, where known already
     if args.tables_only:
         dataset = data.dataset_config(config)
         records = data.stored_records(config, store)
@@ -159,8 +160,8 @@ def _main(argv: list[str] | None, command_line: bool, early: local.Started | Non
         every = runner.episode_keys(config, scene_set.count)
         stored = {data.record_key(r) for r in data.read_stores(store)} & set(every)
         # The batched rows' tables made while the processes run the oracle (each runs it after its batched rows).
-        rows_early = tables.EarlyRows(config, len(object_set_from_config(dataset.objects).classes), every,
-                                      select=lambda so_far: data.of_config(config, so_far))
+        classes = len(object_set_from_config(dataset.objects).classes)
+        rows_early = tables.EarlyRows(config, classes, every, select=lambda so_far: data.of_config(config, so_far))
         lines = local.commands(Path(__file__).resolve(), ["--config", args.config, *args.overrides],
                                args.local_processes)
         if early is not None and (early.command_lines != lines or early.out.resolve() != out.resolve()):
@@ -213,7 +214,7 @@ def _main(argv: list[str] | None, command_line: bool, early: local.Started | Non
         timing = runner.time_modules(config, scene_set, dataset)
         io.write_json(timing_file, timing)
     with clock("tables and figure"):
-        classes = len(object_set_from_config(dataset.objects).classes)
+        classes = classes or len(object_set_from_config(dataset.objects).classes)
         markdown, csv_rows, curves = tables.tables(config, records, classes, timing, argv,
                                                    rows_early.result() if rows_early is not None else None)
         io.write_text(out / "table.md", markdown)

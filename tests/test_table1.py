@@ -555,18 +555,25 @@ def test_rows_tabulated_while_the_oracle_runs_are_those_tabulated_at_the_end():
               _record("oracle_gr", 1, 0, [1, 2, 3], [[1, 2, 0], [1, 2, 3]])]
     early = tables.EarlyRows(config, 4, runner.episode_keys(config, 2))
     early.offer(batched[:3] + oracle)  # (a batched episode still missing)
-    assert early.result() == {}
+    assert early.result() == tables.Early({}, {})
     early.offer(batched + oracle[:1])
     made = early.result()
-    assert set(made) == {("c", "single_gr"), ("c", "vis_occl_hist_gr")}
+    assert set(made.summaries) == {("c", "single_gr"), ("c", "vis_occl_hist_gr")}
+    # The batched rows' difference made early (VisOcclHistGR - PointNetSingleGR), not the oracle's (it waits).
+    assert [k[1:3] for k in made.differences] == [("vis_occl_hist_gr", "single_gr")]
     records = batched + oracle
     assert tables.tables(config, records, 4, None, ["x"], made) == tables.tables(config, records, 4, None, ["x"])
-    marked = {k: dataclasses.replace(v, cells=(f"made early: {v.cells[0]}", *v.cells[1:])) for k, v in made.items()}
+    marked = tables.Early(
+        {k: dataclasses.replace(v, cells=(f"made early: {v.cells[0]}", *v.cells[1:]))
+         for k, v in made.summaries.items()},
+        {k: (0.5, 0.25, 0.75) for k in made.differences})  # (a difference no bootstrap of these records gives)
     markdown = tables.tables(config, records, 4, None, ["x"], marked)[0]
     assert "| made early: VisOcclHistGR |" in markdown and "| made early: PointNetSingleGR |" in markdown
+    assert "VisOcclHistGR - PointNetSingleGR: +0.500 [+0.250, +0.750]" in markdown
     policy_swapped = [batched[2], batched[1], batched[0], batched[3]]  # (VisOcclHistGR's scenes in another order)
     markdown = tables.tables(config, policy_swapped + oracle, 4, None, ["x"], marked)[0]
     assert "| VisOcclHistGR |" in markdown and "| made early: PointNetSingleGR |" in markdown
+    assert "+0.500 [+0.250, +0.750]" not in markdown  # (a row made again: its differences made again too)
 
 
 def test_protocol_rows_and_starts():

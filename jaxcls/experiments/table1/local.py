@@ -128,15 +128,16 @@ def start_early(argv: Sequence[str], script: Path) -> Started | None:
                  Path(out_dir))
 
 
-def run(started: Started, store_paths, total: int, done: int, show_progress: bool = True, poll_seconds: float = 0.5,
-        offer: Callable[[list[dict]], None] | None = None) -> list[dict]:
+def run(started: Started, store_paths, total: int, done: int, show_progress: bool = True, poll_seconds: float = 0.1,
+        offer: Callable[[list[dict]], None] | None = None, read_seconds: float = 0.5) -> list[dict]:
     """Show the episodes stored by the processes ``started`` (``store_paths()``: the stores; ``total`` episodes
     wanted, ``done`` of them stored before) and wait for them. Returns every stored record (read while they ran:
     ``io.JsonlFollower``); ``offer``: given the records stored so far at every poll while they run
-    (``tables.EarlyRows.offer``). RuntimeError naming the process, its exit status and the end of its log if one
-    fails (the others are stopped); an interrupt stops them all."""
-    follower = io.JsonlFollower(store_paths, interval=poll_seconds)
-    processes, out, records = started.processes, started.out, None
+    (``tables.EarlyRows.offer``). The processes are looked at every ``poll_seconds`` (their end noticed that
+    soon), the stores read every ``read_seconds``. RuntimeError naming the process, its exit status and the end
+    of its log if one fails (the others are stopped); an interrupt stops them all."""
+    follower = io.JsonlFollower(store_paths, interval=read_seconds)
+    processes, out, records, offered = started.processes, started.out, None, -1
     try:
         # The tables' bootstrap needs SciPy's stats (1-3 s to import): imported while the processes run, not after.
         import scipy.stats  # noqa: F401
@@ -151,9 +152,11 @@ def run(started: Started, store_paths, total: int, done: int, show_progress: boo
                                    .splitlines(keepends=True)[-LOG_TAIL_LINES:])
                     raise RuntimeError(f"process {i} of {len(processes)} failed (exit status {codes[i]}); the others "
                                        f"were stopped. The end of its log, {log_path(out, i)}:\n{tail}")
-                bar.update(max(0, min(total, follower.count()) - bar.n))
-                if offer is not None:
+                count = follower.count()
+                bar.update(max(0, min(total, count) - bar.n))
+                if offer is not None and count != offered:  # (only when more were read)
                     offer(follower.records())
+                    offered = count
                 if all(c == 0 for c in codes):
                     break
                 time.sleep(poll_seconds)

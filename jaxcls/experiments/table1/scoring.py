@@ -35,11 +35,14 @@ def row_scores(records: list[dict[str, Any]], classes: int, move: int | Sequence
 
 
 def differences(config: Table1Config, by: dict, c: str, classes: int,
-                labels: dict[str, protocol.SceneLabels] | None = None) -> list[str]:
+                labels: dict[str, protocol.SceneLabels] | None = None, made: dict | None = None) -> list[str]:
     """Paired scene-bootstrap differences of F1 at T: GR against none per pair; every policy against
     PointNetSingle; VisOcclHist(GR) against Random(GR); every policy against VisOcclHistGR; the oracle
-    against the best policy. ``by``: (classifier, row) -> that row's records; ``labels``: row -> its
-    ``protocol.scene_labels`` where the caller has them."""
+    against the best policy (the pairs of the rows ``by`` has). ``by``: (classifier, row) -> that row's records;
+    ``labels``: row -> its ``protocol.scene_labels`` where the caller has them. ``made``: the differences made
+    before of the same records (e.g. while the oracle still ran, ``tables.EarlyRows``), keyed by (classifier, row
+    a, row b, a's move, b's move, the scenes paired): used where present, and given those made here (a pair's
+    interval does not depend on the pairs bootstrapped beside it: ``metrics.paired_differences``)."""
     T = config.moves
     prepared: dict[tuple[str, frozenset | None], protocol.SceneLabels] = {
         (name, None): lab for name, lab in (labels or {}).items()}
@@ -77,14 +80,16 @@ def differences(config: Table1Config, by: dict, c: str, classes: int,
     # Paired on the scenes both rows have (the oracle runs on fewer; an interrupted run may have more); the pairs of
     # one scene set in one bootstrap (``metrics.paired_differences``: the bounds each alone would get).
     shared = [frozenset({r["scene"] for r in by[c, a]} & {r["scene"] for r in by[c, b]}) for _, a, b, _, _ in pairs]
-    results: list = [None] * len(pairs)
+    made = {} if made is None else made
+    keys = [(c, a, b, ta, tb, scenes) for (_, a, b, ta, tb), scenes in zip(pairs, shared, strict=True)]
     for scenes in dict.fromkeys(shared):
-        at = [i for i, sc in enumerate(shared) if sc == scenes]
+        at = [i for i, sc in enumerate(shared) if sc == scenes and keys[i] not in made]
         found = metrics.paired_differences(
             [(scenes_of(pairs[i][1], pairs[i][3], scenes), scenes_of(pairs[i][2], pairs[i][4], scenes)) for i in at],
             classes, resamples=config.resamples)
         for i, r in zip(at, found, strict=True):
-            results[i] = r
+            made[keys[i]] = r
+    results = [made[k] for k in keys]
     notes = []
     for (prefix, a, b, _, _), (d, lo, hi) in zip(pairs, results, strict=True):
         sig = "" if lo <= 0 <= hi else " (the interval excludes 0)"

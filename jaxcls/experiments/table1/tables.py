@@ -63,11 +63,21 @@ def by_row(records: list[dict[str, Any]]) -> dict[tuple[str, str], list[dict[str
     return by
 
 
+@dataclasses.dataclass(frozen=True)
+class Early:
+    """What ``EarlyRows`` made before the last episodes were stored: ``summaries`` by (classifier, row), and the
+    paired differences of those rows (``scoring.differences``' ``made``)."""
+
+    summaries: Mapping[tuple[str, str], RowSummary]
+    differences: Mapping[tuple, tuple[float, float, float]]
+
+
 def tables(config: Table1Config, records: list[dict[str, Any]], classes: int, timing: dict | None,
-           argv: Sequence[str] | None, summaries: Mapping[tuple[str, str], RowSummary] | None = None
+           argv: Sequence[str] | None, early: Early | None = None
            ) -> tuple[str, list[dict[str, Any]], dict[str, dict[str, list]]]:
-    """(Markdown, CSV rows, curves for Figure 4) of the stored episodes. ``summaries``: rows made before (e.g.
-    while the oracle still ran, ``EarlyRows``), used where made of the same episodes in the same order."""
+    """(Markdown, CSV rows, curves for Figure 4) of the stored episodes. ``early``: rows and differences made
+    before (e.g. while the oracle still ran, ``EarlyRows``), used where made of the same episodes in the same
+    order (a classifier's differences only where each of its rows made before was)."""
     T = config.moves
     half = max(1, T // 2)
     by = by_row(records)
@@ -75,12 +85,15 @@ def tables(config: Table1Config, records: list[dict[str, Any]], classes: int, ti
     for c in config.classifiers:
         table_rows, notes, labels = [], [], {}
         curves[c] = {}
+        reuse = early is not None  # (the early differences: while every early row of c is of these records)
         for name in config.rows:
             recs = by.get((c, name), [])
             if not recs:
                 continue
-            summary = (summaries or {}).get((c, name))
-            if summary is None or summary.episodes != episodes_of(recs):
+            summary = early.summaries.get((c, name)) if early is not None else None
+            if summary is not None and summary.episodes != episodes_of(recs):
+                summary, reuse = None, False
+            if summary is None:
                 summary = row_summary(config, name, recs, classes)
             row = protocol.ROWS[name]
             labels[name] = summary.labels
@@ -88,7 +101,7 @@ def tables(config: Table1Config, records: list[dict[str, Any]], classes: int, ti
                 csv_rows.append({"classifier": c, "row": name, "label": row.label, "move": t, **sc})
             curves[c][row.label] = summary.per_move
             table_rows.append(summary.cells)
-        notes += differences(config, by, c, classes, labels)
+        notes += differences(config, by, c, classes, labels, dict(early.differences) if reuse else None)
         sections.append(report.table(
             ("method", "accuracy", "precision", "recall", "F1", "F1 95% CI (scenes)", f"F1 after {half} moves",
              "moves to correct", "share right at the end", "scenes", "episodes", "F1, phantoms counted",
@@ -106,11 +119,12 @@ def tables(config: Table1Config, records: list[dict[str, Any]], classes: int, ti
 
 
 class EarlyRows:
-    """The summaries of the rows whose episodes are all stored, made on a thread while the rest still run
-    (``--local-processes``' launcher: every process runs its batched rows before the oracle, so those rows'
-    tables are made while the oracle runs). ``offer(records)``: the records stored so far (every store's, in
-    order), offered as often as convenient; ``select``: the records of these that the tables use (e.g.
-    ``data.of_config``); ``result()``: the summaries made (waits for the thread)."""
+    """The summaries of the rows whose episodes are all stored and their paired differences, made on a thread
+    while the rest still run (``--local-processes``' launcher: every process runs its batched rows before the
+    oracle, so those rows' tables are made while the oracle runs; Figure 4's plotting library is loaded there
+    too). ``offer(records)``: the records stored so far (every store's, in order), offered as often as
+    convenient; ``select``: the records of these that the tables use (e.g. ``data.of_config``); ``result()``:
+    what was made (``Early``; waits for the thread)."""
 
     def __init__(self, config: Table1Config, classes: int, keys: Sequence[tuple[str, str, int, int]],
                  select: Callable[[list[dict[str, Any]]], list[dict[str, Any]]] = list) -> None:
@@ -121,6 +135,7 @@ class EarlyRows:
                 self._wanted[c, name] = self._wanted.get((c, name), 0) + 1
         self._total = sum(self._wanted.values())
         self._summaries: dict[tuple[str, str], RowSummary] = {}
+        self._differences: dict[tuple, tuple[float, float, float]] = {}
         self._thread: threading.Thread | None = None
 
     def offer(self, records: list[dict[str, Any]]) -> None:
@@ -136,11 +151,15 @@ class EarlyRows:
     def _make(self, rows: dict[tuple[str, str], list[dict[str, Any]]]) -> None:
         for (c, name), recs in rows.items():
             self._summaries[c, name] = row_summary(self._config, name, recs, self._classes)
+        for c in dict.fromkeys(c for c, _ in rows):
+            labels = {name: s.labels for (k, name), s in self._summaries.items() if k == c}
+            differences(self._config, rows, c, self._classes, labels, self._differences)
+        from jaxcls.experiments.table1 import figure  # noqa: F401  (matplotlib's import, ~0.3 s, off the tail)
 
-    def result(self) -> dict[tuple[str, str], RowSummary]:
+    def result(self) -> Early:
         if self._thread is not None:
             self._thread.join()
-        return dict(self._summaries)
+        return Early(dict(self._summaries), dict(self._differences))
 
 
 def detections(records: list[dict[str, Any]], classes: int, moves: int, resamples: int) -> tuple[str, str]:
