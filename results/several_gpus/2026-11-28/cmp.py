@@ -24,7 +24,8 @@ for other in sys.argv[2:]:
         if base[k] != b[k]:
             x, y = base[k], b[k]
             m = next((i for i in range(len(x["path"])) if x["path"][i] != y["path"][i]
-                      or x["refined"][i] != y["refined"][i] or x.get("prior", [None] * 99)[i] != y.get("prior", [None] * 99)[i]), None)
+                      or x["refined"][i] != y["refined"][i]
+                      or x.get("prior", [None] * 99)[i] != y.get("prior", [None] * 99)[i]), None)
             first[m] += 1
     print(f"{sys.argv[1]} vs {other}: {len(base)} vs {len(b)} records, {len(keys)} shared, identical "
           f"{sum(same.values())}; per row: " + ", ".join(f"{r} {same[r]}/{n}" for r, n in rows.items())
