@@ -43,8 +43,11 @@ if TYPE_CHECKING:
 
 ENV = "JAXCLS_CACHE_DIR"
 OFF = ("off", "none", "0", "false", "")
-# Programs that compile faster than this are not written (they cost more to load than to build again).
-MIN_COMPILE_SECONDS = 0.1
+# Programs that compile faster than this are not written. 0: every one is, the smallest too. A warm Table 1
+# process then loads the ~60 small programs of its start-up (conversions, concatenations, the sensor's) instead of
+# compiling them again (~10 ms each on a 2-core CPU): the first call dispatched 5.3 -> 5.0 s after the process
+# started on the 2-core CPU, medians of 5 (BENCHMARKS.md, "Table 1's warm start").
+MIN_COMPILE_SECONDS = 0.0
 _host: Path | None = None  # where ``cached_arrays`` keeps its entries (set by ``enable``)
 _exported: dict[tuple, Callable] = {}  # ``exported``'s programs in this process, by key and compiler options
 _making: dict[tuple, threading.Lock] = {}  # one lock a program being made: a second thread waits for the first
