@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import importlib
 import io as _io
 import threading
 from collections.abc import Callable, Mapping, Sequence
@@ -154,7 +155,7 @@ class EarlyRows:
         for c in dict.fromkeys(c for c, _ in rows):
             labels = {name: s.labels for (k, name), s in self._summaries.items() if k == c}
             differences(self._config, rows, c, self._classes, labels, self._differences)
-        from jaxcls.experiments.table1 import figure  # noqa: F401  (matplotlib's import, ~0.3 s, off the tail)
+        importlib.import_module("jaxcls.experiments.table1.figure")  # (matplotlib's import, ~0.3 s, off the tail)
 
     def result(self) -> Early:
         if self._thread is not None:
