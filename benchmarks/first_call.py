@@ -7,7 +7,8 @@ against JAX's cache plus the traced programs kept on disk (``compile_cache.expor
 Settings: ``jax`` (JAX's cache alone), ``exported`` (plus the exported programs, loaded ahead on up to
 ``compile_cache.AHEAD_THREADS`` threads at once; where a device renders the frames, the first chunk's made on a
 thread while the classifiers load), ``serial`` (the same, one program at a time: the programs of several
-classifiers, ``--classifiers shipped paper``, loaded one after the other), ``frames_later`` (``exported`` with the
+classifiers, ``--classifiers shipped paper``, loaded one after the other), ``wait_all`` (``exported`` with the
+first call waiting for every classifier's programs, not its own alone: as before 2026-11-28), ``frames_later`` (``exported`` with the
 first frames made after the classifiers load, on the main thread: ``runner.FRAMES_AHEAD`` off) and
 ``frames_ahead`` (``exported`` with them made on a thread wherever the renderer allows work beside its renders:
 ``runner.FRAMES_AHEAD`` on).
@@ -54,6 +55,17 @@ if sys.argv[1] == "jax":
     compile_cache.exported = lambda jitted, args, kind, options=None: compile_cache.jitted(jitted, options)
 if sys.argv[1] == "serial":
     compile_cache.AHEAD_THREADS = 1
+if sys.argv[1] == "wait_all":  # (every classifier's programs loaded before the first call: its own one's alone since)
+    from jaxcls.experiments.table1 import runner
+    run_batched = runner.run_batched
+
+    def waiting_for_all(*args, loading=None, **kwargs):
+        if loading:
+            first, *rest = loading
+            loading = {first: [f for futures in loading.values() for f in futures], **{c: [] for c in rest}}
+        return run_batched(*args, loading=loading, **kwargs)
+
+    runner.run_batched = waiting_for_all
 if sys.argv[1] in ("frames_later", "frames_ahead"):
     from jaxcls.experiments.table1 import runner
     runner.FRAMES_AHEAD = sys.argv[1] == "frames_ahead"
@@ -79,6 +91,7 @@ SETTINGS = {"jax": "JAX's cache",
             "exported": f"JAX's cache + the exported programs (up to {compile_cache.AHEAD_THREADS} loads at once; "
                         "the first frames made while the classifiers load where a device renders them)",
             "serial": "JAX's cache + the exported programs, loaded one at a time",
+            "wait_all": "JAX's cache + the exported programs, the first call waiting for every classifier's",
             "frames_later": "JAX's cache + the exported programs, the first frames made after the classifiers load",
             "frames_ahead": "JAX's cache + the exported programs, the first frames made while the classifiers load"}
 CLASSIFIERS = {"shipped": "", "paper": "builtin_paper"}

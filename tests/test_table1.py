@@ -477,6 +477,57 @@ def test_each_classifiers_programs_loaded_ahead_have_the_whole_runs_shapes_and_p
     assert runner.load_batched_ahead(config, scenes, DatasetConfig(), {"a": "A"}, None, todo) == []  # (no cache)
 
 
+def test_a_classifiers_first_call_waits_for_its_own_programs_alone(monkeypatch, tmp_path):
+    """``run_batched`` dispatches a classifier's first call once that classifier's programs are loaded, while
+    the next classifier's still load (its first call then waits for them); where the renderer forbids a load
+    beside a render, every load is done before the first render."""
+    import types
+    from concurrent.futures import Future
+
+    from tqdm.auto import tqdm
+
+    from jaxcls.world.dataset import DatasetConfig
+
+    config = Table1Config(rows=("vis_occl_hist_gr",), classifiers={"a": "", "b": ""}, runs=1, moves=1, scenes=2,
+                          scene_chunk=2)
+    todo = [(c, "vis_occl_hist_gr", s, 0) for c in ("a", "b") for s in range(2)]
+    seen = []  # (what happened, whether b's programs were loaded then)
+    monkeypatch.setattr(runner, "episode", lambda config, row, classifier, *rest: types.SimpleNamespace(
+        switched=lambda policies: types.SimpleNamespace(choose=lambda policy, gr: classifier)))
+    monkeypatch.setattr(runner.scoring.Truth, "from_scene", staticmethod(lambda scene, object_set: scene))
+    monkeypatch.setattr(runner.protocol, "episode_records", lambda traces, truths, extra: extra)
+    monkeypatch.setattr(runner.batched, "fetch", lambda traces, n: traces)
+
+    for beside in (True, False):
+        loads = {"a": Future(), "b": Future()}
+        loads["a"].set_result(None)
+        seen.clear()
+
+        def dispatch(chosen, depth, T_wc, scene, start, key, mesh, size, loads=loads, **kw):
+            seen.append((f"call {chosen}", loads["b"].done()))
+            return {"path": np.zeros((size, 1), np.int32)}
+
+        def chunk(order, loads=loads):
+            seen.append(("render", loads["b"].done()))
+            if not loads["b"].done():  # (b's programs done a moment after the first render)
+                threading.Timer(0.5, loads["b"].set_result, (None,)).start()
+            return data.Chunk(scenes=[types.SimpleNamespace(table_height=0.0) for _ in order], depth=np.zeros((len(order), 2, 3, 4), np.float32),
+                         T_wc=np.zeros((len(order), 2, 4, 4), np.float32), intrinsics=None)
+
+        if not beside:
+            threading.Timer(0.2, loads["b"].set_result, (None,)).start()
+        monkeypatch.setattr(runner.batched, "dispatch", dispatch)
+        scenes = types.SimpleNamespace(loads_beside_renders=lambda beside=beside: beside, prepare_renderer=lambda: None,
+                                       chunk=chunk)
+        made = runner.run_batched(config, scenes, DatasetConfig(), {"a": "A", "b": "B"}, None, todo,
+                                  tmp_path / f"{beside}.jsonl", tqdm(disable=True), loading={c: [f] for c, f in loads.items()})
+        assert sorted(runner.record_key(r) for r in made) == sorted(todo)
+        if beside:
+            assert seen == [("render", False), ("call A", False), ("call B", True)], seen
+        else:
+            assert seen == [("render", True), ("call A", True), ("call B", True)], seen
+
+
 def test_the_oracle_splits_its_calls_not_its_scenes():
     """The oracle's calls are the same for every process count (process i of N runs calls i, i + N, ...): each
     classifier's episodes in (scene, run) order, ``oracle_runs_per_call`` a call; a call's frames hold its scenes."""

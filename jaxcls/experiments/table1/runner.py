@@ -164,13 +164,13 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
             first.frames.add_done_callback(lambda _: clock.mark(FIRST_FRAMES_MADE))
         # Each classifier's batched programs loaded from the cache as soon as it is (on threads, beside the next
         # classifier's load and the first frames), not once every classifier is.
-        classifiers, loading = {}, []
+        classifiers, loading = {}, {}
         for name, path in config.classifiers.items():
             classifiers[name] = setup.load_classifier(path, object_set, f"classifiers.{name}")
-            loading += load_batched_ahead(config, scene_set, dataset, {name: classifiers[name]}, object_set,
-                                          batched_todo, share)
+            loading[name] = load_batched_ahead(config, scene_set, dataset, {name: classifiers[name]}, object_set,
+                                               batched_todo, share)
         clock.mark(CLASSIFIERS_LOADED)
-        mark_when_done(loading, clock, PROGRAMS_LOADED)
+        mark_when_done([f for futures in loading.values() for f in futures], clock, PROGRAMS_LOADED)
     mine = process_store(store, (index, count))  # where this process appends
     with tqdm(total=len(wanted), initial=len(wanted) - len(todo), desc="episodes", unit="episode",
               disable=not show_progress) as bar:
@@ -248,7 +248,7 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                 classifiers: dict[str, pointnet.Classifier], object_set, todo: list[tuple[str, str, int, int]],
                 store: Path, bar: tqdm, clock: Phases | None = None, planned: int | None = None,
                 then: Callable[[], None] | None = None, first: FirstFrames | None = None,
-                loading: list[Future] | None = None) -> list[dict[str, Any]]:
+                loading: dict[str, list[Future]] | None = None) -> list[dict[str, Any]]:
     """The single-view and policy rows' episodes ``todo`` batched over scenes and runs and sharded over the
     local devices (``episode.batched``): the frames of ``scene_chunk`` of ``todo``'s scenes at a time (rounded up
     to a multiple of the devices), split by scene over the devices (each holds 1/n of them and runs their
@@ -260,13 +260,14 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     from ``planned`` scenes (the whole run's share, so that a resumed run has the first one's shapes and
     compiles nothing; default: ``todo``'s). With the compilation cache on, each program is read and compiled
     (loaded) on a background thread (``compile_cache.ahead``) while the host builds the renderer and renders the
-    first chunk, and waited for before the first call; where the renderer forbids a load beside a render
-    (``Scenes.loads_beside_renders``: MuJoCo Warp's own graph capture), before the first render. ``then`` is
+    first chunk, and a classifier's waited for before its first call (the first call waits for its own program
+    alone, the others load meanwhile); where the renderer forbids a load beside a render
+    (``Scenes.loads_beside_renders``: MuJoCo Warp's own graph capture), all of them before the first render. ``then`` is
     called once the last chunk's frames are rendered and in use, with no render to come here (e.g. to load the
     next rows' programs while the last calls run). ``first``: the first chunk's frames being made already (on a
     thread, ``Scenes.chunk_ahead``: its renderer built there too), used where they are of its scenes.
-    ``loading``: the programs' loads started already (``load_batched_ahead`` with the same ``todo`` and
-    ``planned``: ``run_episodes`` starts each classifier's as soon as it is loaded); default: started here."""
+    ``loading``: the programs' loads started already, by classifier (``load_batched_ahead`` with the same ``todo``
+    and ``planned``: ``run_episodes`` starts each classifier's as soon as it is loaded); default: started here."""
     clock = clock or Phases()
     device_mesh = batched.mesh()
     policies = tuple(dict.fromkeys(program_row(protocol.ROWS[k[1]]).policy for k in todo))
@@ -306,14 +307,18 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     _, per_call, layouts = chunk_plan(config, scenes, planned, n)
     size = per_call * n * config.runs
     if loading is None:  # (the programs loaded while the host builds the renderer)
-        loading = load_batched_ahead(config, scene_set, dataset, classifiers, object_set, todo, planned)
-    loading = list(loading)  # (waited for before the first call)
+        loading = {c: load_batched_ahead(config, scene_set, dataset, {c: classifiers[c]}, object_set, todo, planned)
+                   for c in classifiers}
+    loading = {c: list(futures) for c, futures in loading.items()}  # (each waited for before its first call)
     if first is None:
         with clock("frames (rendered or read)"):
             scene_set.prepare_renderer()
 
-    def loaded() -> None:  # (the first call's load, as far as the renderer's set-up and frames did not hide it)
-        wait_for(loading, episodes_clock)
+    def loaded(c: str | None = None) -> None:
+        """Classifier ``c``'s programs loaded (None: every one), as far as the renderer's set-up, the frames and
+        the earlier calls did not hide their loads."""
+        for name in loading if c is None else [c]:
+            wait_for(loading.get(name, []), episodes_clock)
 
     if not scene_set.loads_beside_renders():
         loaded()
@@ -362,7 +367,7 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                     key = np.stack([keys[s][r] for s, r in call])
                     bar.set_postfix(scenes=f"{chunk_scenes[0]}-{chunk_scenes[-1]}", classifier=c,
                                     rows="+".join(names))
-                    loaded()
+                    loaded(c)
                     with episodes_clock():
                         traces = batched.dispatch(chosen, depth, T_wc, scene, start, key, device_mesh, size,
                                                   split_scenes=True, kernels=config.kernels)
