@@ -8,9 +8,9 @@ Settings: ``jax`` (JAX's cache alone), ``exported`` (plus the exported programs,
 ``compile_cache.AHEAD_THREADS`` threads at once; where a device renders the frames, the first chunk's made on a
 thread while the classifiers load), ``serial`` (the same, one program at a time: the programs of several
 classifiers, ``--classifiers shipped paper``, loaded one after the other), ``wait_all`` (``exported`` with the
-first call waiting for every classifier's programs, not its own alone: as before 2026-11-28), ``frames_later`` (``exported`` with the
-first frames made after the classifiers load, on the main thread: ``runner.FRAMES_AHEAD`` off) and
-``frames_ahead`` (``exported`` with them made on a thread wherever the renderer allows work beside its renders:
+first call waiting for every classifier's programs, not its own alone: as before 2026-11-28), ``frames_later``
+(``exported`` with the first frames made after the classifiers load, on the main thread: ``runner.FRAMES_AHEAD``
+off) and ``frames_ahead`` (``exported`` with them made on a thread wherever the renderer allows work beside its renders:
 ``runner.FRAMES_AHEAD`` on).
 Each setting gets its own cache folder, filled by one cold run; then the settings' warm runs take turns (the
 order reversed every other round), each a fresh process of ``experiments/table1.py`` (its own ``out_dir``).

@@ -511,8 +511,9 @@ def test_a_classifiers_first_call_waits_for_its_own_programs_alone(monkeypatch, 
             seen.append(("render", loads["b"].done()))
             if not loads["b"].done():  # (b's programs done a moment after the first render)
                 threading.Timer(0.5, loads["b"].set_result, (None,)).start()
-            return data.Chunk(scenes=[types.SimpleNamespace(table_height=0.0) for _ in order], depth=np.zeros((len(order), 2, 3, 4), np.float32),
-                         T_wc=np.zeros((len(order), 2, 4, 4), np.float32), intrinsics=None)
+            S = len(order)
+            return data.Chunk(scenes=[types.SimpleNamespace(table_height=0.0)] * S, intrinsics=None,
+                              depth=np.zeros((S, 2, 3, 4), np.float32), T_wc=np.zeros((S, 2, 4, 4), np.float32))
 
         if not beside:
             threading.Timer(0.2, loads["b"].set_result, (None,)).start()
@@ -520,7 +521,8 @@ def test_a_classifiers_first_call_waits_for_its_own_programs_alone(monkeypatch, 
         scenes = types.SimpleNamespace(loads_beside_renders=lambda beside=beside: beside, prepare_renderer=lambda: None,
                                        chunk=chunk)
         made = runner.run_batched(config, scenes, DatasetConfig(), {"a": "A", "b": "B"}, None, todo,
-                                  tmp_path / f"{beside}.jsonl", tqdm(disable=True), loading={c: [f] for c, f in loads.items()})
+                                  tmp_path / f"{beside}.jsonl", tqdm(disable=True),
+                                  loading={c: [f] for c, f in loads.items()})
         assert sorted(runner.record_key(r) for r in made) == sorted(todo)
         if beside:
             assert seen == [("render", False), ("call A", False), ("call B", True)], seen
