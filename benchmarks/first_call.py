@@ -8,7 +8,7 @@ Settings: ``jax`` (JAX's cache alone), ``exported`` (plus the exported programs,
 ``compile_cache.AHEAD_THREADS`` threads at once; where a device renders the frames, the first chunk's made on a
 thread while the classifiers load), ``serial`` (the same, one program at a time: the programs of several
 classifiers, ``--classifiers shipped paper``, loaded one after the other), ``wait_all`` (``exported`` with the
-first call waiting for every classifier's programs, not its own alone: as before 2026-11-28), ``frames_later``
+first call waiting for every classifier's programs, not its own alone: as before 4b244bc), ``frames_later``
 (``exported`` with the first frames made after the classifiers load, on the main thread: ``runner.FRAMES_AHEAD``
 off) and ``frames_ahead`` (``exported`` with them made on a thread wherever the renderer allows work beside its renders:
 ``runner.FRAMES_AHEAD`` on).
@@ -55,7 +55,7 @@ if sys.argv[1] == "jax":
     compile_cache.exported = lambda jitted, args, kind, options=None: compile_cache.jitted(jitted, options)
 if sys.argv[1] == "serial":
     compile_cache.AHEAD_THREADS = 1
-if sys.argv[1] == "wait_all":  # (every classifier's programs loaded before the first call: its own one's alone since)
+if sys.argv[1] == "wait_all":  # (every classifier's programs loaded before the first call, as before 4b244bc)
     from jaxcls.experiments.table1 import runner
     run_batched = runner.run_batched
 
