@@ -498,6 +498,13 @@ def test_a_classifiers_first_call_waits_for_its_own_programs_alone(monkeypatch, 
     monkeypatch.setattr(runner.protocol, "episode_records", lambda traces, truths, extra: extra)
     monkeypatch.setattr(runner.batched, "fetch", lambda traces, n: traces)
 
+    lock = threading.Lock()
+
+    def settle(future: Future) -> None:  # (b's load done, once)
+        with lock:
+            if not future.done():
+                future.set_result(None)
+
     for beside in (True, False):
         loads = {"a": Future(), "b": Future()}
         loads["a"].set_result(None)
@@ -505,26 +512,31 @@ def test_a_classifiers_first_call_waits_for_its_own_programs_alone(monkeypatch, 
 
         def dispatch(chosen, depth, T_wc, scene, start, key, mesh, size, loads=loads, **kw):
             seen.append((f"call {chosen}", loads["b"].done()))
+            if chosen == "A":  # (b's programs done a moment after a's first call went out)
+                threading.Timer(0.3, settle, (loads["b"],)).start()
             return {"path": np.zeros((size, 1), np.int32)}
 
         def chunk(order, loads=loads):
             seen.append(("render", loads["b"].done()))
-            if not loads["b"].done():  # (b's programs done a moment after the first render)
-                threading.Timer(0.5, loads["b"].set_result, (None,)).start()
             S = len(order)
             return data.Chunk(scenes=[types.SimpleNamespace(table_height=0.0)] * S, intrinsics=None,
                               depth=np.zeros((S, 2, 3, 4), np.float32), T_wc=np.zeros((S, 2, 4, 4), np.float32))
 
-        if not beside:
-            threading.Timer(0.2, loads["b"].set_result, (None,)).start()
+        # Where loads may run beside renders, b's load ends only after a's first call (a call that waited for it
+        # would wait for this timer: 60 s); elsewhere it ends a moment after the run starts.
+        done_later = threading.Timer(60.0 if beside else 0.2, settle, (loads["b"],))
+        done_later.start()
         monkeypatch.setattr(runner.batched, "dispatch", dispatch)
         scenes = types.SimpleNamespace(loads_beside_renders=lambda beside=beside: beside, prepare_renderer=lambda: None,
                                        chunk=chunk)
-        made = runner.run_batched(config, scenes, DatasetConfig(), {"a": "A", "b": "B"}, None, todo,
-                                  tmp_path / f"{beside}.jsonl", tqdm(disable=True),
-                                  loading={c: [f] for c, f in loads.items()})
+        try:
+            made = runner.run_batched(config, scenes, DatasetConfig(), {"a": "A", "b": "B"}, None, todo,
+                                      tmp_path / f"{beside}.jsonl", tqdm(disable=True),
+                                      loading={c: [f] for c, f in loads.items()})
+        finally:
+            done_later.cancel()
         assert sorted(runner.record_key(r) for r in made) == sorted(todo)
-        if beside:
+        if beside:  # (b's first call waited for b's load, which a's call started)
             assert seen == [("render", False), ("call A", False), ("call B", True)], seen
         else:
             assert seen == [("render", True), ("call A", True), ("call B", True)], seen
