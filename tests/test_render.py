@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import math
+import os
+import subprocess
+import sys
 
 import jax
 import jax.numpy as jnp
@@ -288,6 +291,30 @@ def test_warp_without_gpu_says_how_to_install(with_mesh):
     assert default_backend() == "mujoco"
     with pytest.raises(RuntimeError, match=r"warp.*unavailable.*pip install"):
         make_renderer(with_mesh, INTR, "warp")
+
+
+_CHOICE = """
+import importlib.util, sys
+from jaxcls.world.render import factory
+factory._has_cuda = lambda: {cuda}
+found = importlib.util.find_spec
+importlib.util.find_spec = lambda name, *a: (found("json") if {warp} else None) if name == "warp" else found(name, *a)
+print(factory.default_backend(), factory.loads_beside_renders("static"), factory.loads_beside_renders("forward"),
+      "mujoco.mjx" in sys.modules)
+"""
+
+
+@pytest.mark.parametrize(("cuda", "warp", "chosen"), [(True, True, "warp"), (True, False, "mujoco"),
+                                                       (False, True, "mujoco")])
+def test_the_backend_is_chosen_without_importing_mjx(cuda, warp, chosen):
+    """``auto`` is warp exactly where a CUDA device and warp-lang are present, told without importing MJX or
+    MuJoCo Warp (~4 s on a GPU machine, spent where the process first renders instead); so is whether a load may
+    run beside a render. In a fresh process, a CUDA device and warp-lang's presence given."""
+    code = _CHOICE.format(cuda=cuda, warp=warp)
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          env={**os.environ, "JAX_PLATFORMS": "cpu"})
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.split() == [chosen, "True", "False", "False"]
 
 
 # ---------------------------------------------------------------- warp helpers that run on a CPU

@@ -156,7 +156,7 @@ class Scenes:
         if not self.on_device:
             return True
         from jaxcls.world.bank import KINEMATICS
-        from jaxcls.world.render.warp import loads_beside_renders
+        from jaxcls.world.render.factory import loads_beside_renders
 
         return loads_beside_renders(KINEMATICS)
 

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+import importlib.util
+from typing import TYPE_CHECKING, Literal
 
 import jax
 
@@ -23,13 +24,24 @@ def _has_cuda() -> bool:
 def default_backend() -> Backend:
     """``"warp"`` where a CUDA GPU and warp-lang are present (MJX's batch renderer), else ``"mujoco"``.
 
-    MJX (and warp-lang, which prints when it is missing) is imported only where a CUDA GPU is present.
+    Nothing is imported to tell: MJX and MuJoCo Warp take ~4 s to import on a GPU machine, which a process then
+    spends where it first renders (e.g. on Table 1's frames thread, beside its classifiers' loads), not where it
+    reads its config. A warp-lang that is present but fails to import is reported by the renderer
+    (``WarpRenderer``: ``render.warp.warp_unavailable_reason``), not passed over for the CPU caster.
     """
-    if not _has_cuda():
+    if not _has_cuda() or importlib.util.find_spec("warp") is None:
         return Backend.mujoco
-    from jaxcls.world.render.warp import warp_unavailable_reason
+    return Backend.warp
 
-    return Backend.warp if warp_unavailable_reason() is None else Backend.mujoco
+
+def loads_beside_renders(kinematics: Literal["forward", "static"]) -> bool:
+    """Whether another thread may load a program onto the GPU while a ``WarpRenderer`` of ``kinematics``
+    renders (known without importing MJX). Not under Warp's own (staged) CUDA graph capture, ``forward``: a load
+    beside it broke the capture ("Warp CUDA error 901: operation failed due to a previous error during capture",
+    or a crash, within seconds on an H200). ``static`` runs in JAX's graph mode, where JAX captures: three 30 s
+    loops of ~110 scene-bank renders beside a thread compiling and running ~110 programs all finished (one H100,
+    2026-11-27)."""
+    return kinematics == "static"
 
 
 def resolve_backend(name: Backend | str) -> Backend:

@@ -45,6 +45,7 @@ from flax import struct
 from jaxcls.geometry import CV_TO_MJ, Intrinsics
 from jaxcls.math import normalize
 from jaxcls.world.render import contract
+from jaxcls.world.render.factory import loads_beside_renders
 from jaxcls.world.render.mjx_quiet import mjx, mjxw
 from jaxcls.world.render.types import NO_DEPTH, NO_OBJECT, Backend, DepthFrames
 
@@ -255,15 +256,6 @@ def render_buffers(mx: Any, dx: Any, rc: Any) -> tuple[jax.Array, jax.Array]:
     dx = mjx.refit_bvh(mx, dx, rc)
     _, depth, seg, _ = mjx.render_with_segmentation(mx, dx, rc)
     return depth, seg
-
-
-def loads_beside_renders(kinematics: Literal["forward", "static"]) -> bool:
-    """Whether another thread may load a program onto the GPU while a ``WarpRenderer`` of ``kinematics``
-    renders. Not under Warp's own (staged) CUDA graph capture, ``forward``: a load beside it broke the capture
-    ("Warp CUDA error 901: operation failed due to a previous error during capture", or a crash, within seconds
-    on an H200). ``static`` runs in JAX's graph mode, where JAX captures: three 30 s loops of ~110 scene-bank
-    renders beside a thread compiling and running ~110 programs all finished (one H100, 2026-11-27)."""
-    return kinematics == "static"
 
 
 class WarpRenderer:
