@@ -10,9 +10,14 @@ thread while the classifiers load), ``serial`` (the same, one program at a time:
 classifiers, ``--classifiers shipped paper``, loaded one after the other), ``wait_all`` (``exported`` with the
 first call waiting for every classifier's programs, not its own alone: as before 4b244bc), ``frames_later``
 (``exported`` with the first frames made after the classifiers load, on the main thread: ``runner.FRAMES_AHEAD``
-off) and ``frames_ahead`` (``exported`` with them made on a thread wherever the renderer allows work beside its renders:
-``runner.FRAMES_AHEAD`` on).
-Each setting gets its own cache folder, filled by one cold run; then the settings' warm runs take turns (the
+off), ``frames_ahead`` (``exported`` with them made on a thread wherever the renderer allows work beside its renders:
+``runner.FRAMES_AHEAD`` on) and ``import_early`` (``exported`` with MJX and MuJoCo Warp imported when the process
+starts, on the main thread, as where choosing the renderer imported them: before 5cd8821), ``devices_thread``
+(``exported`` with JAX's runtime started on a thread when the process starts, beside the imports) and
+``no_prealloc`` (``exported`` with ``XLA_PYTHON_CLIENT_PREALLOCATE=false``: no pool of 75% of the GPU taken at
+the first transfer).
+Each setting gets its own cache folder, filled by one cold run (or, ``--cache-from DIR``, a copy of a folder an
+earlier run of the same config filled: no cold run); then the settings' warm runs take turns (the
 order reversed every other round), each a fresh process of ``experiments/table1.py`` (its own ``out_dir``).
 Reported per setting: the median of the process's wall time and of its run's phases (``run_times.json``): the
 first call (tracing, lowering, compiling or loading the episode program), when it was dispatched (seconds since
@@ -29,6 +34,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -49,7 +55,12 @@ ROOT = Path(__file__).resolve().parents[1]
 
 # experiments/table1.py in a child process; "jax" keeps JAX's cache only (no exported programs).
 CHILD = """
-import runpy, sys
+import os, runpy, sys, threading
+if sys.argv[1] == "no_prealloc":  # (before JAX starts its runtime)
+    os.environ["XLA_PYTHON_CLIENT_PREALLOCATE"] = "false"
+if sys.argv[1] == "devices_thread":  # (the runtime started on a thread while the main one imports)
+    import jax
+    threading.Thread(target=jax.devices, daemon=True).start()
 from jaxcls import compile_cache
 if sys.argv[1] == "jax":
     compile_cache.exported = lambda jitted, args, kind, options=None: compile_cache.jitted(jitted, options)
@@ -66,6 +77,8 @@ if sys.argv[1] == "wait_all":  # (every classifier's programs loaded before the 
         return run_batched(*args, loading=loading, **kwargs)
 
     runner.run_batched = waiting_for_all
+if sys.argv[1] == "import_early":  # (MJX and MuJoCo Warp imported before the config is read, as before 5cd8821)
+    from jaxcls.world.render import mjx_quiet  # noqa: F401
 if sys.argv[1] in ("frames_later", "frames_ahead"):
     from jaxcls.experiments.table1 import runner
     runner.FRAMES_AHEAD = sys.argv[1] == "frames_ahead"
@@ -93,7 +106,10 @@ SETTINGS = {"jax": "JAX's cache",
             "serial": "JAX's cache + the exported programs, loaded one at a time",
             "wait_all": "JAX's cache + the exported programs, the first call waiting for every classifier's",
             "frames_later": "JAX's cache + the exported programs, the first frames made after the classifiers load",
-            "frames_ahead": "JAX's cache + the exported programs, the first frames made while the classifiers load"}
+            "frames_ahead": "JAX's cache + the exported programs, the first frames made while the classifiers load",
+            "import_early": "JAX's cache + the exported programs, MJX and MuJoCo Warp imported at the start",
+            "devices_thread": "JAX's cache + the exported programs, the runtime started on a thread at the start",
+            "no_prealloc": "JAX's cache + the exported programs, no preallocated GPU memory pool"}
 CLASSIFIERS = {"shipped": "", "paper": "builtin_paper"}
 
 
@@ -120,6 +136,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--settings", nargs="+", choices=tuple(SETTINGS), default=["jax", "exported"])
     parser.add_argument("--classifiers", nargs="+", choices=tuple(CLASSIFIERS), default=["shipped"],
                         help="the default config's classifiers (one batched program each)")
+    parser.add_argument("--cache-from", type=Path, help="a compilation cache folder ($JAXCLS_CACHE_DIR) filled by a "
+                        "run of the same config: each setting's starts as a copy of it and of the exported programs "
+                        "beside it (no cold runs)")
     parser.add_argument("--out", help="append the section to this Markdown file")
     parser.add_argument("overrides", nargs="*", help="experiments/table1.py overrides (key=value)")
     args = parser.parse_args(argv)
@@ -134,21 +153,29 @@ def main(argv: list[str] | None = None) -> None:
             config = str(tmp / "table1.yaml")
             classifiers = ", ".join(f"{c}: '{CLASSIFIERS[c]}'" for c in args.classifiers)
             Path(config).write_text(SMALL.format(data=tmp / "data", classifiers="{" + classifiers + "}"))
-        cold = {s: _run(s, tmp / s / "xla", config, tmp / f"{s}_cold", args.overrides) for s in settings}
+        cold: dict[str, dict] = {}
+        for s in settings:
+            if args.cache_from:  # (JAX's cache, and the exported programs beside it: compile_cache.exported)
+                shutil.copytree(args.cache_from, tmp / s / "xla")
+                if (args.cache_from.parent / "exported").is_dir():
+                    shutil.copytree(args.cache_from.parent / "exported", tmp / s / "exported")
+            else:
+                cold[s] = _run(s, tmp / s / "xla", config, tmp / f"{s}_cold", args.overrides)
         print("cold", {s: (round(r["wall"], 1), r["first"]) for s, r in cold.items()}, file=sys.stderr)
         for r in range(args.rounds):
             for s in settings if r % 2 == 0 else reversed(settings):
                 runs[s].append(_run(s, tmp / s / "xla", config, tmp / f"{s}_{r}", args.overrides))
                 print(s, r, {k: round(v, 1) for k, v in runs[s][-1].items() if k not in ("records", "timeline")},
                       file=sys.stderr)
-    reference = next(iter(cold.values()))["records"]
+    reference = next(iter(cold.values() or runs[next(iter(settings))]))["records"]
     same = all(run["records"] == reference for rs in [*runs.values(), list(cold.values())] for run in rs)
     rows = []
     for s, name in settings.items():
         rs = runs[s]
         med = {k: statistics.median(run[k] for run in rs) for k in ("wall", "first", "run", "started")}
         spread = f"{min(run['first'] for run in rs):.1f}-{max(run['first'] for run in rs):.1f}"
-        rows.append((name, report.device_name(), f"{cold[s]['first']:.1f}", f"{med['first']:.1f}", spread,
+        cold_first = f"{cold[s]['first']:.1f}" if s in cold else "(copied cache)"
+        rows.append((name, report.device_name(), cold_first, f"{med['first']:.1f}", spread,
                      f"{med['started']:.1f}", f"{med['run']:.1f}", f"{med['wall']:.1f}"))
     timeline = [(name, *(f"{statistics.median(run['timeline'][m] for run in runs[s]):.1f}"
                          for m in (STARTUP, *TIMELINE))) for s, name in settings.items()]
@@ -158,8 +185,9 @@ def main(argv: list[str] | None = None) -> None:
         ("cache", "device", "cold first call s", "warm first call s (median)", "range",
          "warm: first call dispatched, s after the process started (median)", "warm run s (median)",
          "warm process wall s (median)"), rows,
-        intro=f"{args.rounds} warm runs a setting, alternating, each a fresh process after one cold run a setting "
-              f"in its own cache folder; config "
+        intro=f"{args.rounds} warm runs a setting, alternating, each a fresh process after "
+              + (f"its cache folder was copied from {args.cache_from}" if args.cache_from else
+                 "one cold run a setting in its own cache folder") + "; config "
               f"{args.config or 'a 2-scene synthetic one, classifiers ' + ', '.join(args.classifiers)}.",
         notes=[f"every run's records are {'the same' if same else 'NOT the same'}"])
         + "\nA warm run's start: when each step was done, s after the process started (median; nan: not in this "
