@@ -60,6 +60,25 @@ def _cached_arrays_in_memory(kind, key, build):
 compile_cache.cached_arrays = _cached_arrays_in_memory
 _ONE_WORKER = ("test_episode.py", "test_observe.py", "test_pointnet.py", "test_refine.py", "test_tracking.py",
                "test_train.py")
+# The longest tests outside _ONE_WORKER's files, longest first (seconds on the 2-core CPU under -n 2). Under -n,
+# loadgroup deals out the groups (largest first), then every other test, one at a time, in the collection's order:
+# these go first, and the short ones last, so that neither worker runs a long test alone at the end while the other
+# has finished (a 170 s test dealt out last kept one worker busy ~100 s past the other).
+_LONGEST = {name: rank for rank, name in enumerate((
+    "test_table1.py::test_the_oracle_bounds_a_policy_one_move_ahead",  # ~165 s
+    "test_batched.py::test_one_program_runs_every_row_as_its_own_program_does",  # ~110
+    "test_readme.py::test_readme_python_examples_run",  # ~65
+    "test_table1.py::test_interrupted_experiment_resumes_and_the_same_seed_gives_the_same_numbers",  # ~60
+    "test_batched.py::test_episodes_that_render_as_they_move_give_the_records_of_frames_rendered_before",  # ~60
+    "test_user_models.py::test_own_models_dataset_train_table1[folders]",  # ~55
+    "test_counting.py::test_empty_slots_stay_finite_and_are_ignored",  # ~40
+    "test_visibility.py::test_the_continuous_policy_ends_at_least_as_high_as_the_best_candidate",  # ~30
+    "test_scene_source.py::test_worker_processes_make_the_same_clouds",  # ~30
+    "test_user_models.py::test_own_models_dataset_train_table1[bop]",  # ~25
+    "test_scene_source.py::test_scene_clouds_are_pure_labelled_segments_and_resume",  # ~25
+    "test_lookalike.py::test_a_tiny_training_run_of_pointnet_hard",  # ~20
+    "test_notebooks.py::test_notebook_runs_and_ends_in_a_figure[quickstart.ipynb]",  # ~20
+))}
 _LIMIT = xla_flags.map_limit()
 _seen = {"after_test": 0, "freed_after_test": 0}
 
@@ -77,10 +96,28 @@ def pytest_configure_node(node):  # (xdist's controller, for each worker it star
 
 
 @pytest.hookimpl(tryfirst=True)  # (before xdist's worker names each item by its group)
-def pytest_collection_modifyitems(items):
+def pytest_collection_modifyitems(config, items):
     for item in items:
         if item.path.name in _ONE_WORKER:
             item.add_marker(pytest.mark.xdist_group(item.path.stem))
+    if hasattr(config, "workerinput"):  # a worker of -n: the longest tests first (_LONGEST)
+        items.sort(key=lambda item: _LONGEST.get(f"{item.path.name}::{item.name}", len(_LONGEST)))
+
+
+@pytest.fixture
+def host_arrays(monkeypatch) -> dict:
+    """The ``cached_arrays`` entries (kind, key) -> arrays this test's own work uses, filled as it asks for them:
+    for a subprocess of the test, which otherwise builds them again (~10 s of ICP targets for a model library on
+    the 2-core CPU), to hand out as built (the conftest's memory does the same here: a pure function of its key)."""
+    used: dict = {}
+    inner = compile_cache.cached_arrays
+
+    def recording(kind, key, build):
+        used[kind, key] = arrays = inner(kind, key, build)
+        return arrays
+
+    monkeypatch.setattr(compile_cache, "cached_arrays", recording)
+    return used
 
 
 @pytest.fixture(autouse=True)
