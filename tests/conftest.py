@@ -24,6 +24,17 @@ on in folders of its own. The host work that the cache keeps on disk beside the 
 model library, built again for every episode and library) is kept in the process's memory instead while the
 cache is off: a pure function of its key (every input), built once a process and handed out as built (nothing
 writes to it). With the cache on (``_host`` set), ``cached_arrays`` behaves as it does outside the tests.
+
+The suite compiles at XLA's lowest optimisation (``jax_disable_most_optimizations``; its subprocesses through
+``$JAX_DISABLE_MOST_OPTIMIZATIONS``): most of its time is XLA compiling programs that then run on small inputs, and
+LLVM's optimisation was the larger part of that (the whole suite under -n 2 on the 2-core CPU: 16 min 8 s at full
+optimisation, 13 min 13 s so, on 2026-11-29).
+What a test checks holds at any level: programs compute the same things, rounded otherwise. A test marked
+``optimised`` runs at XLA's full optimisation, as outside the tests: one that compares two programs to the last
+digits (at the lowest level two programs of the same step round apart, and ICP's near-ties carry it), or whose
+running time is larger than its compiling. Between an unmarked and a marked test every compiled program is freed
+(``jax.clear_caches``), since the level is not part of JAX's key for a compiled program.
+``JAX_DISABLE_MOST_OPTIMIZATIONS=0`` runs the whole suite at full optimisation.
 """
 
 from __future__ import annotations
@@ -38,6 +49,8 @@ import pytest
 from jaxcls import compile_cache, xla_flags
 
 os.environ.setdefault(compile_cache.ENV, "off")  # subprocesses (the CLI tests) inherit it
+_LOWEST = "JAX_DISABLE_MOST_OPTIMIZATIONS"
+_SUITE_LOWEST = os.environ.setdefault(_LOWEST, "1").lower() in ("1", "true", "yes")  # the suite's level (unmarked)
 
 _MAP_BUDGET = 0.5  # share of vm.max_map_count a process may hold after a test before its programs are freed
 _HOST_ENTRIES = 160  # cached_arrays entries kept in memory (an ICP target's lookups: ~0.5-2 MB)
@@ -102,6 +115,28 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(pytest.mark.xdist_group(item.path.stem))
     if hasattr(config, "workerinput"):  # a worker of -n: the longest tests first (_LONGEST)
         items.sort(key=lambda item: _LONGEST.get(f"{item.path.name}::{item.name}", len(_LONGEST)))
+
+
+_level: dict[str, bool] = {}  # {"lowest": the level programs compile at now}
+
+
+def _compile_at_lowest(lowest: bool) -> None:
+    """Compile at XLA's lowest optimisation (``lowest``) or its full one, here and in subprocesses started from
+    now; every compiled program is freed when the level changes."""
+    if _level.get("lowest") != lowest:
+        jax.config.update("jax_disable_most_optimizations", lowest)
+        if _level:
+            jax.clear_caches()
+        _level["lowest"] = lowest
+    os.environ[_LOWEST] = "1" if lowest else "0"
+
+
+_compile_at_lowest(_SUITE_LOWEST)
+
+
+@pytest.hookimpl(tryfirst=True)  # (before the test's fixtures are set up: theirs compile at its level too)
+def pytest_runtest_setup(item):
+    _compile_at_lowest(_SUITE_LOWEST and item.get_closest_marker("optimised") is None)
 
 
 @pytest.fixture

@@ -113,6 +113,7 @@ def _assert_states_equal(a, b, atol=1e-5, rho_atol=0.0):
             np.testing.assert_allclose(x, y, atol=atol, rtol=1e-4)
 
 
+@pytest.mark.optimised  # (two programs of the same move compared to their last digits)
 def test_the_timed_host_path_and_the_jitted_step_agree(episode, frames):
     key = jax.random.PRNGKey(0)
     jitted = timed = active.reset(episode, frames.viewpoints, 7, key)
@@ -148,6 +149,7 @@ def test_moves_after_the_first_compile_nothing(episode, frames):
     assert sizes[1] == sizes[0] and sizes[2] == sizes[0], sizes
 
 
+@pytest.mark.optimised  # (two programs of the same move compared to their last digits)
 def test_vmapped_step_equals_the_sequential_one(world, frames):
     """Two episodes (other starts, other keys) stepped together under vmap give what stepping each gives,
     move after move (each move from the same states). Frames fused at the poses given: a tracked pose differs

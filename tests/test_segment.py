@@ -158,6 +158,8 @@ def test_padding_invariance_and_determinism(path):
     assert adjusted_rand_score(np.repeat(np.arange(5), 200), np.asarray(a.labels)) > 0.95
 
 
+@pytest.mark.optimised  # (fusing 120 frames, running not compiling, is most of its time)
+@pytest.mark.xdist_group("segment_fused_scenes")  # (one worker builds the fixture: 15 s)
 def test_fused_scenes_ari_and_twin_agreement(fused_scenes):
     """Both paths against the posed surfaces (issue: mean ARI >= 0.9 after 5 views), and the scale path's
     twin against scikit-learn's path on the same clouds (issue: ARI >= 0.95). One test: the reference
@@ -455,6 +457,8 @@ def test_known_count_is_the_default_and_a_bad_choice_names_the_key():
         segment.SegmentConfig(absorb_area=-0.001)
 
 
+@pytest.mark.optimised  # (fusing 120 frames, running not compiling, is most of its time)
+@pytest.mark.xdist_group("segment_fused_scenes")  # (one worker builds the fixture: 15 s)
 def test_fused_scenes_estimated_count_and_twin_agreement(fused_scenes):
     """On rendered scenes fused from five views (5 objects each, 6 slots): the count is right in most
     scenes, and the twin and the reference agree on the count in every scene and on the partition (ARI)."""

@@ -295,6 +295,7 @@ def test_info_gain_prefers_the_side_not_yet_seen():
         nbv.choose(nbv.InfoGain(), views, belief.replace(volume=None), jax.random.key(0), SMALL)
 
 
+@pytest.mark.optimised  # (its running, not its compiling, is most of its time)
 def test_the_continuous_policy_ends_at_least_as_high_as_the_best_candidate():
     """Gradient ascent of the soft utility from the best discrete candidates ends at or above the best
     candidate's utility in >= 90% of random scenes, and the snapped choice is a real, other viewpoint."""
