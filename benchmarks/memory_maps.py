@@ -1,7 +1,8 @@
 """Memory maps per compiled program, compile time and run time, with XLA's defaults and with jaxcls's XLA
 flags (``jaxcls.xla_flags.FLAGS``).
 
-    python benchmarks/memory_maps.py [--programs 20] [--rounds 2] [--no-episode] [--setting NAME=FLAGS] [--out FILE]
+    python benchmarks/memory_maps.py [--programs 20] [--rounds 2] [--no-episode] [--setting NAME=FLAGS]
+        [--only NAME] [--out FILE]
 
 Each (setting, round) is a fresh process (``JAXCLS_XLA_FLAGS=off``, ``$XLA_FLAGS`` set to the setting's
 flags, the persistent compilation cache off); rounds alternate the order of the settings. In it:
@@ -14,6 +15,9 @@ flags, the persistent compilation cache off); rounds alternate the order of the 
   256 points a segment): ``active.step_jit`` (one program per move) and ``active.timed_step`` (one program
   per stage, ``jaxcls run``'s path): maps, compile seconds and the median of 4 later moves.
 
+``--setting`` adds a setting (e.g. jaxcls's flags with XLA's lowest optimisation, ``--xla_backend_optimization_level=0
+--xla_llvm_disable_expensive_passes=true``: what ``jax_disable_most_optimizations`` sets, the test suite's level);
+``--only`` keeps the named settings alone (repeatable; the first named is the reference of the states).
 Reported: the median over rounds. Every run's states after the same moves are compared with the first
 setting's: the flags change the code generator of the fused loops, hence float rounding, not the labels.
 """
@@ -147,6 +151,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--no-episode", action="store_true")
     parser.add_argument("--setting", action="append", default=[], metavar="NAME=FLAGS",
                         help="another setting to measure (repeatable)")
+    parser.add_argument("--only", action="append", default=[], metavar="NAME",
+                        help="measure only these settings (repeatable), in this order")
     parser.add_argument("--out", help="append the section to this Markdown file")
     parser.add_argument("--child", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -160,6 +166,10 @@ def main(argv: list[str] | None = None) -> None:
 
     settings = _settings()
     settings.update(dict(spec.split("=", 1) for spec in args.setting))
+    if args.only:
+        if unknown := [name for name in args.only if name not in settings]:
+            parser.error(f"--only: no setting named {unknown}; the settings: {list(settings)}")
+        settings = {name: settings[name] for name in args.only}
     runs: dict[str, list[dict]] = {name: [] for name in settings}
     same: dict[str, set[str]] = {name: set() for name in settings}
     with tempfile.TemporaryDirectory() as tmp:
