@@ -11,22 +11,18 @@ each row's F1 interval after move T, 2,000 resamples; the two must give the same
 from __future__ import annotations
 
 import argparse
-import json
-import lzma
 import time
 
 import numpy as np
 
-from jaxcls import metrics, report
+from jaxcls import io, metrics, report
 
 
 def per_scene_rows(path: str) -> dict[str, list[tuple[np.ndarray, np.ndarray]]]:
     """{row: [(true [n_s], refined after T [n_s])] per scene} of a stored run's labels."""
     scenes: dict[str, dict[int, list]] = {}
-    with lzma.open(path, "rt") as f:
-        for line in f:
-            r = json.loads(line)
-            scenes.setdefault(r["row"], {}).setdefault(r["scene"], []).append((r["true"], r["refined"][-1]))
+    for r in io.read_jsonl(path):
+        scenes.setdefault(r["row"], {}).setdefault(r["scene"], []).append((r["true"], r["refined"][-1]))
     return {row: [(np.concatenate([np.asarray(t) for t, _ in runs]), np.concatenate([np.asarray(p) for _, p in runs]))
                   for _, runs in sorted(by.items())] for row, by in scenes.items()}
 

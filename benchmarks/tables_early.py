@@ -8,14 +8,13 @@ oracle). Interleaved rounds in one process; medians and every round; the tables 
 from __future__ import annotations
 
 import argparse
-import json
-import lzma
 import statistics
 import time
 from pathlib import Path
 
 import scipy.stats  # noqa: F401  (imported before timing, as the launcher does while its processes run)
 
+from jaxcls import io
 from jaxcls.config import load_config
 from jaxcls.experiments.table1 import data, tables
 from jaxcls.experiments.table1.config import Table1Config
@@ -29,9 +28,7 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=3)
     args = parser.parse_args()
     store = args.run / "labels.jsonl.xz"
-    opened = lzma.open(store, "rt") if store.exists() else open(args.run / "episodes.jsonl")
-    with opened as f:
-        records = [json.loads(line) for line in f if line.strip()]
+    records = io.read_jsonl(store if store.exists() else args.run / "episodes.jsonl")
     config = load_config(Table1Config, args.run / "config.yaml")
     classes = len(object_set_from_config(data.dataset_config(config).objects).classes)
     keys = [(r["classifier"], r["row"], r["scene"], r["run"]) for r in records]

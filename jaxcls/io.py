@@ -14,7 +14,9 @@ half-written result (a reader sees the old content or the new one, never a mix).
 from __future__ import annotations
 
 import contextlib
+import gzip
 import json
+import lzma
 import os
 import shutil
 import tempfile
@@ -140,13 +142,23 @@ def atomic_folder(folder: str | os.PathLike) -> Iterator[Path]:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
+# Compressed JSONL archives (``xz -k episodes.jsonl``: a finished run's records kept in results/), by suffix.
+_ARCHIVE_OPENERS = {".xz": lzma.open, ".gz": gzip.open}
+
+
 def read_jsonl(path: str | os.PathLike) -> list[dict[str, Any]]:
-    """The records of a JSONL log (``append_jsonl``); [] if it does not exist. A last line without its
-    newline (torn by an interruption) is left out; a damaged line elsewhere is a ValueError naming it."""
+    """The records of a JSONL log (``append_jsonl``) or of its archive (``.xz``, ``.gz``: read as compressed);
+    [] if it does not exist. A last line without its newline (torn by an interruption) is left out; a damaged
+    line elsewhere is a ValueError naming it."""
     path = Path(path)
     if not path.exists():
         return []
-    text = path.read_text()
+    opener = _ARCHIVE_OPENERS.get(path.suffix)
+    if opener is None:
+        text = path.read_text()
+    else:
+        with opener(path, "rt") as f:
+            text = f.read()
     lines = text.split("\n")
     complete = lines[:-1]  # the piece after the last newline is empty, or torn
     records = []

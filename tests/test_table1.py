@@ -6,9 +6,12 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import gzip
 import importlib.util
 import json
+import lzma
 import os
+import shutil
 import socket
 import subprocess
 import sys
@@ -68,6 +71,34 @@ def test_jsonl_log_drops_a_torn_line_and_appends_cleanly(tmp_path):
     io.write_text(path, "".join(f'{{"n": {i}}}\n' for i in range(20_000)) + '{"n": "torn' + " " * 70_000)
     io.append_jsonl(path, [{"n": "next"}])
     assert [r["n"] for r in io.read_jsonl(path)][-2:] == [19_999, "next"]
+
+
+def _archive(path: Path, suffix: str) -> Path:
+    """``path`` compressed beside it as ``xz -k`` / ``gzip -k`` make it (Python's module where the tool is missing)."""
+    tool, module = {".xz": ("xz", lzma), ".gz": ("gzip", gzip)}[suffix]
+    archive = path.with_name(path.name + suffix)
+    if shutil.which(tool):
+        subprocess.run([tool, "-k", str(path)], check=True)
+    else:
+        with module.open(archive, "wb") as f:
+            f.write(path.read_bytes())
+    return archive
+
+
+def test_an_archived_log_reads_as_the_log(tmp_path):
+    """A log compressed by ``xz -k`` or ``gzip -k`` (a finished run's records kept in results/) reads as the log
+    itself, its torn last line left out too; a damaged line is named in the archive."""
+    path = tmp_path / "episodes.jsonl"
+    io.append_jsonl(path, [{"a": 1, "b": [1, 2]}, {"a": 2}])
+    with open(path, "a") as f:
+        f.write('{"a": 3, "b"')
+    for suffix in (".xz", ".gz"):
+        archive = _archive(path, suffix)
+        assert io.read_jsonl(archive) == io.read_jsonl(path) == [{"a": 1, "b": [1, 2]}, {"a": 2}]
+        archive.unlink()
+    path.write_text('{"a": 1}\nnot json\n')
+    with pytest.raises(ValueError, match=r"episodes\.jsonl\.xz: line 2"):
+        io.read_jsonl(_archive(path, ".xz"))
 
 
 def test_local_processes_get_a_gpu_each_and_a_failed_one_stops_them_all(table1, tmp_path, capsys):
