@@ -4,9 +4,9 @@
         --run new=results/tracking/real_like_new.jsonl.xz --run old=results/tracking/real_like_old.jsonl.xz \\
         [--baseline old] [--out RESULTS.md]
 
-Each ``--run name=path`` is an ``episodes.jsonl`` (or its ``.xz`` archive) written by ``experiments/table1.py`` with one setting (e.g.
-``perception.tracking.mode=reported decision=last`` against the defaults), on the same dataset, seed, starts
-and keys, so every (row, scene, run) episode has a partner in each file. For every row the table gives F1
+Each ``--run name=path`` is an ``episodes.jsonl`` (or its ``.xz`` archive) written by ``experiments/table1.py``
+with one setting (e.g. ``perception.tracking.mode=reported decision=last`` against the defaults), on the same
+dataset, seed, starts and keys, so every (row, scene, run) episode has a partner in each file. For every row the table gives F1
 after T/2 and T moves with 95% scene-bootstrap intervals and the paired F1@T - F1@T/2 (does the last half
 of the episode help?), then each setting against ``--baseline`` on the same episodes (paired by scene).
 
