@@ -6,9 +6,9 @@
 
 Each ``--run name=path`` is an ``episodes.jsonl`` (or its ``.xz`` archive) written by ``experiments/table1.py``
 with one setting (e.g. ``perception.tracking.mode=reported decision=last`` against the defaults), on the same
-dataset, seed, starts and keys, so every (row, scene, run) episode has a partner in each file. For every row the table gives F1
-after T/2 and T moves with 95% scene-bootstrap intervals and the paired F1@T - F1@T/2 (does the last half
-of the episode help?), then each setting against ``--baseline`` on the same episodes (paired by scene).
+dataset, seed, starts and keys, so every (row, scene, run) episode has a partner in each file. For every row
+the table gives F1 after T/2 and T moves with 95% scene-bootstrap intervals and the paired F1@T - F1@T/2 (does
+the last half of the episode help?), then each setting against ``--baseline`` on the same episodes (paired by scene).
 
 With ``--dataset`` (a shipped dataset config name or path: its ``seed`` and sensor give each scene's true
 hand-eye error, ``T_reported = T_true @ dT``, drawn as ``jaxcls dataset`` draws it, without rendering), the
