@@ -15,7 +15,8 @@ off), ``frames_ahead`` (``exported`` with them made on a thread wherever the ren
 starts, on the main thread, as where choosing the renderer imported them: before 5cd8821), ``devices_thread``
 (``exported`` with JAX's runtime started on a thread when the process starts, beside the imports) and
 ``no_prealloc`` (``exported`` with ``XLA_PYTHON_CLIENT_PREALLOCATE=false``: no pool of 75% of the GPU taken at
-the first transfer).
+the first transfer) and ``full_tracebacks`` (``exported`` with JAX's whole traceback in each operation's location,
+JAX's default, not one frame: ``compile_cache.one_frame_locations`` off).
 Each setting gets its own cache folder, filled by one cold run (or, ``--cache-from DIR``, a copy of a folder an
 earlier run of the same config filled: no cold run); then the settings' warm runs take turns (the
 order reversed every other round), each a fresh process of ``experiments/table1.py`` (its own ``out_dir``).
@@ -58,6 +59,8 @@ CHILD = """
 import os, runpy, sys, threading
 if sys.argv[1] == "no_prealloc":  # (before JAX starts its runtime)
     os.environ["XLA_PYTHON_CLIENT_PREALLOCATE"] = "false"
+if sys.argv[1] == "full_tracebacks":  # (JAX's whole traceback in each operation's location: JAX's default)
+    os.environ["JAX_INCLUDE_FULL_TRACEBACKS_IN_LOCATIONS"] = "true"
 if sys.argv[1] == "devices_thread":  # (the runtime started on a thread while the main one imports)
     import jax
     threading.Thread(target=jax.devices, daemon=True).start()
@@ -109,7 +112,8 @@ SETTINGS = {"jax": "JAX's cache",
             "frames_ahead": "JAX's cache + the exported programs, the first frames made while the classifiers load",
             "import_early": "JAX's cache + the exported programs, MJX and MuJoCo Warp imported at the start",
             "devices_thread": "JAX's cache + the exported programs, the runtime started on a thread at the start",
-            "no_prealloc": "JAX's cache + the exported programs, no preallocated GPU memory pool"}
+            "no_prealloc": "JAX's cache + the exported programs, no preallocated GPU memory pool",
+            "full_tracebacks": "JAX's cache + the exported programs, whole tracebacks in the locations"}
 CLASSIFIERS = {"shipped": "", "paper": "builtin_paper"}
 
 

@@ -59,6 +59,8 @@ _background: ThreadPoolExecutor | None = None  # ``ahead``'s threads, started on
 AHEAD_THREADS = 4
 # JAX settings that say where and whether programs are cached, not what they compute: not in ``exported``'s key.
 _NOT_IN_KEY = ("compilation_cache", "persistent_cache", "log_compiles", "explain_cache_misses")
+# JAX's own setting (read when JAX is imported): set, whole tracebacks stay in the locations (``one_frame_locations``).
+FULL_TRACEBACKS_ENV = "JAX_INCLUDE_FULL_TRACEBACKS_IN_LOCATIONS"
 
 
 def cache_folder() -> Path | None:
@@ -70,10 +72,25 @@ def cache_folder() -> Path | None:
     return Path(base) / "jaxcls" / "xla"
 
 
+def one_frame_locations() -> None:
+    """Lower every later program with one Python source frame per operation in its locations (the line that made
+    it), not JAX's whole traceback (up to 100 frames): unless ``$JAX_INCLUDE_FULL_TRACEBACKS_IN_LOCATIONS`` says
+    otherwise. A GPU builds each kernel's profiler annotation from those frames whenever it compiles or loads a
+    program; with whole tracebacks that was half of loading Table 1's episode program from the cache (~3.0 ->
+    ~1.6 s a program on an H200, the same records: BENCHMARKS.md, "Table 1's warm start with one source frame
+    per operation"). Profiles and XLA's messages still name each operation's function path and its line."""
+    import jax
+
+    if FULL_TRACEBACKS_ENV not in os.environ:
+        jax.config.update("jax_include_full_tracebacks_in_locations", False)
+
+
 def enable(folder: str | Path | None = None, min_compile_seconds: float = MIN_COMPILE_SECONDS) -> Path | None:
-    """Turn JAX's persistent compilation cache on in ``folder`` (default ``cache_folder()``). Returns the
-    folder, or None when the cache is off (``$JAXCLS_CACHE_DIR=off``) or the folder cannot be written (a
-    warning says why; the run goes on, compiling as usual)."""
+    """Turn JAX's persistent compilation cache on in ``folder`` (default ``cache_folder()``), and lower programs
+    with one source frame per operation (``one_frame_locations``: faster loads, with the cache on or off).
+    Returns the folder, or None when the cache is off (``$JAXCLS_CACHE_DIR=off``) or the folder cannot be
+    written (a warning says why; the run goes on, compiling as usual)."""
+    one_frame_locations()
     target = cache_folder() if folder is None else Path(folder).expanduser()
     if target is None:
         return None
@@ -294,5 +311,5 @@ def _compiled(program: Any, out_tree: Any, args: tuple, compiler_options: dict |
     return run
 
 
-__all__ = ["ENV", "MIN_COMPILE_SECONDS", "ahead", "cache_folder", "cached_arrays", "enable", "enabled", "exported",
-           "exported_key", "jitted", "options_key"]
+__all__ = ["ENV", "FULL_TRACEBACKS_ENV", "MIN_COMPILE_SECONDS", "ahead", "cache_folder", "cached_arrays", "enable",
+           "enabled", "exported", "exported_key", "jitted", "one_frame_locations", "options_key"]
