@@ -18,8 +18,9 @@ lookup: for Table 1's episode program most of a warm first call (~5 of 6.6 s on 
 keeps a program's lowered form itself (StableHLO, ``jax.export``) in ``<folder>/../exported/<kind>``, keyed by
 what tracing reads, and a later process compiles that (from JAX's cache) without tracing.
 
-Loading even that takes seconds on a GPU (~5 s for Table 1's program on an H200: the executable read and put on
-the device), while the host would otherwise render frames or wait for the devices: ``ahead`` runs such a load
+Loading even that takes seconds on a GPU (~1.6 s for Table 1's program on an H200: the executable read, its
+kernels' annotations built and put on the device; ~3 s with JAX's whole tracebacks in the locations, hence
+``one_frame_locations``), while the host would otherwise render frames or wait for the devices: ``ahead`` runs such a load
 on a background thread, and ``exported`` takes the arguments' shapes alone (``jax.ShapeDtypeStruct`` with their
 sharding) for the arrays that do not exist yet, e.g. frames still to be rendered.
 """

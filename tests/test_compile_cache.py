@@ -48,6 +48,38 @@ def test_a_second_process_loads_what_the_first_compiled(tmp_path):
     assert int(second["hits"]) >= 1 and int(second["misses"]) == 0, second
 
 
+# A program of two nested functions lowered after ``enable``: its operations' locations, as text.
+LOCATIONS = """
+import jax, jax.numpy as jnp
+from jaxcls import compile_cache
+compile_cache.enable()
+
+def inner(x):
+    return jnp.sin(x) * 2.0
+
+def outer(x):
+    return inner(x) + 1.0
+
+print(jax.jit(outer).lower(1.0).as_text(debug_info=True))
+"""
+
+
+@pytest.mark.parametrize("full", [False, True])
+def test_operations_carry_one_source_frame_unless_jax_is_told_otherwise(tmp_path, full):
+    # One frame: each operation's location is its line alone, no call stack (``callsite``) for a GPU to format
+    # into every kernel's annotation at each load; JAX's own variable set keeps the whole traceback.
+    env = {**os.environ, "JAX_PLATFORMS": "cpu", compile_cache.ENV: str(tmp_path / "xla")}
+    env.pop(compile_cache.FULL_TRACEBACKS_ENV, None)
+    if full:
+        env[compile_cache.FULL_TRACEBACKS_ENV] = "true"
+    done = subprocess.run([sys.executable, "-c", LOCATIONS], capture_output=True, text=True, cwd=ROOT, env=env,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr
+    text = done.stdout
+    assert "stablehlo.sine" in text and ("callsite(" in text) == full
+    assert '"<string>":7:' in text, text  # inner's line, either way
+
+
 # A sharded program over a pytree with a static setting, through ``compile_cache.exported`` on two CPU devices:
 # prints how many programs it traced besides the cached one's wrapper, and its result.
 EXPORTED = """
