@@ -16,7 +16,8 @@ starts, on the main thread, as where choosing the renderer imported them: before
 (``exported`` with JAX's runtime started on a thread when the process starts, beside the imports) and
 ``no_prealloc`` (``exported`` with ``XLA_PYTHON_CLIENT_PREALLOCATE=false``: no pool of 75% of the GPU taken at
 the first transfer) and ``full_tracebacks`` (``exported`` with JAX's whole traceback in each operation's location,
-JAX's default, not one frame: ``compile_cache.one_frame_locations`` off).
+JAX's default, not one frame: ``compile_cache.one_frame_locations`` off) and ``classifiers_first`` (``exported``
+with every classifier loaded before the first call, not the first call's alone: ``runner.LATER_CLASSIFIERS`` off).
 Each setting gets its own cache folder, filled by one cold run (or, ``--cache-from DIR``, a copy of a folder an
 earlier run of the same config filled: no cold run); then the settings' warm runs take turns (the
 order reversed every other round), each a fresh process of ``experiments/table1.py`` (its own ``out_dir``).
@@ -69,6 +70,9 @@ if sys.argv[1] == "jax":
     compile_cache.exported = lambda jitted, args, kind, options=None: compile_cache.jitted(jitted, options)
 if sys.argv[1] == "serial":
     compile_cache.AHEAD_THREADS = 1
+if sys.argv[1] == "classifiers_first":  # (every classifier loaded before the first call, as before)
+    from jaxcls.experiments.table1 import runner
+    runner.LATER_CLASSIFIERS = False
 if sys.argv[1] == "wait_all":  # (every classifier's programs loaded before the first call, as before 4b244bc)
     from jaxcls.experiments.table1 import runner
     run_batched = runner.run_batched
@@ -113,7 +117,8 @@ SETTINGS = {"jax": "JAX's cache",
             "import_early": "JAX's cache + the exported programs, MJX and MuJoCo Warp imported at the start",
             "devices_thread": "JAX's cache + the exported programs, the runtime started on a thread at the start",
             "no_prealloc": "JAX's cache + the exported programs, no preallocated GPU memory pool",
-            "full_tracebacks": "JAX's cache + the exported programs, whole tracebacks in the locations"}
+            "full_tracebacks": "JAX's cache + the exported programs, whole tracebacks in the locations",
+            "classifiers_first": "JAX's cache + the exported programs, every classifier loaded before the first call"}
 CLASSIFIERS = {"shipped": "", "paper": "builtin_paper"}
 
 

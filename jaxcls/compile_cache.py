@@ -20,8 +20,8 @@ what tracing reads, and a later process compiles that (from JAX's cache) without
 
 Loading even that takes seconds on a GPU (~1.6 s for Table 1's program on an H200: the executable read, its
 kernels' annotations built and put on the device; ~3 s with JAX's whole tracebacks in the locations, hence
-``one_frame_locations``), while the host would otherwise render frames or wait for the devices: ``ahead`` runs such a load
-on a background thread, and ``exported`` takes the arguments' shapes alone (``jax.ShapeDtypeStruct`` with their
+``one_frame_locations``), while the host would otherwise render frames or wait for the devices: ``ahead`` runs such
+a load on a background thread, and ``exported`` takes the arguments' shapes alone (``jax.ShapeDtypeStruct`` with their
 sharding) for the arrays that do not exist yet, e.g. frames still to be rendered.
 """
 

@@ -573,6 +573,56 @@ def test_a_classifiers_first_call_waits_for_its_own_programs_alone(monkeypatch, 
             assert seen == [("render", True), ("call A", True), ("call B", True)], seen
 
 
+def test_the_classifiers_left_out_of_the_start_load_once_the_first_call_is_out(monkeypatch, tmp_path):
+    """``run_batched``'s ``more`` (``run_episodes``: the classifiers other than the first call's) is called once
+    the first call is dispatched, before the next one (a's second program's), and b's first call then waits for
+    the programs it started;
+    where the first call itself needs a classifier left out, ``more`` comes before it."""
+    import types
+    from concurrent.futures import Future
+
+    from tqdm.auto import tqdm
+
+    from jaxcls.world.dataset import DatasetConfig
+
+    config = Table1Config(rows=("random_gr", "vis_occl_hist_gr"), classifiers={"a": "", "b": ""}, runs=1, moves=1,
+                          scenes=2, scene_chunk=2)
+    seen = []
+    monkeypatch.setattr(runner, "episode", lambda config, row, classifier, *rest: types.SimpleNamespace(
+        switched=lambda policies: types.SimpleNamespace(choose=lambda policy, gr: classifier)))
+    monkeypatch.setattr(runner.scoring.Truth, "from_scene", staticmethod(lambda scene, object_set: scene))
+    monkeypatch.setattr(runner.protocol, "episode_records", lambda traces, truths, extra: extra)
+    monkeypatch.setattr(runner.batched, "fetch", lambda traces, n: traces)
+    monkeypatch.setattr(runner.batched, "dispatch", lambda chosen, depth, T_wc, scene, start, key, mesh, size, **kw: (
+        seen.append(f"call {chosen}") or {"path": np.zeros((size, 1), np.int32)}))
+
+    def chunk(order):
+        S = len(order)
+        return data.Chunk(scenes=[types.SimpleNamespace(table_height=0.0)] * S, intrinsics=None,
+                          depth=np.zeros((S, 2, 3, 4), np.float32), T_wc=np.zeros((S, 2, 4, 4), np.float32))
+
+    scenes = types.SimpleNamespace(loads_beside_renders=lambda: True, prepare_renderer=lambda: None, chunk=chunk)
+    for who in (("a", "b"), ("b",)):  # (both classifiers' episodes; b's alone: the first call needs b)
+        todo = [(c, row, s, 0) for c in who for row in config.rows for s in range(2)]
+        seen.clear()
+        b_loaded = Future()
+        classifiers, loading = {"a": "A"}, {"a": []}
+
+        def more(classifiers=classifiers, loading=loading, b_loaded=b_loaded):
+            seen.append("more")
+            classifiers["b"] = "B"
+            loading["b"] = [b_loaded]
+            threading.Timer(0.5, lambda: b_loaded.set_result(None) or seen.append("b's programs loaded")).start()
+
+        made = runner.run_batched(config, scenes, DatasetConfig(), classifiers, None, todo,
+                                  tmp_path / f"{len(who)}.jsonl", tqdm(disable=True), loading=loading, more=more)
+        assert sorted(runner.record_key(r) for r in made) == sorted(todo)
+        if who == ("a", "b"):  # (a's second program's call goes out while b loads)
+            assert seen == ["call A", "more", "call A", "b's programs loaded", "call B", "call B"], seen
+        else:
+            assert seen == ["more", "b's programs loaded", "call B", "call B"], seen
+
+
 def test_the_oracle_splits_its_calls_not_its_scenes():
     """The oracle's calls are the same for every process count (process i of N runs calls i, i + N, ...): each
     classifier's episodes in (scene, run) order, ``oracle_runs_per_call`` a call; a call's frames hold its scenes."""

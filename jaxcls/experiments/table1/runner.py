@@ -53,9 +53,15 @@ FIRST_CALL_DISPATCHED = "first batched call dispatched"
 # The other marks of a run's start (``Phases.mark``; ``run_times.json``'s ``marks_s``), in the order they come on a
 # warm GPU run: where the seconds before FIRST_CALL_DISPATCHED go (``benchmarks/first_call.py`` tabulates them).
 DEVICES_READY = "devices ready"  # (experiments/table1.py: the accelerator's runtime started)
-CLASSIFIERS_LOADED = "classifiers loaded"
+CLASSIFIERS_LOADED = "first classifier loaded"  # (the first call's; every one where ``LATER_CLASSIFIERS`` is off)
 FIRST_FRAMES_MADE = "first frames made"  # (the batched rows' first chunk, where it is made ahead)
-PROGRAMS_LOADED = "batched programs loaded"  # (every classifier's, where loaded ahead from the cache)
+PROGRAMS_LOADED = "its batched programs loaded"  # (where loaded ahead from the cache)
+# Whether a run with batched rows loads only the classifier of its first call before that call, and the others
+# (each with its programs, ``load_batched_ahead``) once the call is on the devices, where the renderer allows a
+# load beside its renders; False: every classifier before the first call. The host's work before the first call
+# is Python under one lock (imports, classifiers, the first frames), so each classifier left out of it starts the
+# run sooner (BENCHMARKS.md, "Table 1's warm start").
+LATER_CLASSIFIERS = True
 # The oracle's episodes in one call off the CPU: each tries its 32 candidates at every move, ~18,500 moves a call.
 ORACLE_EPISODES_PER_CALL = 64
 
@@ -162,13 +168,27 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
             slots = chunk_plan(config, sorted({k[2] for k in batched_todo}), share, devices)[2][0]
             first = FirstFrames(render_order(slots), scene_set.chunk_ahead(render_order(slots)))
             first.frames.add_done_callback(lambda _: clock.mark(FIRST_FRAMES_MADE))
-        # Each classifier's batched programs loaded from the cache as soon as it is (on threads, beside the next
-        # classifier's load and the first frames), not once every classifier is.
-        classifiers, loading = {}, {}
-        for name, path in config.classifiers.items():
-            classifiers[name] = setup.load_classifier(path, object_set, f"classifiers.{name}")
-            loading[name] = load_batched_ahead(config, scene_set, dataset, {name: classifiers[name]}, object_set,
-                                               batched_todo, share)
+        classifiers: dict[str, pointnet.Classifier] = {}
+        loading: dict[str, list[Future]] = {}
+
+        def load_classifiers() -> None:
+            """The classifiers not loaded yet, each one's batched programs loaded from the cache as soon as it is
+            (on threads, beside the next classifier's load, the first frames and the calls)."""
+            for name, path in config.classifiers.items():
+                if name not in classifiers:
+                    classifiers[name] = setup.load_classifier(path, object_set, f"classifiers.{name}")
+                    loading[name] = load_batched_ahead(config, scene_set, dataset, {name: classifiers[name]},
+                                                       object_set, batched_todo, share)
+
+        later = LATER_CLASSIFIERS and bool(batched_todo) and scene_set.loads_beside_renders()
+        if later:  # (the first call's classifier now, the others once that call is out: ``run_batched``'s ``more``)
+            first_one = next(c for c in config.classifiers if any(k[0] == c for k in batched_todo))
+            classifiers[first_one] = setup.load_classifier(config.classifiers[first_one], object_set,
+                                                           f"classifiers.{first_one}")
+            loading[first_one] = load_batched_ahead(config, scene_set, dataset, {first_one: classifiers[first_one]},
+                                                    object_set, batched_todo, share)
+        else:
+            load_classifiers()
         clock.mark(CLASSIFIERS_LOADED)
         mark_when_done([f for futures in loading.values() for f in futures], clock, PROGRAMS_LOADED)
     mine = process_store(store, (index, count))  # where this process appends
@@ -184,9 +204,11 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
         if batched_todo:
             # (the oracle's program loaded while the batched rows' last calls run, after their last render)
             stored += run_batched(config, scene_set, dataset, classifiers, object_set, batched_todo, mine, bar, clock,
-                                  share, then=load_oracle, first=first, loading=loading)
+                                  share, then=load_oracle, first=first, loading=loading,
+                                  more=load_classifiers if later else None)
         else:
             load_oracle()
+        load_classifiers()  # (every one loaded already, unless no batched call needed one)
         if oracle_todo:
             stored += run_oracle(config, scene_set, dataset, classifiers, object_set, oracle[index::count], done,
                                  mine, bar, clock, oracle_frames(config, oracle), oracle_loading)
@@ -248,7 +270,8 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                 classifiers: dict[str, pointnet.Classifier], object_set, todo: list[tuple[str, str, int, int]],
                 store: Path, bar: tqdm, clock: Phases | None = None, planned: int | None = None,
                 then: Callable[[], None] | None = None, first: FirstFrames | None = None,
-                loading: dict[str, list[Future]] | None = None) -> list[dict[str, Any]]:
+                loading: dict[str, list[Future]] | None = None,
+                more: Callable[[], None] | None = None) -> list[dict[str, Any]]:
     """The single-view and policy rows' episodes ``todo`` batched over scenes and runs and sharded over the
     local devices (``episode.batched``): the frames of ``scene_chunk`` of ``todo``'s scenes at a time (rounded up
     to a multiple of the devices), split by scene over the devices (each holds 1/n of them and runs their
@@ -267,7 +290,10 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     next rows' programs while the last calls run). ``first``: the first chunk's frames being made already (on a
     thread, ``Scenes.chunk_ahead``: its renderer built there too), used where they are of its scenes.
     ``loading``: the programs' loads started already, by classifier (``load_batched_ahead`` with the same ``todo``
-    and ``planned``: ``run_episodes`` starts each classifier's as soon as it is loaded); default: started here."""
+    and ``planned``: ``run_episodes`` starts each classifier's as soon as it is loaded); default: started here.
+    ``more``: adds the classifiers of ``todo`` that ``classifiers`` lacks to it, and their loads to ``loading``
+    (``run_episodes``: those it left out of the first call's start), called once the first call is dispatched, or
+    before, where a call needs one of them."""
     clock = clock or Phases()
     device_mesh = batched.mesh()
     policies = tuple(dict.fromkeys(program_row(protocol.ROWS[k[1]]).policy for k in todo))
@@ -309,7 +335,8 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
     if loading is None:  # (the programs loaded while the host builds the renderer)
         loading = {c: load_batched_ahead(config, scene_set, dataset, {c: classifiers[c]}, object_set, todo, planned)
                    for c in classifiers}
-    loading = {c: list(futures) for c, futures in loading.items()}  # (each waited for before its first call)
+    # (each waited for before its first call; ``more`` adds to the caller's dict, so it is read, not copied)
+    todo_classifiers = [c for c in config.classifiers if any(k[0] == c for k in todo)]
     if first is None:
         with clock("frames (rendered or read)"):
             scene_set.prepare_renderer()
@@ -346,11 +373,14 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
         starts = {s: protocol.start_views(config.seed, s, config.runs, V) for s in chunk_scenes}
         with jax.default_device(devices.host_cpu()):  # (on a GPU they would wait for its queue)
             keys = {s: np.asarray(protocol.run_keys(config.seed, s, config.runs)) for s in chunk_scenes}
-        for c in classifiers:
+        for c in todo_classifiers:
             programs: dict[tuple, tuple[protocol.Row, list[str]]] = {}  # (policy, GR, library) -> the rows it gives
             for name in dict.fromkeys(k[1] for k in chunk_todo if k[0] == c):
                 row = program_row(protocol.ROWS[name])
                 programs.setdefault((row.policy, row.refinement, row.library), (row, []))[1].append(name)
+            if programs and c not in classifiers and more is not None:  # (needed before the first call went out)
+                more()
+                more = None
             for row, names in programs.values():
                 if (c, row.library) not in switched:
                     switched[c, row.library] = episode(config, row, classifiers[c], object_set, chunk.intrinsics,
@@ -373,6 +403,9 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                                                   split_scenes=True, kernels=config.kernels)
                     clock.mark(FIRST_CALL_DISPATCHED)
                     dispatched.append(True)
+                    if more is not None:  # (the classifiers left out of the start, loaded while this call runs)
+                        more()
+                        more = None
                     if pending:
                         finish()  # the last call's records, while this one runs
                     calls = {(c, name): [(index[k[2:]], k) for k in chunk_todo
