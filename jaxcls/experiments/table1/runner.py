@@ -171,24 +171,21 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
         classifiers: dict[str, pointnet.Classifier] = {}
         loading: dict[str, list[Future]] = {}
 
-        def load_classifiers() -> None:
-            """The classifiers not loaded yet, each one's batched programs loaded from the cache as soon as it is
-            (on threads, beside the next classifier's load, the first frames and the calls)."""
-            for name, path in config.classifiers.items():
+        def load_classifiers(names: Sequence[str] = tuple(config.classifiers)) -> None:
+            """Those of the classifiers ``names`` not loaded yet, each one's batched programs loaded from the cache
+            as soon as it is (on threads, beside the next classifier's load, the first frames and the calls)."""
+            for name in names:
                 if name not in classifiers:
-                    classifiers[name] = setup.load_classifier(path, object_set, f"classifiers.{name}")
+                    classifiers[name] = setup.load_classifier(config.classifiers[name], object_set,
+                                                              f"classifiers.{name}")
                     loading[name] = load_batched_ahead(config, scene_set, dataset, {name: classifiers[name]},
                                                        object_set, batched_todo, share)
 
         later = LATER_CLASSIFIERS and bool(batched_todo) and scene_set.loads_beside_renders()
-        if later:  # (the first call's classifier now, the others once that call is out: ``run_batched``'s ``more``)
-            first_one = next(c for c in config.classifiers if any(k[0] == c for k in batched_todo))
-            classifiers[first_one] = setup.load_classifier(config.classifiers[first_one], object_set,
-                                                           f"classifiers.{first_one}")
-            loading[first_one] = load_batched_ahead(config, scene_set, dataset, {first_one: classifiers[first_one]},
-                                                    object_set, batched_todo, share)
-        else:
-            load_classifiers()
+        # (where ``later``: the first call's classifier now, the others once that call is out: ``run_batched``'s
+        # ``more``)
+        load_classifiers([next(c for c in config.classifiers if any(k[0] == c for k in batched_todo))] if later
+                         else tuple(config.classifiers))
         clock.mark(CLASSIFIERS_LOADED)
         mark_when_done([f for futures in loading.values() for f in futures], clock, PROGRAMS_LOADED)
     mine = process_store(store, (index, count))  # where this process appends
