@@ -142,7 +142,7 @@ def cached_arrays(kind: str, key: bytes, build: Callable[[], dict[str, np.ndarra
 
 
 @functools.cache
-def _code_digest() -> str:
+def code_digest() -> str:
     """A hash of every jaxcls source file (what a traced program is made of)."""
     root = Path(__file__).parent
     digest = hashlib.sha256()
@@ -168,7 +168,7 @@ def exported_key(args: tuple) -> str:
                             f"their sharding), got {type(x).__name__}")
     settings = sorted((k, repr(v)) for k, v in jax.config.values.items() if not any(w in k for w in _NOT_IN_KEY))
     platforms = sorted({(d.platform, d.device_kind) for x in leaves for d in x.sharding.device_set})
-    parts = [_code_digest(), jax.__version__, jaxlib.__version__, flax.__version__, np.__version__,
+    parts = [code_digest(), jax.__version__, jaxlib.__version__, flax.__version__, np.__version__,
              repr(settings), repr(platforms), str(tree),
              *(f"{x.shape}|{x.dtype}|{x.weak_type}|{x.sharding!r}" for x in leaves)]
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:40]
@@ -312,5 +312,5 @@ def _compiled(program: Any, out_tree: Any, args: tuple, compiler_options: dict |
     return run
 
 
-__all__ = ["ENV", "FULL_TRACEBACKS_ENV", "MIN_COMPILE_SECONDS", "ahead", "cache_folder", "cached_arrays", "enable",
-           "enabled", "exported", "exported_key", "jitted", "one_frame_locations", "options_key"]
+__all__ = ["ENV", "FULL_TRACEBACKS_ENV", "MIN_COMPILE_SECONDS", "ahead", "cache_folder", "cached_arrays", "code_digest",
+           "enable", "enabled", "exported", "exported_key", "jitted", "one_frame_locations", "options_key"]

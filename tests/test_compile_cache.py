@@ -308,3 +308,50 @@ def test_host_work_is_kept_beside_the_programs_and_rebuilt_when_unreadable(tmp_p
         np.testing.assert_array_equal(repaired["index"].reshape(np.asarray(fresh.grid).shape), np.asarray(fresh.grid))
     monkeypatch.setattr(compile_cache, "_host", None)
     assert compile_cache.cached_arrays("icp_targets", b"other", lambda: {"x": np.zeros(1)})["x"][0] == 0
+
+
+def test_a_procedural_object_set_is_kept_and_read_back_the_same(tmp_path, monkeypatch):
+    """``kept_on_disk``: a procedural set comes back from the host cache with the same names, classes, split, mesh
+    vertices and faces and surface samples as built; a second process-like call reads it without building; with
+    the cache off it is built every time; the builtin set goes through it."""
+    import numpy as np
+
+    from jaxcls.world.objects import builtin
+    from jaxcls.world.objects.model import ObjectSet, kept_on_disk
+
+    def build() -> ObjectSet:
+        made = [builtin._builtin_model(c, split, 0, 7, 64, f"{c}_{split}") for c in ("bowl", "mug") for split in (0, 1)]
+        return ObjectSet("two", ("bowl", "mug"), (made[0], made[2]), (made[1], made[3]))
+
+    def never() -> ObjectSet:
+        raise AssertionError("built again instead of read back")
+
+    original = build()
+    monkeypatch.setattr(compile_cache, "_host", tmp_path / "host")
+    written = kept_on_disk("test_set", (7,), build)
+    read = kept_on_disk("test_set", (7,), never)
+    for kept in (written, read):
+        assert (kept.name, kept.classes) == (original.name, original.classes)
+        for split in ("train", "test"):
+            for a, b in zip(getattr(original, split), getattr(kept, split), strict=True):
+                assert (a.name, a.class_name) == (b.name, b.class_name)
+                np.testing.assert_array_equal(np.asarray(a.mesh.vertices), np.asarray(b.mesh.vertices))
+                np.testing.assert_array_equal(np.asarray(a.mesh.faces), np.asarray(b.mesh.faces))
+                np.testing.assert_array_equal(a.surface_points, b.surface_points)
+                np.testing.assert_array_equal(a.surface_normals, b.surface_normals)
+    with pytest.raises(AssertionError, match="built again"):
+        kept_on_disk("test_set", (8,), never)  # (other arguments: another entry)
+    builtin._builtin_cached.cache_clear()
+    try:
+        small = builtin.builtin_object_set(seed=5, train_per_class=1, test_per_class=0, surface_samples=32)
+        assert any((tmp_path / "host" / "object_sets" / "builtin").iterdir())
+        builtin._builtin_cached.cache_clear()  # (as a new process: read back, not built)
+        monkeypatch.setattr(builtin, "_builtin_model", lambda *args: never())
+        again = builtin.builtin_object_set(seed=5, train_per_class=1, test_per_class=0, surface_samples=32)
+        assert [m.name for m in again.train] == [m.name for m in small.train] and len(again.train) == 8
+        builtin._builtin_cached.cache_clear()
+        monkeypatch.setattr(compile_cache, "_host", None)
+        with pytest.raises(AssertionError, match="built again"):  # (the cache off: built)
+            builtin.builtin_object_set(seed=5, train_per_class=1, test_per_class=0, surface_samples=32)
+    finally:
+        builtin._builtin_cached.cache_clear()

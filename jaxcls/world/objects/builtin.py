@@ -13,7 +13,7 @@ import numpy as np
 import trimesh
 
 from jaxcls.world.objects.mesh import _rest_offset, _surface_samples
-from jaxcls.world.objects.model import ObjectModel, ObjectSet
+from jaxcls.world.objects.model import ObjectModel, ObjectSet, kept_on_disk
 
 BUILTIN_CLASSES = ("bottle", "bowl", "box", "can", "drill", "jug", "lamp", "mug")
 
@@ -286,13 +286,16 @@ def _procedural_model(class_name: str, instance_parts: Callable[[str, np.random.
 
 @functools.lru_cache(maxsize=8)
 def _builtin_cached(seed: int, train_per_class: int, test_per_class: int, surface_samples: int) -> ObjectSet:
-    train, test = [], []
-    for class_name in BUILTIN_CLASSES:
-        for i in range(train_per_class):
-            train.append(_builtin_model(class_name, 0, i, seed, surface_samples, f"{class_name}_{i:03d}"))
-        for i in range(test_per_class):
-            test.append(_builtin_model(class_name, 1, i, seed, surface_samples, f"{class_name}_test_{i:03d}"))
-    return ObjectSet(f"builtin_seed{seed}", BUILTIN_CLASSES, tuple(train), tuple(test))
+    def build() -> ObjectSet:
+        train, test = [], []
+        for class_name in BUILTIN_CLASSES:
+            for i in range(train_per_class):
+                train.append(_builtin_model(class_name, 0, i, seed, surface_samples, f"{class_name}_{i:03d}"))
+            for i in range(test_per_class):
+                test.append(_builtin_model(class_name, 1, i, seed, surface_samples, f"{class_name}_test_{i:03d}"))
+        return ObjectSet(f"builtin_seed{seed}", BUILTIN_CLASSES, tuple(train), tuple(test))
+
+    return kept_on_disk("builtin", (seed, train_per_class, test_per_class, surface_samples), build)
 
 
 def builtin_object_set(seed: int = 0, train_per_class: int = 8, test_per_class: int = 4,

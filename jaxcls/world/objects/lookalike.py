@@ -60,7 +60,7 @@ from jaxcls.world.objects.builtin import (
     _tube,
 )
 from jaxcls.world.objects.mesh import _rest_offset
-from jaxcls.world.objects.model import ObjectModel, ObjectSet
+from jaxcls.world.objects.model import ObjectModel, ObjectSet, kept_on_disk
 
 # class -> (body, the parts it adds, in draw order)
 CLASS_PARTS: Mapping[str, tuple[str, tuple[str, ...]]] = {
@@ -225,14 +225,17 @@ def _lookalike_model(class_name: str, split: str, index: int, seed: int, surface
 
 @functools.lru_cache(maxsize=8)
 def _lookalike_cached(seed: int, train_per_class: int, test_per_class: int, surface_samples: int) -> ObjectSet:
-    train, test = [], []
-    for class_name in LOOKALIKE_CLASSES:
-        for i in range(train_per_class):
-            train.append(_lookalike_model(class_name, "train", i, seed, surface_samples, f"{class_name}_{i:03d}"))
-        for i in range(test_per_class):
-            test.append(_lookalike_model(class_name, "test", i, seed, surface_samples,
-                                         f"{class_name}_test_{i:03d}"))
-    return ObjectSet(f"lookalike_seed{seed}", LOOKALIKE_CLASSES, tuple(train), tuple(test))
+    def build() -> ObjectSet:
+        train, test = [], []
+        for class_name in LOOKALIKE_CLASSES:
+            for i in range(train_per_class):
+                train.append(_lookalike_model(class_name, "train", i, seed, surface_samples, f"{class_name}_{i:03d}"))
+            for i in range(test_per_class):
+                test.append(_lookalike_model(class_name, "test", i, seed, surface_samples,
+                                             f"{class_name}_test_{i:03d}"))
+        return ObjectSet(f"lookalike_seed{seed}", LOOKALIKE_CLASSES, tuple(train), tuple(test))
+
+    return kept_on_disk("lookalike", (seed, train_per_class, test_per_class, surface_samples), build)
 
 
 def lookalike_object_set(seed: int = 0, train_per_class: int = 8, test_per_class: int = 4,
