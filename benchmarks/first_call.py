@@ -17,7 +17,9 @@ starts, on the main thread, as where choosing the renderer imported them: before
 ``no_prealloc`` (``exported`` with ``XLA_PYTHON_CLIENT_PREALLOCATE=false``: no pool of 75% of the GPU taken at
 the first transfer) and ``full_tracebacks`` (``exported`` with JAX's whole traceback in each operation's location,
 JAX's default, not one frame: ``compile_cache.one_frame_locations`` off) and ``classifiers_first`` (``exported``
-with every classifier loaded before the first call, not the first call's alone: ``runner.LATER_CLASSIFIERS`` off).
+with every classifier loaded before the first call, not the first call's alone: ``runner.LATER_CLASSIFIERS`` off)
+and ``objects_built`` (``exported`` with the procedural object set made in the process, not read back from the
+host cache: ``objects.model.kept_on_disk`` off).
 Each setting gets its own cache folder, filled by one cold run (or, ``--cache-from DIR``, a copy of a folder an
 earlier run of the same config filled: no cold run); then the settings' warm runs take turns (the
 order reversed every other round), each a fresh process of ``experiments/table1.py`` (its own ``out_dir``).
@@ -70,6 +72,9 @@ if sys.argv[1] == "jax":
     compile_cache.exported = lambda jitted, args, kind, options=None: compile_cache.jitted(jitted, options)
 if sys.argv[1] == "serial":
     compile_cache.AHEAD_THREADS = 1
+if sys.argv[1] == "objects_built":  # (the procedural object set made, not read back from the host cache)
+    from jaxcls.world.objects import builtin, lookalike
+    builtin.kept_on_disk = lookalike.kept_on_disk = lambda kind, arguments, build: build()
 if sys.argv[1] == "classifiers_first":  # (every classifier loaded before the first call, as before)
     from jaxcls.experiments.table1 import runner
     runner.LATER_CLASSIFIERS = False
@@ -118,7 +123,8 @@ SETTINGS = {"jax": "JAX's cache",
             "devices_thread": "JAX's cache + the exported programs, the runtime started on a thread at the start",
             "no_prealloc": "JAX's cache + the exported programs, no preallocated GPU memory pool",
             "full_tracebacks": "JAX's cache + the exported programs, whole tracebacks in the locations",
-            "classifiers_first": "JAX's cache + the exported programs, every classifier loaded before the first call"}
+            "classifiers_first": "JAX's cache + the exported programs, every classifier loaded before the first call",
+            "objects_built": "JAX's cache + the exported programs, the object set made, not read back"}
 CLASSIFIERS = {"shipped": "", "paper": "builtin_paper"}
 
 
