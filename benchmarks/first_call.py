@@ -153,7 +153,7 @@ def main(argv: list[str] | None = None) -> None:
                         help="the default config's classifiers (one batched program each)")
     parser.add_argument("--cache-from", type=Path, help="a compilation cache folder ($JAXCLS_CACHE_DIR) filled by a "
                         "run of the same config: each setting's starts as a copy of it and of the exported programs "
-                        "beside it (no cold runs)")
+                        "and host work beside it (no cold runs)")
     parser.add_argument("--out", help="append the section to this Markdown file")
     parser.add_argument("overrides", nargs="*", help="experiments/table1.py overrides (key=value)")
     args = parser.parse_args(argv)
@@ -170,10 +170,11 @@ def main(argv: list[str] | None = None) -> None:
             Path(config).write_text(SMALL.format(data=tmp / "data", classifiers="{" + classifiers + "}"))
         cold: dict[str, dict] = {}
         for s in settings:
-            if args.cache_from:  # (JAX's cache, and the exported programs beside it: compile_cache.exported)
+            if args.cache_from:  # (JAX's cache, and beside it the exported programs and the host work kept)
                 shutil.copytree(args.cache_from, tmp / s / "xla")
-                if (args.cache_from.parent / "exported").is_dir():
-                    shutil.copytree(args.cache_from.parent / "exported", tmp / s / "exported")
+                for beside in ("exported", "host"):
+                    if (args.cache_from.parent / beside).is_dir():
+                        shutil.copytree(args.cache_from.parent / beside, tmp / s / beside)
             else:
                 cold[s] = _run(s, tmp / s / "xla", config, tmp / f"{s}_cold", args.overrides)
         print("cold", {s: (round(r["wall"], 1), r["first"]) for s, r in cold.items()}, file=sys.stderr)
