@@ -122,7 +122,9 @@ class Episode:
         pick = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], bool)  # [8, 3]
         corners = np.where(pick[None], hi[:, None, :], lo[:, None, :])
         orders = spec.classifier.yaw_orders or (1,) * len(spec.classifier.classes)
-        return cls(spec=spec, library=library, corners=jnp.asarray(corners), yaw_orders=jnp.asarray(orders, jnp.int32),
+        # (NumPy put on the device: no conversion program to compile or load)
+        return cls(spec=spec, library=library, corners=jax.device_put(corners),
+                   yaw_orders=jax.device_put(np.asarray(orders, np.int32)),
                    config=config, refine_config=refine_config, nbv_config=nbv_config or nbv.NBVConfig())
 
     @property
@@ -170,7 +172,7 @@ class Choice:
 
     @classmethod
     def create(cls, policy: int, refinement: bool) -> Choice:
-        return cls(policy=jnp.asarray(policy, jnp.int32), refinement=jnp.asarray(refinement, bool))
+        return cls(policy=jax.device_put(np.int32(policy)), refinement=jax.device_put(np.bool_(refinement)))
 
 
 @struct.dataclass

@@ -143,10 +143,12 @@ class Target(struct.PyTreeNode):
 
 
 def stack(targets: Sequence[Target]) -> Target:
-    """One ``Target`` holding every model of ``targets`` (each from ``model_target``, with the same sample
-    count and config), ``which`` = 0."""
-    leaves = jax.tree.map(lambda *a: jnp.concatenate(a), *[t.replace(which=t.which[None]) for t in targets])
-    return leaves.replace(which=jnp.int32(0))
+    """One ``Target`` on the device holding every model of ``targets`` (each from ``model_target``, with the same
+    sample count and config; best ``device=False``), ``which`` = 0: stacked on the host, put on the device at once
+    (no program compiled or loaded for it)."""
+    host = [t.replace(which=np.asarray(t.which)[None]) for t in targets]
+    leaves = jax.tree.map(lambda *a: np.concatenate([np.asarray(x) for x in a]), *host)
+    return jax.device_put(leaves.replace(which=np.int32(0)))
 
 
 class Registration(struct.PyTreeNode):
@@ -168,10 +170,12 @@ class Registration(struct.PyTreeNode):
     valid: jax.Array
 
 
-def model_target(model: ObjectModel, config: ICPConfig = ICPConfig(), samples: int | None = None) -> Target:
+def model_target(model: ObjectModel, config: ICPConfig = ICPConfig(), samples: int | None = None,
+                 device: bool = True) -> Target:
     """The ``Target`` of ``model`` (host side, once per model): its first ``samples`` (default
     ``config.model_points``) surface samples and the closest-sample grid over its bounds grown by
-    ``config.max_correspondence`` on every side."""
+    ``config.max_correspondence`` on every side. Put on the device in one transfer; ``device=False``: the same
+    with NumPy arrays (for ``stack``)."""
     count = min(samples or config.model_points, len(model.surface_points))
     if count >= 2**15:
         raise ValueError(f"icp: {model.name}: at most 32767 model samples (got {count}); lower icp.model_points")
@@ -192,12 +196,12 @@ def model_target(model: ObjectModel, config: ICPConfig = ICPConfig(), samples: i
                     low.tobytes(), high.tobytes()])
     found = compile_cache.cached_arrays("icp_targets", key, lookups)  # the same across runs: kept on disk
     index, neighbours = found["index"], found["neighbours"]
-    return Target(points=jnp.asarray(points[None], jnp.float32), normals=jnp.asarray(normals[None]),
-                  mask=jnp.ones((1, count), bool),
-                  grid=jnp.asarray(np.asarray(index, np.int16).reshape(1, G**3, -1)),
-                  origin=jnp.asarray(low[None], jnp.float32), cell=jnp.asarray(cell[None], jnp.float32),
-                  neighbours=jnp.asarray(np.asarray(neighbours, np.int16).reshape(1, count, -1)),
-                  which=jnp.int32(0), resolution=G, hops=config.hops, brute=config.lookup is Lookup.brute)
+    target = Target(points=points[None].astype(np.float32), normals=normals[None], mask=np.ones((1, count), bool),
+                    grid=np.asarray(index, np.int16).reshape(1, G**3, -1),
+                    origin=low[None].astype(np.float32), cell=cell[None].astype(np.float32),
+                    neighbours=np.asarray(neighbours, np.int16).reshape(1, count, -1),
+                    which=np.int32(0), resolution=G, hops=config.hops, brute=config.lookup is Lookup.brute)
+    return jax.device_put(target) if device else target
 
 
 def closest(target: Target, x: jax.Array) -> tuple[jax.Array, jax.Array]:

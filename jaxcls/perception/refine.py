@@ -160,14 +160,15 @@ class ModelLibrary(struct.PyTreeNode):
         if missing:
             raise ValueError(f"refine: no model for classes {missing}; every class needs one")
         samples = min(config.model_points, *(len(m.surface_points) for m in models))
-        targets = [icp.model_target(m, config, samples) for m in models]
+        targets = [icp.model_target(m, config, samples, device=False) for m in models]
         per_class = [[i for i, m in enumerate(models) if m.class_name == c] for c in classes]
         J = max(len(p) for p in per_class)
         class_models = np.array([p + [0] * (J - len(p)) for p in per_class], np.int32)
         class_mask = np.array([[True] * len(p) + [False] * (J - len(p)) for p in per_class])
-        return cls(targets=icp.stack(targets),
-                   centroid=jnp.asarray(np.stack([np.asarray(t.points[0]).mean(0) for t in targets])),
-                   class_models=jnp.asarray(class_models), class_mask=jnp.asarray(class_mask),
+        # (NumPy on the host, then one transfer each: no program compiled or loaded to build the library)
+        centroid = np.stack([t.points[0].mean(0) for t in targets])
+        return cls(targets=icp.stack(targets), centroid=jax.device_put(centroid),
+                   class_models=jax.device_put(class_models), class_mask=jax.device_put(class_mask),
                    names=tuple(m.name for m in models), classes=classes)
 
 
