@@ -147,24 +147,30 @@ def kept_on_disk(kind: str, arguments: tuple, build: Callable[[], ObjectSet]) ->
         if made.clutter:
             raise ValueError(f"kept_on_disk: {made.name} has clutter; only a procedural set's own models are kept")
         models = made.train + made.test
+
+        def joined(arrays: list, width: int, dtype: type) -> np.ndarray:  # (none: an empty set asked for)
+            return np.concatenate(arrays) if arrays else np.zeros((0, width), dtype)
+
         return {"set": np.array([made.name]), "classes": np.array(made.classes),
                 "names": np.array([m.name for m in models]), "model_classes": np.array([m.class_name for m in models]),
                 "train": np.array([i < len(made.train) for i in range(len(models))]),
                 "vertex_counts": np.array([len(m.mesh.vertices) for m in models]),
                 "face_counts": np.array([len(m.mesh.faces) for m in models]),
-                "vertices": np.concatenate([np.asarray(m.mesh.vertices) for m in models]),
-                "faces": np.concatenate([np.asarray(m.mesh.faces) for m in models]),
+                "vertices": joined([np.asarray(m.mesh.vertices) for m in models], 3, np.float64),
+                "faces": joined([np.asarray(m.mesh.faces) for m in models], 3, np.int64),
                 "sample_counts": np.array([len(m.surface_points) for m in models]),
-                "points": np.concatenate([m.surface_points for m in models]),
-                "normals": np.concatenate([m.surface_normals for m in models])}
+                "points": joined([m.surface_points for m in models], 3, np.float32),
+                "normals": joined([m.surface_normals for m in models], 3, np.float32)}
 
     key = repr((kind, arguments, compile_cache.code_digest(), np.__version__, trimesh.__version__)).encode()
     kept = compile_cache.cached_arrays(f"object_sets/{kind}", key, pack)
-    cut = {name: np.cumsum(kept[count])[:-1] for name, count in
-           (("vertices", "vertex_counts"), ("faces", "face_counts"), ("points", "sample_counts"))}
-    parts = zip(kept["names"], kept["model_classes"], np.split(kept["vertices"], cut["vertices"]),
-                np.split(kept["faces"], cut["faces"]), np.split(kept["points"], cut["points"]),
-                np.split(kept["normals"], cut["points"]), strict=True)
+    n = len(kept["names"])
+
+    def each(name: str, counts: str) -> list[np.ndarray]:  # (the models' pieces of a joined array)
+        return np.split(kept[name], np.cumsum(kept[counts])[:-1])[:n]
+
+    parts = zip(kept["names"], kept["model_classes"], each("vertices", "vertex_counts"), each("faces", "face_counts"),
+                each("points", "sample_counts"), each("normals", "sample_counts"), strict=True)
     models = [ObjectModel(str(name), str(class_name), trimesh.Trimesh(vertices=v, faces=f, process=False), p, n)
               for name, class_name, v, f, p, n in parts]
     train = tuple(m for m, t in zip(models, kept["train"], strict=True) if t)
