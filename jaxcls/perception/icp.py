@@ -144,8 +144,8 @@ class Target(struct.PyTreeNode):
 
 def stack(targets: Sequence[Target]) -> Target:
     """One ``Target`` on the device holding every model of ``targets`` (each from ``model_target``, with the same
-    sample count and config; best ``device=False``), ``which`` = 0: stacked on the host, put on the device at once
-    (no program compiled or loaded for it)."""
+    sample count and config; ``device=False`` spares a round trip), ``which`` = 0: stacked on the host and put on
+    the device at once (no program compiled or loaded for it)."""
     host = [t.replace(which=np.asarray(t.which)[None]) for t in targets]
     leaves = jax.tree.map(lambda *a: np.concatenate([np.asarray(x) for x in a]), *host)
     return jax.device_put(leaves.replace(which=np.int32(0)))

@@ -137,7 +137,7 @@ def kept_on_disk(kind: str, arguments: tuple, build: Callable[[], ObjectSet]) ->
     """``build()`` (a procedural set: meshes and surface samples made from seeds, no clutter), or the same set read
     back from where ``jaxcls.compile_cache`` keeps host work once ``enable`` ran (``cached_arrays``, under
     ``kind``), keyed by ``arguments`` (the builder's), jaxcls's source and the NumPy and trimesh versions: a warm
-    process does not make the meshes again (the builtin set on the 2-core CPU: 0.45 s -> ~0.03 s; on the
+    process does not make the meshes again (the builtin set on the 2-core CPU: 0.45-0.5 s -> ~0.06 s; on the
     way to a warm Table 1 run's first call). The meshes come back as ``trimesh.Trimesh(process=False)`` of the same
     vertices and faces, the samples and names the same."""
     from jaxcls import compile_cache
@@ -171,8 +171,8 @@ def kept_on_disk(kind: str, arguments: tuple, build: Callable[[], ObjectSet]) ->
 
     parts = zip(kept["names"], kept["model_classes"], each("vertices", "vertex_counts"), each("faces", "face_counts"),
                 each("points", "sample_counts"), each("normals", "sample_counts"), strict=True)
-    models = [ObjectModel(str(name), str(class_name), trimesh.Trimesh(vertices=v, faces=f, process=False), p, n)
-              for name, class_name, v, f, p, n in parts]
+    models = [ObjectModel(str(name), str(class_name), trimesh.Trimesh(vertices=v, faces=f, process=False), points,
+                          normals) for name, class_name, v, f, points, normals in parts]
     train = tuple(m for m, t in zip(models, kept["train"], strict=True) if t)
     test = tuple(m for m, t in zip(models, kept["train"], strict=True) if not t)
     return ObjectSet(str(kept["set"][0]), tuple(str(c) for c in kept["classes"]), train, test)
