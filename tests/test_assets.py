@@ -544,8 +544,11 @@ def test_object_set_config_rejects_out_of_range_values(tmp_path, field, value, r
 
 
 def test_objects_package_imports_stay_one_way():
-    """The object-set modules import only the standard library, NumPy, SciPy, trimesh and each other."""
+    """The object-set modules import only the standard library, NumPy, SciPy, trimesh, each other and jaxcls's
+    host cache (``compile_cache``: the standard library at import; ``kept_on_disk``); building a set, JAX is not
+    imported."""
     import ast
+    import subprocess
     import sys
 
     allowed = {"numpy", "scipy", "trimesh", "__future__"} | set(sys.stdlib_module_names)
@@ -555,11 +558,18 @@ def test_objects_package_imports_stay_one_way():
             if isinstance(node, ast.Import):
                 names = [alias.name for alias in node.names]
             elif isinstance(node, ast.ImportFrom):
-                names = [node.module or ""]
+                names = [node.module or ""] + [f"{node.module}.{a.name}" for a in node.names if node.module == "jaxcls"]
             else:
                 continue
+            names = [n for n in names if n != "jaxcls"]  # (``from jaxcls import x``: x is checked)
             for name in names:
-                assert name.startswith("jaxcls.world.objects.") or name.split(".")[0] in allowed, (file, name)
+                assert (name.startswith("jaxcls.world.objects.") or name == "jaxcls.compile_cache"
+                        or name.split(".")[0] in allowed), (file, name)
+    built = subprocess.run([sys.executable, "-c", "import sys\nfrom jaxcls.world.objects import builtin_object_set\n"
+                            "builtin_object_set(train_per_class=1, test_per_class=0, surface_samples=16)\n"
+                            "print(sorted(m for m in ('jax', 'jaxlib', 'flax') if m in sys.modules))"],
+                           capture_output=True, text=True, timeout=120)
+    assert built.returncode == 0 and built.stdout.strip() == "[]", (built.stdout, built.stderr)
 
 
 def test_object_set_config_round_trips_and_dispatches(tmp_path):
