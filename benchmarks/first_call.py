@@ -19,7 +19,9 @@ the first transfer) and ``full_tracebacks`` (``exported`` with JAX's whole trace
 JAX's default, not one frame: ``compile_cache.one_frame_locations`` off) and ``classifiers_first`` (``exported``
 with every classifier loaded before the first call, not the first call's alone: ``runner.LATER_CLASSIFIERS`` off)
 and ``objects_built`` (``exported`` with the procedural object set made in the process, not read back from the
-host cache: ``objects.model.kept_on_disk`` off).
+host cache: ``objects.model.kept_on_disk`` off) and ``no_bytecode`` (``exported`` with Python compiling every
+module from its source at import: ``PYTHONDONTWRITEBYTECODE=1`` and an empty ``PYTHONPYCACHEPREFIX``, so no
+``__pycache__`` is read or written; an environment installed by pip has them, a container may have none).
 Each setting gets its own cache folder, filled by one cold run (or, ``--cache-from DIR``, a copy of a folder an
 earlier run of the same config filled: no cold run); then the settings' warm runs take turns (the
 order reversed every other round), each a fresh process of ``experiments/table1.py`` (its own ``out_dir``).
@@ -124,14 +126,18 @@ SETTINGS = {"jax": "JAX's cache",
             "no_prealloc": "JAX's cache + the exported programs, no preallocated GPU memory pool",
             "full_tracebacks": "JAX's cache + the exported programs, whole tracebacks in the locations",
             "classifiers_first": "JAX's cache + the exported programs, every classifier loaded before the first call",
-            "objects_built": "JAX's cache + the exported programs, the object set made, not read back"}
+            "objects_built": "JAX's cache + the exported programs, the object set made, not read back",
+            "no_bytecode": "JAX's cache + the exported programs, every module compiled from its source at import"}
 CLASSIFIERS = {"shipped": "", "paper": "builtin_paper"}
 
 
 def _run(setting: str, cache: Path, config: str, out: Path, overrides: list[str]) -> dict:
+    env = {**os.environ, compile_cache.ENV: str(cache)}
+    if setting == "no_bytecode":  # (read before the interpreter starts; the prefix folder is empty: no .pyc found)
+        env.update(PYTHONDONTWRITEBYTECODE="1", PYTHONPYCACHEPREFIX=str(cache.parent / "no_pycache"))
     start = time.perf_counter()
     done = subprocess.run([sys.executable, "-c", CHILD, setting, "--config", config, f"out_dir={out}", *overrides],
-                          capture_output=True, text=True, cwd=ROOT, env={**os.environ, compile_cache.ENV: str(cache)})
+                          capture_output=True, text=True, cwd=ROOT, env=env)
     wall = time.perf_counter() - start
     if done.returncode != 0:
         raise RuntimeError(f"experiments/table1.py failed ({done.returncode}): {done.stderr[-2000:]}")
