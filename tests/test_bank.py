@@ -55,6 +55,28 @@ def test_the_bank_posed_in_a_scene_renders_the_scene(distinct):
         bank.render([w.scene for w in worlds], T_wc[:1], "mujoco")
 
 
+def test_the_gpu_paths_launches_stitched_into_scenes_are_the_cpu_paths_frames():
+    """``warp``'s path renders every scene's frames in launches of ``batch`` worlds (the last padded) with each
+    pixel's bank slot, and stitches them in one program (``_scene_frames``) into [S, V, H, W] frames of each
+    scene's objects: what the CPU path of ``bank.render`` gives, from the same slot frames."""
+    from jaxcls.world.bank import _scene_frames
+
+    worlds = [make_world(WORLD, seed=s) for s in (2, 5, 7)]
+    bank = SceneBank.build(worlds[0].object_set, WORLD.scene, worlds[0].intrinsics)
+    T_wc = np.stack([w.viewpoints[:3] for w in worlds])  # [3, 3, 4, 4]
+    reference = bank.render([w.scene for w in worlds], T_wc, "mujoco")
+    slot_frames = [make_renderer(bank.posed(w.scene), w.intrinsics, "mujoco").render(T)
+                   for w, T in zip(worlds, T_wc, strict=True)]
+    depth = np.concatenate([f.depth for f in slot_frames])  # [S * V, H, W], by scene then view
+    slot = np.concatenate([f.object_id for f in slot_frames])
+    objects = np.stack([bank.objects(w.scene) for w in worlds])[np.repeat(np.arange(3), 3)]  # [S * V, J]
+    calls = launches(9, 4)  # 4 + 4 + 1 frames, the last call padded with 3 copies
+    stitched = _scene_frames(tuple(depth[c] for c in calls), tuple(slot[c] for c in calls), objects, 3, 3)
+    np.testing.assert_array_equal(np.asarray(stitched.depth), reference.depth)
+    np.testing.assert_array_equal(np.asarray(stitched.object_id), reference.object_id)
+    assert set(np.unique(reference.object_id)) > {NO_OBJECT}
+
+
 def test_a_scene_that_does_not_fit_the_bank_is_refused():
     world = make_world(WORLD, seed=1)
     bank = SceneBank.build(world.object_set, WORLD.scene, world.intrinsics)

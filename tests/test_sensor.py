@@ -193,3 +193,26 @@ def test_depth_of_the_wrong_size_is_a_clear_error():
     for config in (SensorConfig(), SensorConfig.ideal()):
         with pytest.raises(ValueError, match=r"\(2, 30, 40\).*48, 64"):
             apply_sensor(jax.random.PRNGKey(0), np.ones((2, 30, 40), np.float32), intr, config)
+
+
+@pytest.mark.parametrize("config", [SensorConfig(), SensorConfig(pose_noise=True, random_dropout=0.1)],
+                         ids=["depth", "depth_and_poses"])
+def test_several_scenes_measured_at_once_are_each_scene_measured_alone(config):
+    # measure_scenes (one program for a chunk of scenes) must give every scene the frames and believed poses of
+    # measure with that scene's key: Table 1's device chunks and ``jaxcls dataset``'s files agree through it.
+    from jaxcls.world.dataset import scene_key
+    from jaxcls.world.render.sensor import measure, measure_scenes
+
+    rng = np.random.default_rng(3)
+    depth = np.stack([np.concatenate([_step_scene() + z, _step_scene()[:, ::-1] + z]) for z in (0.0, 0.4, 0.9)])
+    T = np.asarray(look_at(rng.normal(size=(3 * 2, 3)) + np.array([0, 0, 2.0]), np.zeros(3))).reshape(3, 2, 4, 4)
+    keys = [scene_key(11, i) for i in range(3)]
+    alone = [measure(k, jnp.asarray(d), t, INTR, config) for k, d, t in zip(keys, depth, T, strict=True)]
+    depth_all, T_all = measure_scenes(keys, jnp.asarray(depth), T, INTR, config)
+    np.testing.assert_array_equal(np.asarray(depth_all), np.stack([np.asarray(d) for d, _ in alone]))
+    np.testing.assert_array_equal(T_all, np.stack([t for _, t in alone]))
+    assert T_all.dtype == np.float64 and (np.asarray(depth_all) > 0).mean() > 0.5
+    swapped, _ = measure_scenes(keys[::-1], jnp.asarray(depth), T, INTR, config)  # (each scene its own key)
+    assert not np.array_equal(np.asarray(swapped[0]), np.asarray(depth_all[0]))
+    with pytest.raises(ValueError, match=r"2 keys.*\(3, 2, 48, 64\)"):
+        measure_scenes(keys[:2], jnp.asarray(depth), T, INTR, config)

@@ -150,25 +150,17 @@ class SceneBank:
             return DepthFrames(depth=depth, object_id=ids.astype(np.int32))
         if backend is not Backend.warp:
             raise ValueError(f"bank: renders with 'mujoco' (CPU) or 'warp' (GPU), not {backend!r}")
-        import jax.numpy as jnp
+        import jax
 
         renderer = self.warp_renderer(kinematics)
         pos, quat = self.mocap(scene_list)  # [S, nmocap, ...]
+        pos, quat = pos.astype(np.float32), quat.astype(np.float32)  # (on the host: no conversion programs)
         scene_of = np.repeat(np.arange(S), V)
         flat = T_wc.reshape(S * V, 4, 4)
-        depth, slot = [], []
-        for frames in launches(S * V, batch):
-            worlds = scene_of[frames]
-            f = renderer.render(flat[frames], jnp.asarray(pos[worlds], jnp.float32),
-                                jnp.asarray(quat[worlds], jnp.float32))
-            depth.append(f.depth)
-            slot.append(f.object_id)
-        depth, slot = jnp.concatenate(depth)[:S * V], jnp.concatenate(slot)[:S * V]  # [S * V, H, W]
-        table = jnp.asarray(objects)[jnp.asarray(scene_of)]  # [S * V, J]
-        ids = jnp.where(slot >= 0, jnp.take_along_axis(table, jnp.maximum(slot, 0).reshape(S * V, -1), axis=1)
-                        .reshape(slot.shape), NO_OBJECT)
-        H, W = depth.shape[1:]
-        return DepthFrames(depth=depth.reshape(S, V, H, W), object_id=ids.reshape(S, V, H, W).astype(jnp.int32))
+        launched = [renderer.render(flat[frames], *jax.device_put((pos[scene_of[frames]], quat[scene_of[frames]])))
+                    for frames in launches(S * V, batch)]
+        return _scene_frames(tuple(f.depth for f in launched), tuple(f.object_id for f in launched),
+                             jax.device_put(objects[scene_of].astype(np.int32)), S, V)
 
     def warp_renderer(self, kinematics: Kinematics = KINEMATICS) -> Renderer:
         """The bank's GPU renderer (MJX's batch renderer), built once per ``kinematics``: ``static``, each slot's
@@ -195,6 +187,29 @@ class SceneBank:
         for b in np.nonzero(self.model.body_mocapid >= 0)[0]:
             order[self.model.body_mocapid[b]] = b
         return order
+
+
+def _scene_frames(depth: tuple, slot: tuple, table, S: int, V: int) -> DepthFrames:
+    """The launches' frames (``depth``, ``slot``: [B, H, W] each, the last padded) as S scenes' [S, V, H, W], each
+    pixel's slot replaced by its scene's object (``table: [S * V, J]`` the object in each slot of each frame's
+    scene, -1 none), in one program: eager operations would each be a program to load when a process starts."""
+    return _scene_frames_program()(depth, slot, table, S=S, V=V)
+
+
+@functools.cache
+def _scene_frames_program():
+    """``_scene_frames``'s jitted program (JAX imported once a GPU render needs it)."""
+    import jax
+    import jax.numpy as jnp
+
+    def scene_frames(depth: tuple, slot: tuple, table: jax.Array, S: int, V: int) -> DepthFrames:
+        depth, slot = jnp.concatenate(depth)[:S * V], jnp.concatenate(slot)[:S * V]  # [S * V, H, W]
+        ids = jnp.where(slot >= 0, jnp.take_along_axis(table, jnp.maximum(slot, 0).reshape(S * V, -1), axis=1)
+                        .reshape(slot.shape), NO_OBJECT)
+        H, W = depth.shape[1:]
+        return DepthFrames(depth=depth.reshape(S, V, H, W), object_id=ids.reshape(S, V, H, W).astype(jnp.int32))
+
+    return jax.jit(scene_frames, static_argnames=("S", "V"))
 
 
 __all__ = ["PARK", "SceneBank"]

@@ -205,11 +205,10 @@ def _render(dataset: DatasetConfig, indices: tuple[int, ...], backend: Backend) 
     """Scenes ``indices`` of ``dataset`` drawn with its seeds, rendered from the bank, through its sensor with
     each scene's key (``jaxcls dataset``'s draw); the frames stay where they were rendered."""
     import jax
-    import jax.numpy as jnp
 
     from jaxcls.world import scenes
     from jaxcls.world.bank import KINEMATICS
-    from jaxcls.world.render.sensor import measure
+    from jaxcls.world.render.sensor import measure_scenes
     from jaxcls.world.setup import make_world
 
     object_set, bank = _bank(dataset.objects, dataset.scene, dataset.camera)
@@ -219,10 +218,8 @@ def _render(dataset: DatasetConfig, indices: tuple[int, ...], backend: Backend) 
     frames = bank.render(drawn, T_true, backend, batch=1024, kinematics=KINEMATICS)  # (loads_beside_renders')
     with jax.default_device(devices.host_cpu()):  # keys on the host: nothing waits for a GPU
         keys = [scene_key(dataset.seed, i) for i in indices]
-    measured = [measure(keys[n], frames.depth[n], T_true[n], bank.intrinsics, dataset.sensor)
-                for n in range(len(indices))]
-    return Chunk(scenes=drawn, depth=jnp.stack([d for d, _ in measured]), T_wc=np.stack([T for _, T in measured]),
-                 intrinsics=bank.intrinsics)
+    depth, T_wc = measure_scenes(keys, frames.depth, T_true, bank.intrinsics, dataset.sensor)  # (one program)
+    return Chunk(scenes=drawn, depth=depth, T_wc=T_wc, intrinsics=bank.intrinsics)
 
 
 @functools.lru_cache(maxsize=4)

@@ -17,6 +17,7 @@ Pure jitted JAX on batches ([..., H, W]); runs wherever the renderer's frames ar
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import jax
 import jax.numpy as jnp
@@ -229,16 +230,46 @@ def measure(key: jax.Array, depth: jax.Array, T_true: np.ndarray, intrinsics: In
     """What a sensor delivers for rendered frames: (depth [K, H, W] f32 m through ``apply_sensor``, T_wc [K, 4,
     4] the poses the pipeline is told: ``T_true`` (float64, exact) or, with ``pose_noise``, perturbed). One key
     for the frames of a scene, split into the depth's and the poses' (``World.measure``, ``SceneBank`` scenes:
-    the same frames from the same key). The key is split and the poses drawn on the host's CPU device, so that
-    nothing here waits for work queued on an accelerator (a key made there is waited for once, to move it);
-    the depth is measured where it lies, asynchronously."""
+    the same frames from the same key; ``measure_scenes`` for several scenes in one call). The key is split and
+    the poses drawn on the host's CPU device, so that nothing here waits for work queued on an accelerator (a key
+    made there is waited for once, to move it); the depth is measured where it lies, asynchronously."""
+    key_depth, T_believed = _split_and_pose(key, T_true, config)
+    if not isinstance(depth, jax.Array):
+        depth = jnp.asarray(depth, jnp.float32)  # (onto the default device, or jax.default_device's)
+    return apply_sensor(jax.device_put(key_depth, next(iter(depth.devices()))), depth, intrinsics, config), T_believed
+
+
+def measure_scenes(keys: Sequence[jax.Array], depth: jax.Array, T_true: np.ndarray, intrinsics: Intrinsics,
+                   config: SensorConfig) -> tuple[jax.Array, np.ndarray]:
+    """``measure`` of S scenes at once: ``keys`` one a scene, ``depth: [S, K, H, W]`` m rendered, ``T_true: [S, K,
+    4, 4]``. The same frames and poses as S calls of ``measure`` (``apply_sensor`` vmapped over the scenes' keys),
+    in one program and one transfer of the keys: (depth [S, K, H, W] f32 m, T_wc [S, K, 4, 4] float64)."""
+    T_true = np.asarray(T_true, np.float64)
+    if len(keys) != depth.shape[0] or T_true.shape[:2] != depth.shape[:2]:
+        raise ValueError(f"measure_scenes: {len(keys)} keys, depth {tuple(depth.shape)} and T_true "
+                         f"{T_true.shape} must agree on [S, K]")
+    split = [_split_and_pose(k, T, config) for k, T in zip(keys, T_true, strict=True)]
+    if not isinstance(depth, jax.Array):
+        depth = jnp.asarray(depth, jnp.float32)
+    with jax.default_device(devices.host_cpu()):
+        key_depth = jnp.stack([k for k, _ in split])  # [S, ...] (stacked on the host's CPU, then moved once)
+    key_depth = jax.device_put(key_depth, next(iter(depth.devices())))
+    return _apply_sensor_scenes(key_depth, depth, intrinsics, config), np.stack([T for _, T in split])
+
+
+@jax.jit
+def _apply_sensor_scenes(keys: jax.Array, depth: jax.Array, intrinsics: Intrinsics, config: SensorConfig
+                         ) -> jax.Array:
+    """``apply_sensor`` of each scene's frames ``depth: [S, K, H, W]`` with its key ``keys: [S, ...]``."""
+    return jax.vmap(apply_sensor, in_axes=(0, 0, None, None))(keys, depth, intrinsics, config)
+
+
+def _split_and_pose(key: jax.Array, T_true: np.ndarray, config: SensorConfig) -> tuple[jax.Array, np.ndarray]:
+    """(the depth's key on the host's CPU device, T_wc [K, 4, 4] float64 believed) of one scene's key."""
     host = devices.host_cpu()
     with jax.default_device(host):
         key_depth, key_pose = jax.random.split(jax.device_put(key, host))
         T_believed = np.asarray(T_true, np.float64)  # a pass through jax would round exact poses to float32
         if config.pose_noise:
             T_believed = np.asarray(perturb_poses(key_pose, T_true, config), dtype=np.float64)
-    if not isinstance(depth, jax.Array):
-        depth = jnp.asarray(depth, jnp.float32)  # (onto the default device, or jax.default_device's)
-    return apply_sensor(jax.device_put(key_depth, next(iter(depth.devices()))), depth, intrinsics, config), T_believed
-
+    return key_depth, T_believed

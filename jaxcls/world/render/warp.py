@@ -344,7 +344,7 @@ class WarpRenderer:
         """T_wc: [B, 4, 4] | [4, 4]. Returns JAX [B, H, W] f32 depth and i32 object ids. With ``mocap_pos``
         [B, nmocap, 3] and ``mocap_quat`` [B, nmocap, 4], world b's mocap bodies stand there (a scene bank's
         scenes, ``world.bank``; the camera's own mocap is set from ``T_wc``)."""
-        T = jnp.asarray(contract.check_poses(T_wc), jnp.float32)
+        T = jax.device_put(contract.check_poses(T_wc).astype(np.float32))  # (converted on the host: no program)
         if (mocap_pos is None) != (mocap_quat is None):
             raise ValueError("warp: give mocap_pos and mocap_quat together")
         if mocap_pos is not None and (mocap_pos.shape != (T.shape[0], self._mjm.nmocap, 3)
