@@ -19,9 +19,10 @@ the first transfer) and ``full_tracebacks`` (``exported`` with JAX's whole trace
 JAX's default, not one frame: ``compile_cache.one_frame_locations`` off) and ``classifiers_first`` (``exported``
 with every classifier loaded before the first call, not the first call's alone: ``runner.LATER_CLASSIFIERS`` off)
 and ``objects_built`` (``exported`` with the procedural object set made in the process, not read back from the
-host cache: ``objects.model.kept_on_disk`` off) and ``no_bytecode`` (``exported`` with Python compiling every
-module from its source at import: ``PYTHONDONTWRITEBYTECODE=1`` and an empty ``PYTHONPYCACHEPREFIX``, so no
-``__pycache__`` is read or written; an environment installed by pip has them, a container may have none).
+host cache: ``objects.model.kept_on_disk`` off) and ``no_bytecode`` (``exported`` with Python writing no bytecode
+and reading it only from the ``__pycache__`` folders beside the sources: ``PYTHONDONTWRITEBYTECODE=1``, no
+``PYTHONPYCACHEPREFIX``. Where the environment ships none, as on the GPU machines this project is lent, every such
+module is compiled from its source at each import; pip writes them when it installs a package).
 Each setting gets its own cache folder, filled by one cold run (or, ``--cache-from DIR``, a copy of a folder an
 earlier run of the same config filled: no cold run); then the settings' warm runs take turns (the
 order reversed every other round), each a fresh process of ``experiments/table1.py`` (its own ``out_dir``).
@@ -127,14 +128,15 @@ SETTINGS = {"jax": "JAX's cache",
             "full_tracebacks": "JAX's cache + the exported programs, whole tracebacks in the locations",
             "classifiers_first": "JAX's cache + the exported programs, every classifier loaded before the first call",
             "objects_built": "JAX's cache + the exported programs, the object set made, not read back",
-            "no_bytecode": "JAX's cache + the exported programs, every module compiled from its source at import"}
+            "no_bytecode": "JAX's cache + the exported programs, no bytecode written (only what ships read)"}
 CLASSIFIERS = {"shipped": "", "paper": "builtin_paper"}
 
 
 def _run(setting: str, cache: Path, config: str, out: Path, overrides: list[str]) -> dict:
     env = {**os.environ, compile_cache.ENV: str(cache)}
-    if setting == "no_bytecode":  # (read before the interpreter starts; the prefix folder is empty: no .pyc found)
-        env.update(PYTHONDONTWRITEBYTECODE="1", PYTHONPYCACHEPREFIX=str(cache.parent / "no_pycache"))
+    if setting == "no_bytecode":  # (read before the interpreter starts)
+        env.pop("PYTHONPYCACHEPREFIX", None)
+        env["PYTHONDONTWRITEBYTECODE"] = "1"
     start = time.perf_counter()
     done = subprocess.run([sys.executable, "-c", CHILD, setting, "--config", config, f"out_dir={out}", *overrides],
                           capture_output=True, text=True, cwd=ROOT, env=env)
