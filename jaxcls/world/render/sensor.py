@@ -242,8 +242,8 @@ def measure(key: jax.Array, depth: jax.Array, T_true: np.ndarray, intrinsics: In
 def measure_scenes(keys: Sequence[jax.Array], depth: jax.Array, T_true: np.ndarray, intrinsics: Intrinsics,
                    config: SensorConfig) -> tuple[jax.Array, np.ndarray]:
     """``measure`` of S scenes at once: ``keys`` one a scene, ``depth: [S, K, H, W]`` m rendered, ``T_true: [S, K,
-    4, 4]``. The same frames and poses as S calls of ``measure`` (``apply_sensor`` vmapped over the scenes' keys),
-    in one program and one transfer of the keys: (depth [S, K, H, W] f32 m, T_wc [S, K, 4, 4] float64)."""
+    4, 4]``. The same frames and poses as S calls of ``measure``, in one program and one transfer of the keys:
+    (depth [S, K, H, W] f32 m, T_wc [S, K, 4, 4] float64)."""
     T_true = np.asarray(T_true, np.float64)
     if len(keys) != depth.shape[0] or T_true.shape[:2] != depth.shape[:2]:
         raise ValueError(f"measure_scenes: {len(keys)} keys, depth {tuple(depth.shape)} and T_true "
@@ -260,8 +260,10 @@ def measure_scenes(keys: Sequence[jax.Array], depth: jax.Array, T_true: np.ndarr
 @jax.jit
 def _apply_sensor_scenes(keys: jax.Array, depth: jax.Array, intrinsics: Intrinsics, config: SensorConfig
                          ) -> jax.Array:
-    """``apply_sensor`` of each scene's frames ``depth: [S, K, H, W]`` with its key ``keys: [S, ...]``."""
-    return jax.vmap(apply_sensor, in_axes=(0, 0, None, None))(keys, depth, intrinsics, config)
+    """``apply_sensor`` of each scene's frames ``depth: [S, K, H, W]`` with its key ``keys: [S, ...]``, one scene
+    after the other (``lax.map``: one scene's temporaries at a time, not S, e.g. 50 scenes of 100 frames at 640x480
+    would need tens of GB at once under ``vmap``)."""
+    return jax.lax.map(lambda kd: apply_sensor(kd[0], kd[1], intrinsics, config), (keys, depth))
 
 
 def _split_and_pose(key: jax.Array, T_true: np.ndarray, config: SensorConfig) -> tuple[jax.Array, np.ndarray]:
