@@ -13,7 +13,7 @@ from scipy.spatial import ConvexHull
 from scipy.spatial.transform import Rotation
 
 from jaxcls.geometry import Intrinsics, hemisphere_viewpoints, look_at, pixel_rays
-from jaxcls.planning import nbv
+from jaxcls.planning import learned, nbv
 from jaxcls.planning import visibility as vis
 
 K = Intrinsics.kinect_v1(1.0)
@@ -227,7 +227,8 @@ def test_degenerate_inputs_give_documented_choices():
     dead = _boxes([(0.05, 0.05, 0.1, 0.0, 0.0)]).replace(live=jnp.zeros(1, bool), volume=_half_seen_volume())
     views = nbv.Views.start(ring, 0)
     for name in nbv.POLICIES:
-        nxt = int(nbv.choose_jit(nbv.policy(name), views, dead, jax.random.key(1), SMALL))
+        told = dead.replace(weights=learned.init(jax.random.key(2), 8)) if name in nbv.WEIGHTED else dead
+        nxt = int(nbv.choose_jit(nbv.policy(name), views, told, jax.random.key(1), SMALL))
         assert 0 <= nxt < 24 and nxt != 0
     lonely = nbv.NBVConfig(radius=0.01)  # no candidate: the nearest other viewpoint
     assert int(nbv.choose_jit(nbv.VisOcclHist(), views, dead, jax.random.key(1), SMALL, lonely)) in (1, 23)

@@ -27,6 +27,7 @@ import dataclasses
 import enum
 import functools
 import time
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -105,16 +106,22 @@ class Episode:
     # A switched episode (``switched``): the policy and GR are traced values, one program for every row.
     choice: Choice | None = None
     policies: tuple[nbv.PolicyName, ...] = struct.field(pytree_node=False, default=())
+    # The learned policy's network (traced; ``planning.learned``), None where no policy reads it.
+    policy_weights: Any = None
 
     @classmethod
     def create(cls, spec: Spec, library: ModelLibrary, config: EpisodeConfig | None = None,
-               refine_config: RefineConfig | None = None, nbv_config: nbv.NBVConfig | None = None) -> Episode:
+               refine_config: RefineConfig | None = None, nbv_config: nbv.NBVConfig | None = None,
+               policy_weights: Any = None) -> Episode:
         """Check that the pieces fit (a classifier, of the library's classes; a yaw head if GR's yaws are
-        learned), resolve GR's yaw source for these weights (``RefineConfig.resolve``: the episode keeps what
-        runs) and stack the model cuboids."""
+        learned; weights for a learned policy), resolve GR's yaw source for these weights
+        (``RefineConfig.resolve``: the episode keeps what runs) and stack the model cuboids."""
         config, refine_config = config or EpisodeConfig(), refine_config or RefineConfig()
         if spec.classifier is None:
             raise ValueError("episode: the perception spec has no classifier (Spec.create(..., classifier=...))")
+        if config.policy in nbv.WEIGHTED and policy_weights is None:
+            raise ValueError(f"episode: policy {config.policy} needs its weights (nbv.learned.weights: a file "
+                             "written by jaxcls train-policy)")
         spec.classifier.check_classes(library.classes, "model library")
         refine_config = refine_config.resolve(spec.classifier.config.yaw_head, "the classifier's weights")
         points = np.asarray(library.targets.points, np.float32)  # [L, S, 3]
@@ -125,24 +132,31 @@ class Episode:
         # (NumPy put on the device: no conversion program to compile or load)
         return cls(spec=spec, library=library, corners=jax.device_put(corners),
                    yaw_orders=jax.device_put(np.asarray(orders, np.int32)),
-                   config=config, refine_config=refine_config, nbv_config=nbv_config or nbv.NBVConfig())
+                   config=config, refine_config=refine_config, nbv_config=nbv_config or nbv.NBVConfig(),
+                   policy_weights=policy_weights)
 
     @property
     def policy(self) -> nbv.Policy:
         """The episode's policy with its parameters (``episode.policy``, the ``nbv:`` block)."""
         return self.nbv_config.policy(self.config.policy)
 
-    def switched(self, policies: tuple[nbv.PolicyName | str, ...] = tuple(nbv.PolicyName)) -> Episode:
+    def switched(self, policies: tuple[nbv.PolicyName | str, ...] | None = None) -> Episode:
         """This episode with its policy and GR as traced values (``Choice``): one compiled program runs any
         of ``policies`` with GR on or off, picked by ``choose`` without compiling again (Table 1's rows). The
         static ``config`` keeps every other setting; its policy and GR are set by ``choose``. Not with
         ``off_grid``. Under ``vmap`` over episodes of one choice (the episode unbatched) only the chosen
-        policy's kernel and GR or its absence run (``lax.switch``, ``lax.cond``)."""
+        policy's kernel and GR or its absence run (``lax.switch``, ``lax.cond``). Default: every policy, the
+        learned one where the episode has its weights."""
+        if policies is None:
+            policies = tuple(p for p in nbv.PolicyName if p not in nbv.WEIGHTED or self.policy_weights is not None)
         policies = tuple(nbv.PolicyName(p) for p in policies)
         if self.config.off_grid:
             raise ValueError("episode: off_grid views are rendered on demand; a switched episode indexes frames")
         if not policies or len(set(policies)) != len(policies):
             raise ValueError(f"episode: switched needs distinct policies, got {policies}")
+        if self.policy_weights is None and nbv.WEIGHTED & set(policies):
+            raise ValueError(f"episode: policies {sorted(nbv.WEIGHTED & set(policies))} need their weights "
+                             "(nbv.learned.weights), and this episode has none")
         config = dataclasses.replace(self.config, policy=policies[0], refinement=True)
         chosen = self.config.policy if self.config.policy in policies else policies[0]
         return self.replace(config=config, policies=policies,
@@ -375,12 +389,13 @@ def refinement(episode: Episode, state: EpisodeState, depth: jax.Array | None = 
 
 
 def belief(episode: Episode, state: EpisodeState) -> nbv.Belief:
-    """What the planner is told: each live segment's refined model cuboid and pose, its uncertainty, the TSDF."""
+    """What the planner is told: each live segment's refined model cuboid and pose, its uncertainty, the TSDF, the
+    learned policy's weights."""
     r = state.refinement
     return nbv.Belief(corners=episode.corners[jnp.maximum(r.model, 0)], poses=r.pose, live=r.valid,
                       uncertainty=nbv.uncertainty(r.rho, state.observation.probs,
                                                   episode.nbv_config.vis_occl_hist_unc.uncertainty),
-                      volume=state.observation.volume)
+                      volume=state.observation.volume, weights=episode.policy_weights)
 
 
 def planned_views(state: EpisodeState) -> nbv.Views:

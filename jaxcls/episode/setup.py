@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from typing import Any
 
 from jaxcls.episode.active import Episode, EpisodeConfig
 from jaxcls.geometry import Intrinsics
 from jaxcls.perception import pointnet
 from jaxcls.perception.refine import ModelLibrary, RefineConfig, library_models
 from jaxcls.perception.settings import PerceptionConfig, ShapeConfig, Spec
+from jaxcls.planning import learned
 from jaxcls.planning.nbv import NBVConfig
 from jaxcls.world.objects import ObjectSet
 
@@ -89,4 +91,12 @@ def make_episode(settings: ActiveConfig, object_set: ObjectSet, intrinsics: Intr
     classifier = classifier or load_classifier(settings.classifier, object_set)
     spec = Spec.create(settings.perception, intrinsics, table_height, classifier)
     return Episode.create(spec, model_library(object_set, settings.refine, scene_split), settings.episode,
-                          settings.refine, settings.nbv)
+                          settings.refine, settings.nbv, policy_weights(settings.nbv))
+
+
+def policy_weights(nbv_config: NBVConfig) -> Any:
+    """The learned policy's weights named by ``nbv.learned.weights`` (``learned.load``: checked against the
+    planner's candidate count), None where none is named."""
+    if not nbv_config.learned.weights:
+        return None
+    return learned.load(nbv_config.learned.weights, nbv_config.max_candidates)[0]

@@ -23,7 +23,9 @@ pure function ``(config, views, belief, key) -> view index``:
 - ``info_gain`` (beyond the paper): the unobserved voxels of the TSDF a view would reach, times the history
   weight;
 - ``continuous`` (beyond the paper): gradient ascent of the soft utility over the view sphere from the best
-  candidates, snapped to the nearest viewpoint.
+  candidates, snapped to the nearest viewpoint;
+- ``learned`` (beyond the paper): a network's score of each candidate (``planning.learned``), its weights
+  traced in the belief (``Belief.weights``).
 
 Documented choices for degenerate inputs (never NaN, never a crash inside jit): no live segment or nothing
 visible at any candidate -> O is 0 everywhere: the history policies take U = W (the least visited direction),
@@ -36,7 +38,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-from typing import ClassVar, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -61,6 +63,7 @@ class PolicyName(enum.StrEnum):
     vis_occl_hist_unc = "vis_occl_hist_unc"
     info_gain = "info_gain"
     continuous = "continuous"
+    learned = "learned"
 
 
 class History(enum.StrEnum):
@@ -228,9 +231,39 @@ class Continuous:
         return jnp.argmin(d).astype(jnp.int32)
 
 
-Policy = Random | VisNoOccl | VisOccl | VisOcclHist | VisOcclHistUnc | InfoGain | Continuous
+@dataclasses.dataclass(frozen=True)
+class Learned(_ScoresCandidates):
+    """Beyond the paper: a network's score of each candidate from the state the hand-made policies read
+    (``planning.learned``: features, ``ViewScorer``), the best within the radius taken (Eq. 8). Its weights
+    are traced (``Belief.weights``, loaded by the episode's set-up from ``weights``: a shipped name or a
+    ``.msgpack`` written by ``jaxcls train-policy``); nothing here is trained."""
+
+    name: ClassVar[PolicyName] = PolicyName.learned
+    weights: str = ""  # a shipped name (``learned.SHIPPED_WEIGHTS``) or a path; "" = none given
+
+    def choose(self, views: Views, belief: Belief, key: jax.Array, intrinsics: Intrinsics,
+               config: NBVConfig) -> jax.Array:
+        """The best-scored unvisited candidate within the radius (a visited one only where none is left): the
+        choices the oracle ranks (``protocol.oracle_rollouts``), so a network imitating it never revisits."""
+        index, ok = candidates(views, config)
+        return _argmax_candidate(self.utilities(views, belief, index, intrinsics, config), index,
+                                 unvisited_first(views, index, ok))
+
+    def utilities(self, views: Views, belief: Belief, index: jax.Array, intrinsics: Intrinsics,
+                  config: NBVConfig) -> jax.Array:
+        from jaxcls.planning import learned  # (it imports this module)
+
+        if belief.weights is None:
+            raise ValueError("nbv: the learned policy needs its weights in Belief.weights (the episode's set-up "
+                             "loads nbv.learned.weights)")
+        ok = candidates(views, config)[1]
+        return learned.scores(belief.weights, views, belief, index, ok, intrinsics, config)
+
+
+Policy = Random | VisNoOccl | VisOccl | VisOcclHist | VisOcclHistUnc | InfoGain | Continuous | Learned
 POLICIES: dict[PolicyName, type[Policy]] = {p.name: p for p in (Random, VisNoOccl, VisOccl, VisOcclHist, VisOcclHistUnc,
-                                                                InfoGain, Continuous)}
+                                                                InfoGain, Continuous, Learned)}
+WEIGHTED: frozenset[PolicyName] = frozenset({PolicyName.learned})  # policies that read ``Belief.weights``
 
 
 def policy(name: PolicyName | str) -> Policy:
@@ -251,6 +284,7 @@ class NBVConfig:
           continuous: {steps: 20, step_size: 0.05, starts: 3}
           info_gain: {gain: {...}}
           vis_occl_hist_unc: {uncertainty: rho_margin}
+          learned: {weights: runs/policy/policy.msgpack}
     """
 
     radius: float = bounded(0.5, gt=0.0)  # m: candidates lie within this of the current view (the paper's r)
@@ -260,13 +294,14 @@ class NBVConfig:
     vis_occl_hist_unc: VisOcclHistUnc = dataclasses.field(default_factory=VisOcclHistUnc)
     info_gain: InfoGain = dataclasses.field(default_factory=InfoGain)
     continuous: Continuous = dataclasses.field(default_factory=Continuous)
+    learned: Learned = dataclasses.field(default_factory=Learned)
 
     def __post_init__(self) -> None:
         check_bounds(self, "nbv.")
 
     def policy(self, name: PolicyName | str) -> Policy:
         """The policy ``name`` with this block's parameters for it (the paper's policies have none)."""
-        configured = {p.name: p for p in (self.vis_occl_hist_unc, self.info_gain, self.continuous)}
+        configured = {p.name: p for p in (self.vis_occl_hist_unc, self.info_gain, self.continuous, self.learned)}
         return configured.get(PolicyName(name)) or policy(name)
 
 
@@ -295,7 +330,7 @@ class Belief(struct.PyTreeNode):
 
     corners: [N, 8, 3] model frame (m); poses: [N, 4, 4] model-to-world (refinement's Eq. 4); live: [N] bool;
     uncertainty: [N] in [0, 1] (``uncertainty``; only ``vis_occl_hist_unc`` reads it); volume: the fused
-    TSDF (only ``info_gain`` reads it).
+    TSDF (only ``info_gain`` reads it); weights: the learned policy's network (only ``learned`` reads them).
     """
 
     corners: jax.Array
@@ -303,6 +338,7 @@ class Belief(struct.PyTreeNode):
     live: jax.Array
     uncertainty: jax.Array | None = None
     volume: TSDFVolume | None = None
+    weights: Any = None
 
 
 def uncertainty(rho: jax.Array, probs: jax.Array, kind: Uncertainty = Uncertainty.rho_margin) -> jax.Array:
@@ -354,6 +390,13 @@ def random_walk(rng: np.random.Generator, T_wc: np.ndarray, length: int, config:
         path.append(int(rng.choice(fresh)))
         views = views.move(path[-1])
     return path
+
+
+def unvisited_first(views: Views, index: jax.Array, ok: jax.Array) -> jax.Array:
+    """[K] bool the candidates ``index`` [K] a move may take: those within the radius (``ok``) not yet visited,
+    or, where every one is visited, those within the radius."""
+    fresh = ok & ~views.visited[index]
+    return jnp.where(jnp.any(fresh), fresh, ok)
 
 
 def history_weight(views: Views, index: jax.Array, config: NBVConfig) -> jax.Array:

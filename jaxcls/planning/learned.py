@@ -1,0 +1,188 @@
+"""A learned next-best-view policy: a small network that scores every candidate view of a move from what the
+hand-made policies read (beyond the paper; issue 37).
+
+Its input is the state the episode already has, as features of the move's K candidates (``nbv.candidates``) and
+N segments (``features``):
+
+- per (candidate, segment) pair [K, N, PAIR_FEATURES]: the pixels of the segment's aligned model cuboid the
+  candidate would see through the z-buffer (Eq. 5, ``visibility`` "paper" mode), over the most any pair sees and
+  over the most that segment shows at any candidate; the segment's uncertainty (``nbv.uncertainty``: 1 - the
+  margin of its best rho over the second) and that uncertainty times the second count;
+- per candidate [K, CANDIDATE_FEATURES]: the history weight (Eq. 6), the distance from the current view over the
+  radius, within the radius, visited, the cosine between its optical axis and the current one's, how far down
+  it looks (minus its axis' z), the paper's VisOcclHist utility (Eq. 7), and the views fused so far over 10.
+
+The network (``ViewScorer``) is permutation-invariant over the segments (a shared MLP on each pair, then the
+mean and max over the live segments) and scores each candidate with a second shared MLP: any K and N, the same
+weights. ``scores`` is the policy's utility; ``nbv.Learned`` takes its best candidate within the radius (Eq. 8).
+
+Weights are a ``.msgpack`` and a ``.json`` beside it (``save``, ``load``): the width, the feature layout's
+version and the candidate count the policy was trained with; ``load`` refuses weights of other shapes, another
+feature layout or another candidate count, naming the file and what differs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import linen as nn
+from flax import serialization, struct
+
+from jaxcls import io
+from jaxcls.geometry import Intrinsics
+from jaxcls.math import safe_div
+from jaxcls.planning import nbv, visibility
+
+PAIR_FEATURES = 4
+CANDIDATE_FEATURES = 8
+FEATURES_VERSION = 1  # the layout above; weights of another layout are refused
+KIND = "jaxcls view policy"
+WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
+SHIPPED_WEIGHTS: dict[str, Path] = {}  # name -> shipped .msgpack (none yet: ``jaxcls train-policy`` makes them)
+
+
+class Features(struct.PyTreeNode):
+    """A move's input to the network: pair [K, N, PAIR_FEATURES], live [N] bool, candidate [K,
+    CANDIDATE_FEATURES] (see the module docstring)."""
+
+    pair: jax.Array
+    live: jax.Array
+    candidate: jax.Array
+
+
+def features(views: nbv.Views, belief: nbv.Belief, index: jax.Array, ok: jax.Array, intrinsics: Intrinsics,
+             config: nbv.NBVConfig) -> Features:
+    """The network's input for the candidates ``index`` [K] (``ok`` [K]: within the radius) of a move whose
+    planner sees ``views`` and ``belief``. Pure; finite for any state (no live segment, nothing visible)."""
+    paper = dataclasses.replace(config.visibility, mode=visibility.Mode.paper)
+    counts = visibility.counts(belief.corners, belief.poses, belief.live, views.T_wc[index], intrinsics, paper)
+    counts = jnp.where(belief.live[None, :], counts, 0.0)  # [K, N]
+    by_all = safe_div(counts, jnp.max(counts))
+    by_segment = safe_div(counts, jnp.max(counts, axis=0, keepdims=True))
+    unsure = (jnp.zeros(belief.live.shape, jnp.float32) if belief.uncertainty is None
+              else jnp.where(belief.live, belief.uncertainty, 0.0))
+    unsure = jnp.broadcast_to(unsure[None, :], counts.shape)
+    pair = jnp.stack([by_all, by_segment, unsure, unsure * by_segment], axis=-1)
+
+    weight = nbv.history_weight(views, index, config)
+    total = jnp.sum(counts, axis=1)
+    utility = jnp.where(jnp.max(total) > 0, weight * safe_div(total, jnp.max(total)), weight)  # Eq. 7
+    position, axis = views.T_wc[:, :3, 3], views.T_wc[:, :3, 2]
+    distance = jnp.linalg.norm(position[index] - position[views.current], axis=-1) / config.radius
+    facing = jnp.sum(axis[index] * axis[views.current], axis=-1)
+    fused = jnp.broadcast_to(jnp.sum(views.visited).astype(jnp.float32) / 10.0, index.shape)
+    candidate = jnp.stack([weight, distance, ok.astype(jnp.float32), views.visited[index].astype(jnp.float32),
+                           facing, -axis[index, 2], utility, fused], axis=-1)
+    return Features(pair=pair.astype(jnp.float32), live=belief.live, candidate=candidate.astype(jnp.float32))
+
+
+class ViewScorer(nn.Module):
+    """[K] a score per candidate from ``Features`` (one move; vmap for several)."""
+
+    hidden: int = 64
+
+    @nn.compact
+    def __call__(self, x: Features) -> jax.Array:
+        h = nn.relu(nn.Dense(self.hidden, name="pair_0")(x.pair))
+        h = nn.relu(nn.Dense(self.hidden, name="pair_1")(h))  # [K, N, H]
+        live = x.live[None, :, None]
+        count = jnp.maximum(jnp.sum(x.live), 1).astype(h.dtype)
+        mean = jnp.sum(jnp.where(live, h, 0.0), axis=1) / count
+        peak = jnp.where(jnp.any(x.live), jnp.max(jnp.where(live, h, -jnp.inf), axis=1), 0.0)  # (h >= 0)
+        c = jnp.concatenate([mean, peak, x.candidate], axis=-1)
+        c = nn.relu(nn.Dense(self.hidden, name="candidate_0")(c))
+        c = nn.relu(nn.Dense(self.hidden, name="candidate_1")(c))
+        return nn.Dense(1, name="score")(c)[..., 0]
+
+
+def init(key: jax.Array, hidden: int) -> dict:
+    """Fresh weights of a ``ViewScorer`` of width ``hidden`` (any K, N)."""
+    example = Features(pair=jnp.zeros((2, 3, PAIR_FEATURES)), live=jnp.ones(3, bool),
+                       candidate=jnp.zeros((2, CANDIDATE_FEATURES)))
+    return ViewScorer(hidden).init(key, example)
+
+
+def apply(weights: dict, x: Features) -> jax.Array:
+    """[..., K] the network's scores of ``x`` (leading axes: moves, vmapped); the width is the weights'."""
+    if x.candidate.ndim > 2:
+        return jax.vmap(lambda one: apply(weights, one))(x)
+    return ViewScorer(int(weights["params"]["pair_0"]["kernel"].shape[-1])).apply(weights, x)
+
+
+def scores(weights: dict, views: nbv.Views, belief: nbv.Belief, index: jax.Array, ok: jax.Array,
+           intrinsics: Intrinsics, config: nbv.NBVConfig) -> jax.Array:
+    """[K] the learned policy's utility of the candidates ``index`` (``features`` then ``ViewScorer``)."""
+    return apply(weights, features(views, belief, index, ok, intrinsics, config))
+
+
+@dataclasses.dataclass(frozen=True)
+class Info:
+    """What a weights file says of itself (its ``.json``): the width, the feature layout, the candidate count
+    it was trained with, and free ``metadata`` (the training's figures)."""
+
+    hidden: int
+    max_candidates: int
+    features: int = FEATURES_VERSION
+    metadata: dict = dataclasses.field(default_factory=dict)
+
+
+def save(path: str | Path, weights: dict, max_candidates: int, metadata: dict | None = None) -> Path:
+    """Write ``weights`` as a ``.msgpack`` (float32) and a ``.json`` beside it (``Info``), each atomically."""
+    path = Path(path)
+    stored = jax.tree.map(lambda a: np.asarray(a, np.float32), jax.device_get(weights))
+    if not all(np.all(np.isfinite(a)) for a in jax.tree.leaves(stored)):
+        raise ValueError("learned policy: the weights are not finite; nothing written")
+    hidden = int(stored["params"]["pair_0"]["kernel"].shape[-1])
+    io.write_bytes(path, serialization.msgpack_serialize(serialization.to_state_dict(stored)))
+    io.write_json(path.with_suffix(".json"), {"kind": KIND, "hidden": hidden, "features": FEATURES_VERSION,
+                                              "max_candidates": int(max_candidates), **(metadata or {})}, indent=2)
+    return path
+
+
+def load(path: str | Path, max_candidates: int) -> tuple[dict, Info]:
+    """The weights at ``path`` (a shipped name of ``SHIPPED_WEIGHTS``, or a ``.msgpack`` with its ``.json``) for
+    a planner of ``max_candidates`` candidates, on the default device, and their ``Info``. ValueError naming the
+    file where they are not a view policy's, of another feature layout, other shapes or another candidate count."""
+    path = Path(SHIPPED_WEIGHTS.get(str(path), path))
+    info_path = path.with_suffix(".json")
+    for p in (path, info_path):
+        if not p.is_file():
+            raise FileNotFoundError(f"learned policy: {p} not found (weights come as a .msgpack and a .json, "
+                                    "written by jaxcls train-policy)")
+    try:
+        info = json.loads(info_path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ValueError(f"{info_path}: not valid JSON ({e})") from None
+    if not isinstance(info, dict) or info.get("kind") != KIND:
+        raise ValueError(f"{info_path}: not a view policy's weights (expected 'kind': {KIND!r})")
+    for key in ("hidden", "features", "max_candidates"):
+        if isinstance(info.get(key), bool) or not isinstance(info.get(key), int) or info[key] < 1:
+            raise ValueError(f"{info_path}: {key!r} must be a positive integer, got {info.get(key)!r}")
+    if info["features"] != FEATURES_VERSION:
+        raise ValueError(f"{info_path}: weights of feature layout {info['features']}, this jaxcls reads layout "
+                         f"{FEATURES_VERSION}: train them again (jaxcls train-policy)")
+    if info["max_candidates"] != max_candidates:
+        raise ValueError(f"{info_path}: weights trained with {info['max_candidates']} candidates a move, the planner "
+                         f"has nbv.max_candidates = {max_candidates}")
+    template = jax.eval_shape(lambda: init(jax.random.key(0), info["hidden"]))
+    try:
+        weights = serialization.from_state_dict(template, serialization.msgpack_restore(path.read_bytes()))
+    except (ValueError, KeyError, TypeError) as e:
+        raise ValueError(f"learned policy: {path} does not hold a view policy of width {info['hidden']}: {e}") from None
+    for (keypath, want), got in zip(jax.tree_util.tree_leaves_with_path(template), jax.tree.leaves(weights),
+                                    strict=True):
+        if np.shape(got) != want.shape:
+            raise ValueError(f"learned policy: {path}: {jax.tree_util.keystr(keypath)} has shape {np.shape(got)}, "
+                             f"expected {want.shape} for width {info['hidden']} ({info_path.name})")
+    metadata = {k: v for k, v in info.items() if k not in ("kind", "hidden", "features", "max_candidates")}
+    return (jax.device_put(jax.tree.map(lambda a: np.asarray(a, np.float32), weights)),
+            Info(info["hidden"], info["max_candidates"], info["features"], metadata))
+
+
+__all__ = ["CANDIDATE_FEATURES", "FEATURES_VERSION", "PAIR_FEATURES", "Features", "Info", "ViewScorer", "apply",
+           "features", "init", "load", "save", "scores"]

@@ -1,0 +1,124 @@
+"""The learned view policy (``planning.learned``, ``nbv.Learned``): a drop-in policy of the episode under vmap and
+in the switched program; weights whose network passes the paper's utility through choose what VisOcclHist
+chooses; a weights file of other shapes, another layout or another candidate count is refused by name."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxcls.episode import active, batched, protocol, setup
+from jaxcls.geometry import CameraConfig
+from jaxcls.perception.settings import PerceptionConfig, ShapeConfig
+from jaxcls.perception.tracking import TrackingConfig
+from jaxcls.planning import learned, nbv
+from jaxcls.world.scenes import SceneConfig
+from jaxcls.world.setup import WorldConfig, make_world
+
+WORLD = WorldConfig(camera=CameraConfig.kinect_v1(0.25), scene=SceneConfig(num_objects=3), backend="mujoco",
+                    viewpoints=dataclasses.replace(WorldConfig().viewpoints, count=30))
+SETTINGS = setup.ActiveConfig(
+    episode=active.EpisodeConfig(moves=3),
+    perception=PerceptionConfig(shapes=ShapeConfig(surface_points=4096, points_per_segment=128),
+                                tracking=TrackingConfig(mode="reported")))
+UTILITY = 6  # the candidate feature that is Eq. 7's VisOcclHist utility
+
+
+def utility_passed_through(hidden: int = 8) -> dict:
+    """Weights whose score is the candidate's VisOcclHist utility, exactly: every kernel 0 but the path that
+    carries that feature (>= 0, so the ReLUs pass it) to the score."""
+    weights = jax.tree.map(np.zeros_like, jax.device_get(learned.init(jax.random.key(0), hidden)))
+    p = weights["params"]
+    p["candidate_0"]["kernel"][2 * hidden + UTILITY, 0] = 1.0
+    p["candidate_1"]["kernel"][0, 0] = 1.0
+    p["score"]["kernel"][0, 0] = 1.0
+    return weights
+
+
+def test_features_are_finite_and_carry_the_papers_utility():
+    world = make_world(WORLD, seed=1)
+    views = nbv.Views.start(world.viewpoints, 0)
+    corners = np.tile(np.array([[[x, y, z] for x in (-0.03, 0.03) for y in (-0.03, 0.03) for z in (0, 0.08)]],
+                               np.float32), (3, 1, 1))
+    poses = np.tile(np.eye(4, dtype=np.float32), (3, 1, 1))
+    poses[:, :3, 3] = [[0.0, 0.0, world.table_height], [0.1, 0.05, world.table_height], [0, 0, 0]]
+    belief = nbv.Belief(corners=jnp.asarray(corners), poses=jnp.asarray(poses), live=jnp.array([True, True, False]),
+                        uncertainty=jnp.array([0.2, 0.9, 0.5]))
+    config = nbv.NBVConfig()
+    index, ok = nbv.candidates(views, config)
+    x = learned.features(views, belief, index, ok, world.intrinsics, config)
+    assert x.pair.shape == (len(index), 3, learned.PAIR_FEATURES)
+    assert x.candidate.shape == (len(index), learned.CANDIDATE_FEATURES)
+    assert np.all(np.isfinite(np.asarray(x.pair))) and np.all(np.isfinite(np.asarray(x.candidate)))
+    want = nbv.VisOcclHist().utilities(views, belief, index, world.intrinsics, config)
+    np.testing.assert_array_equal(np.asarray(x.candidate[:, UTILITY]), np.asarray(want))
+    assert np.all(np.asarray(x.pair[:, 2, :]) == 0), "a dead segment carries nothing"
+    nothing = learned.features(views, belief.replace(live=jnp.zeros(3, bool)), index, ok, world.intrinsics, config)
+    scores = learned.apply(learned.init(jax.random.key(1), 16), nothing)
+    assert np.all(np.isfinite(np.asarray(scores)))
+    # Permutation-invariant over the segments, equivariant over the candidates.
+    weights = learned.init(jax.random.key(2), 16)
+    base = np.asarray(learned.apply(weights, x))
+    turned = learned.Features(pair=x.pair[::-1, ::-1], live=x.live[::-1], candidate=x.candidate[::-1])
+    np.testing.assert_allclose(np.asarray(learned.apply(weights, turned)), base[::-1], rtol=1e-5, atol=1e-6)
+    batch = jax.tree.map(lambda a: jnp.stack([a, a]), x)
+    np.testing.assert_allclose(np.asarray(learned.apply(weights, batch)), np.stack([base, base]), rtol=1e-6)
+
+
+def test_the_learned_policy_runs_in_the_switched_program_and_passes_the_papers_utility_through(tmp_path):
+    world = make_world(WORLD, seed=1)
+    depth, T_wc, _, _ = world.measure(jax.random.PRNGKey(0), np.arange(len(world.viewpoints)))
+    path = learned.save(tmp_path / "policy.msgpack", utility_passed_through(), SETTINGS.nbv.max_candidates)
+    settings = dataclasses.replace(SETTINGS, nbv=dataclasses.replace(
+        SETTINGS.nbv, learned=nbv.Learned(weights=str(path))))
+    episode = setup.make_episode(settings, world.object_set, world.intrinsics, world.table_height)
+    switched = episode.switched(("vis_occl_hist", "learned"))
+    start = protocol.start_views(0, 0, 2, len(world.viewpoints))
+    keys = np.asarray(protocol.run_keys(0, 0, 2))
+    frames = depth[None], np.asarray(T_wc, np.float32)[None]
+    scene = np.zeros(2, np.int32)
+    paper = batched.rollouts(switched.choose("vis_occl_hist", True), *frames, scene, start, keys)
+    ours = batched.rollouts(switched.choose("learned", True), *frames, scene, start, keys)
+    np.testing.assert_array_equal(ours.view, paper.view)
+    np.testing.assert_array_equal(ours.refinement.refined, paper.refinement.refined)
+    assert all(len(set(p.tolist())) == 3 for p in ours.view), "a path revisits a view"
+    # Other weights are another policy of the same program: valid paths, the same shapes.
+    other = learned.init(jax.random.key(3), 8)
+    mixed = batched.rollouts(switched.choose("learned", True).replace(policy_weights=other), *frames, scene, start,
+                             keys)
+    assert mixed.view.shape == paper.view.shape and all(len(set(p.tolist())) == 3 for p in mixed.view)
+
+
+def test_an_episode_without_the_learned_policys_weights_says_so():
+    world = make_world(WORLD, seed=1)
+    settings = dataclasses.replace(SETTINGS, episode=dataclasses.replace(SETTINGS.episode, policy="learned"))
+    with pytest.raises(ValueError, match="needs its weights"):
+        setup.make_episode(settings, world.object_set, world.intrinsics, world.table_height)
+    episode = setup.make_episode(SETTINGS, world.object_set, world.intrinsics, world.table_height)
+    assert nbv.PolicyName.learned not in episode.switched().policies
+    with pytest.raises(ValueError, match="need their weights"):
+        episode.switched(("vis_occl_hist", "learned"))
+
+
+def test_a_weights_file_of_other_shapes_layout_or_candidate_count_is_refused(tmp_path):
+    path = learned.save(tmp_path / "p.msgpack", learned.init(jax.random.key(0), 8), 32, {"trained_on": "test"})
+    weights, info = learned.load(path, 32)
+    assert info.hidden == 8 and info.max_candidates == 32 and info.metadata == {"trained_on": "test"}
+    np.testing.assert_array_equal(np.asarray(weights["params"]["score"]["kernel"]),
+                                  np.asarray(learned.init(jax.random.key(0), 8)["params"]["score"]["kernel"]))
+    with pytest.raises(ValueError, match=r"p\.json: weights trained with 32 candidates.*max_candidates = 20"):
+        learned.load(path, 20)
+    meta = json.loads(path.with_suffix(".json").read_text())
+    for change, message in [({"hidden": 16}, r"p\.msgpack: .*has shape \(8,\), expected \(16,\) for width 16"),
+                            ({"features": 99}, "feature layout 99"), ({"kind": "pointnet"}, "not a view policy"),
+                            ({"hidden": "8"}, "'hidden' must be a positive integer")]:
+        path.with_suffix(".json").write_text(json.dumps({**meta, **change}))
+        with pytest.raises(ValueError, match=message):
+            learned.load(path, 32)
+    with pytest.raises(FileNotFoundError, match=r"missing\.msgpack not found"):
+        learned.load(tmp_path / "missing.msgpack", 32)
