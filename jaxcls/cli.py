@@ -60,6 +60,12 @@ def _train() -> Command:
     return train.COMMAND
 
 
+def _train_policy() -> Command:
+    from jaxcls.commands import policy
+
+    return policy.COMMAND
+
+
 def _export() -> Command:
     from jaxcls.commands import export
 
@@ -99,13 +105,15 @@ COMMANDS: dict[str, Entry] = {
     "show": Entry("save a PNG of a scene: depth of a few views and the view hemisphere", _show),
     "dataset": Entry("render scenes x all viewpoints to disk (resumable)", _dataset, resumable=True),
     "train": Entry("train the PointNet classifier (resumes an interrupted run)", _train, resumable=True),
+    "train-policy": Entry("train the learned view policy by imitation of the oracle (resumable)", _train_policy,
+                          resumable=True),
     "export": Entry("write one rendered scene as a recorded sequence (or a dataset in BOP's layout)", _export),
     "view": Entry("open an episode's 3-D recording (episode.rrd) in rerun's viewer, or its web viewer", _view),
 }
 
 
 def _top_parser() -> argparse.ArgumentParser:
-    lines = [f"  {name:<9} {entry.summary}" for name, entry in COMMANDS.items()]
+    lines = [f"  {name:<12} {entry.summary}" for name, entry in COMMANDS.items()]
     parser = argparse.ArgumentParser(
         prog="jaxcls", formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Active 3D classification of multiple objects in cluttered scenes.\n\ncommands:\n"

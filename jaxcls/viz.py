@@ -111,6 +111,30 @@ def training_curve(history: list[dict]) -> Figure:
     return figure
 
 
+def policy_curve(history: list[dict]) -> Figure:
+    """A learned view policy's training (``jaxcls train-policy``'s ``metrics.json`` history) against the round: the
+    imitation loss and the regret (true F1 given up at a decision), and the held-out macro F1 of the learned policy
+    and of VisOcclHistGR."""
+    figure = Figure(figsize=(10, 4))
+    rounds = [h["round"] for h in history]
+    ax = figure.add_subplot(1, 2, 1)
+    ax.plot(rounds, [h["loss"] for h in history], color="k", lw=1, marker="o", label="imitation loss")
+    ax.set(xlabel="round", ylabel="loss (nats)")
+    regret = ax.twinx()
+    regret.plot(rounds, [h["regret"] for h in history], color="C3", lw=1, marker="s", label="regret")
+    regret.set(ylabel="regret: F1 given up a decision (red)")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.legend(fontsize=8, loc="upper right")
+    ax = figure.add_subplot(1, 2, 2)
+    ax.plot(rounds, [h["f1_learned"] for h in history], color="C0", marker="o", label="learned (GR)")
+    ax.plot(rounds, [h["f1_vis_occl_hist"] for h in history], color="0.4", ls="--", label="VisOcclHistGR")
+    ax.set(xlabel="round", ylabel="held-out macro F1 after the last move")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.legend(fontsize=8)
+    figure.tight_layout()
+    return figure
+
+
 def confusion(confusions: dict[str, np.ndarray], classes: Sequence[str]) -> Figure:
     """One row-normalised confusion matrix per cloud source (rows: true class, columns: predicted)."""
     figure = Figure(figsize=(4.2 * len(confusions), 4.4))

@@ -25,7 +25,7 @@ import dataclasses
 import enum
 import functools
 import itertools
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import jax
@@ -190,8 +190,8 @@ def _runs_candidates(episode: active.Episode, views: nbv.Views) -> tuple[jax.Arr
 
 def oracle_rollouts(episode: active.Episode, depth: np.ndarray, T_wc: np.ndarray, starts: np.ndarray,
                     keys: jax.Array, truth: scoring.Truth | Sequence[scoring.Truth],
-                    scene: np.ndarray | None = None, kernels: batched.Kernels = batched.Kernels.fixed
-                    ) -> active.Trace:
+                    scene: np.ndarray | None = None, kernels: batched.Kernels = batched.Kernels.fixed,
+                    tap: Callable[..., np.ndarray] | None = None) -> active.Trace:
     """The oracle NBV for the runs ``starts: [R]`` (keys [R]): the first move from each start; then at each move
     every candidate of every run (``nbv.candidates`` within the radius, unvisited ones first) is fused,
     segmented, classified and refined in one vmapped call, and each run keeps the one whose refined labels score
@@ -203,7 +203,12 @@ def oracle_rollouts(episode: active.Episode, depth: np.ndarray, T_wc: np.ndarray
     Every move is one program of one shape ([R, C] moves; the first one's C columns all go to the start): traced
     once (kept on disk with the compilation cache on, ``compile_cache.exported``), with ``kernels`` as the
     batched rows' (``batched.Kernels``: ``fixed`` picks the same GPU kernels on every compilation, so that a
-    process that compiles it again gives the same records)."""
+    process that compiles it again gives the same records).
+
+    ``tap(states, index, ok, allowed, f1, pick) -> pick``, where given, sees every decision after the first move:
+    the runs' states before it ([R] leaves), their candidates (index, ok, allowed [R, C]: ``allowed`` the ones the
+    oracle ranks), each candidate's true F1 after the move ([R, C], -1 where not allowed) and the oracle's pick
+    [R]; the runs go where it returns (e.g. a learned policy's choice, labelled by the oracle's F1: DAgger)."""
     depth, T_wc = jnp.asarray(depth, jnp.float32), jnp.asarray(T_wc, jnp.float32)
     starts = np.asarray(starts, np.int64)
     R, num_classes = len(starts), len(episode.spec.classifier.classes)
@@ -232,6 +237,7 @@ def oracle_rollouts(episode: active.Episode, depth: np.ndarray, T_wc: np.ndarray
         fresh = ok & ~np.take_along_axis(np.asarray(states.views.visited), index, axis=1)
         first = np.arange(index.shape[1]) == 0
         allowed = np.where(fresh.any(1, keepdims=True), fresh, np.where(ok.any(1, keepdims=True), ok, first))
+        before, choices = states, (index, ok, allowed)
         index = jax.device_put(jnp.asarray(index, jnp.int32), device)
         states, traces = moves_to(episode, states, depth, T_wc, at, index)
         traces = jax.device_get(traces)
@@ -239,6 +245,11 @@ def oracle_rollouts(episode: active.Episode, depth: np.ndarray, T_wc: np.ndarray
         f1 = np.stack([scoring.candidate_f1(truths[r], centroid[r], valid[r], refined[r], num_classes) for r in runs])
         f1 = np.where(allowed, f1, -1.0)
         pick = np.argmax(f1, axis=1)
+        if tap is not None:
+            pick = np.asarray(tap(before, *choices, f1, pick), np.int64)
+            if pick.shape != (R,) or not np.all(np.take_along_axis(allowed, pick[:, None], axis=1)):
+                raise ValueError(f"oracle_rollouts: tap must return [R] = [{R}] picks among the allowed candidates, "
+                                 f"got {pick.tolist()}")
     return jax.tree.map(lambda *xs: np.stack(xs, axis=1), *kept)
 
 

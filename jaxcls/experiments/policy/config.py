@@ -1,0 +1,80 @@
+"""``jaxcls train-policy``'s settings."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from jaxcls.config import bounded, check_bounds, load_config, resolve_config
+from jaxcls.experiments.table1.config import SceneSource, Table1Config
+
+
+@dataclasses.dataclass(frozen=True)
+class PolicyConfig:
+    """The learned view policy's imitation of the oracle (DAgger) for one Table 1 config and classifier.
+
+    Each round rolls out ``runs`` episodes on each of the ``train_scenes`` training scenes: the oracle tries
+    every candidate at every move and labels it with its true F1; the runs go where the oracle goes with
+    probability ``beta ** round`` (round 0: always), else where the network goes. The network is fitted on every
+    round's decisions so far, then evaluated on ``eval_scenes`` held-out scenes (the Table 1 config's first
+    scenes) against VisOcclHistGR, with GR on.
+    """
+
+    out_dir: str = "runs/policy"
+    table1: str = "table1_real_like"  # the Table 1 config (name or path) whose scenes, classifier, moves it serves
+    table1_overrides: tuple[str, ...] = ()  # key=value changes to it
+    classifier: str = ""  # one of its classifiers by name ("" = its first)
+    # The training scenes are its dataset's config drawn with this seed instead (rendered where the episodes run,
+    # none written): other scenes than its own, which are the held-out ones.
+    train_seed: int = 1001
+    train_scenes: int = bounded(16, ge=1)
+    eval_scenes: int = bounded(8, ge=1)
+    runs: int = bounded(4, ge=1)  # start views a training scene and round
+    eval_runs: int = bounded(2, ge=1)  # start views a held-out scene
+    rounds: int = bounded(3, ge=1)  # DAgger rounds (may grow when a run resumes)
+    beta: float = bounded(0.5, ge=0.0, le=1.0)  # round r follows the oracle with probability beta ** r
+    epochs: int = bounded(30, ge=1)  # passes over every decision so far, each round
+    batch: int = bounded(64, ge=1)
+    learning_rate: float = bounded(1e-3, gt=0.0)
+    hidden: int = bounded(64, ge=1)  # the network's width (``learned.ViewScorer``)
+    temperature: float = bounded(0.02, gt=0.0)  # the target: softmax((F1 - best F1) / temperature) over the choices
+    seed: int = 0  # starts, keys, the network's initialisation, the batches, the DAgger draws
+
+    def __post_init__(self) -> None:
+        check_bounds(self)
+
+    def table1_config(self) -> Table1Config:
+        """The Table 1 config (its own scenes: the held-out ones)."""
+        return load_config(Table1Config, resolve_config(self.table1), self.table1_overrides)
+
+    def training_config(self) -> Table1Config:
+        """The Table 1 config over the training scenes: its dataset's config drawn with ``train_seed`` and
+        rendered where the episodes run. Refused where that is its own seed (the scenes would be the held-out
+        ones)."""
+        from jaxcls.experiments.table1.data import dataset_config
+
+        held_out = self.table1_config()
+        dataset = dataset_config(held_out)
+        if dataset.seed == self.train_seed:
+            raise ValueError(f"train_seed: {self.train_seed} is the seed of {self.table1}'s own (held-out) scenes; "
+                             "choose another")
+        return dataclasses.replace(held_out, scene_source=SceneSource.device, scenes=self.train_scenes,
+                                   dataset_overrides=(*held_out.dataset_overrides, f"seed={self.train_seed}",
+                                                      f"num_scenes={max(self.train_scenes, 1)}"))
+
+    def classifier_name(self, config: Table1Config) -> str:
+        """``classifier``, or the Table 1 config's first; ValueError naming the choices."""
+        name = self.classifier or next(iter(config.classifiers))
+        if name not in config.classifiers:
+            raise ValueError(f"classifier: {name!r} is not one of {self.table1}'s classifiers "
+                             f"{list(config.classifiers)}")
+        return name
+
+    def results_defining(self) -> dict:
+        """What a run's decisions and weights depend on (a resumed run must keep them; ``rounds`` may grow)."""
+        return {k: v for k, v in dataclasses.asdict(self).items() if k not in ("out_dir", "rounds")}
+
+
+def load(path: str | Path | None = None, overrides: tuple[str, ...] = ()) -> PolicyConfig:
+    """A policy config: a shipped name or a path (``resolve_config``), then ``overrides``."""
+    return load_config(PolicyConfig, resolve_config(path) if path else None, overrides)

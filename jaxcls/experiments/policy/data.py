@@ -1,0 +1,96 @@
+"""The oracle's labels of the states a DAgger round visits: at every decision after the first move, the network's
+input (``learned.features``) and each candidate's true F1 after the move (``protocol.oracle_rollouts``)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxcls import io
+from jaxcls.episode import active, protocol, scoring
+from jaxcls.planning import learned
+
+
+@dataclasses.dataclass(frozen=True)
+class Decisions:
+    """D decisions: the network's input (``learned.Features`` with [D, ...] leaves: pair [D, C, N, P], live [D, N],
+    candidate [D, C, F]), f1 [D, C] each candidate's true F1 after the move (-1 where not allowed), allowed [D, C]
+    bool the candidates the oracle ranks (unvisited within the radius first)."""
+
+    features: learned.Features
+    f1: np.ndarray
+    allowed: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.f1)
+
+    @staticmethod
+    def concatenate(parts: list[Decisions]) -> Decisions:
+        """The decisions of ``parts`` one after the other (none: ValueError)."""
+        if not parts:
+            raise ValueError("Decisions.concatenate: no decisions")
+        return jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
+
+    def save(self, path: str | Path) -> Path:
+        """One ``.npz``, written atomically."""
+        import io as bytes_io
+
+        buffer = bytes_io.BytesIO()
+        np.savez(buffer, pair=self.features.pair, live=self.features.live, candidate=self.features.candidate,
+                 f1=self.f1, allowed=self.allowed)
+        return io.write_bytes(path, buffer.getvalue())
+
+    @classmethod
+    def load(cls, path: str | Path) -> Decisions:
+        with np.load(path) as f:
+            return cls(learned.Features(pair=f["pair"], live=f["live"], candidate=f["candidate"]), f["f1"],
+                       f["allowed"])
+
+
+jax.tree_util.register_dataclass(Decisions, data_fields=["features", "f1", "allowed"], meta_fields=[])
+
+
+@jax.jit
+def _features_of_runs(episode: active.Episode, states: active.EpisodeState, index: jax.Array, ok: jax.Array
+                      ) -> learned.Features:
+    """[R] runs' network input at their candidates ``index``, ``ok`` [R, C] (the planner's views and belief)."""
+    def one(state, i, o):
+        return learned.features(active.planned_views(state), active.belief(episode, state), i, o,
+                                episode.spec.intrinsics, episode.nbv_config)
+
+    return jax.vmap(one)(states, index, ok)
+
+
+@jax.jit
+def _picks(weights: dict, x: learned.Features, allowed: jax.Array) -> jax.Array:
+    """[R] the network's best allowed candidate of each run."""
+    return jnp.argmax(jnp.where(allowed, learned.apply(weights, x), -jnp.inf), axis=-1)
+
+
+def collect(episode: active.Episode, depth: np.ndarray, T_wc: np.ndarray, scene: np.ndarray, starts: np.ndarray,
+            keys: jax.Array, truths: list[scoring.Truth], weights: dict | None = None, follow_oracle: float = 1.0,
+            rng: np.random.Generator | None = None) -> Decisions:
+    """The oracle's rollouts of runs ``starts`` [R] (keys [R]) of the scenes ``scene`` [R] (frames depth [S, V, H, W],
+    T_wc [S, V, 4, 4]; ``truths`` a ``Truth`` per run), labelled at every decision after the first move. Each run
+    goes where the oracle goes with probability ``follow_oracle`` (drawn by ``rng`` per run and decision), else
+    to the best allowed candidate by the network ``weights`` (DAgger's mixture; without weights, the oracle)."""
+    rng = rng or np.random.default_rng(0)
+    kept: list[Decisions] = []
+
+    def tap(states, index, ok, allowed, f1, pick) -> np.ndarray:
+        x = jax.device_get(_features_of_runs(episode, states, jnp.asarray(index, jnp.int32), jnp.asarray(ok)))
+        kept.append(Decisions(x, np.asarray(f1, np.float32), np.asarray(allowed)))
+        if weights is None:
+            return pick
+        ours = np.asarray(_picks(weights, x, jnp.asarray(allowed)))
+        return np.where(rng.random(len(pick)) < follow_oracle, pick, ours)
+
+    protocol.oracle_rollouts(episode, depth, T_wc, starts, keys, truths, scene=scene, tap=tap)
+    return Decisions.concatenate(kept)
+
+
+__all__ = ["Decisions", "collect"]

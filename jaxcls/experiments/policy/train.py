@@ -1,0 +1,220 @@
+"""The learned view policy trained by imitation of the oracle, DAgger-style (``jaxcls train-policy``).
+
+Each round: the training scenes' runs are rolled out by the oracle (every candidate of every move fused,
+segmented, classified, refined and scored by its true F1), each run following the oracle or the network
+(``data.collect``); the network is fitted on every round's decisions so far with a listwise loss, the cross
+entropy between its softmax over the allowed candidates and the target softmax((F1 - best F1) / temperature)
+(``loss``: ties of the best share the target); then it is evaluated on held-out scenes against VisOcclHistGR,
+both in one switched program (``evaluate``). A round ends with an orbax checkpoint (the weights and the
+optimiser's state) and ``metrics.json``; a run started again resumes after its last finished round, a round's
+decisions kept on disk (``decisions_<r>.npz``) so that an interrupted round does not collect them again. The run
+ends with ``policy.msgpack`` (+ ``.json``, ``learned.save``) and ``curve.png``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import orbax.checkpoint as ocp
+from tqdm.auto import tqdm
+
+from jaxcls import io, metrics, viz
+from jaxcls.config import load_config, save_config
+from jaxcls.episode import active, batched, protocol, scoring, setup
+from jaxcls.experiments.policy.config import PolicyConfig
+from jaxcls.experiments.policy.data import Decisions, collect
+from jaxcls.experiments.table1 import runner
+from jaxcls.experiments.table1.config import Table1Config
+from jaxcls.experiments.table1.data import Scenes, open_scenes
+from jaxcls.planning import learned
+from jaxcls.world.objects import object_set_from_config
+
+COMPARED = ("vis_occl_hist", "learned")  # the held-out evaluation's policies (GR on), one switched program
+
+
+def loss(weights: dict, x: learned.Features, f1: jax.Array, allowed: jax.Array, temperature: float
+         ) -> tuple[jax.Array, tuple[jax.Array, jax.Array]]:
+    """The listwise imitation loss of a batch of decisions ([B] leading axes) and its (regret, agreement): the
+    mean cross entropy between the network's softmax over the allowed candidates and the oracle's target
+    softmax((F1 - best F1) / temperature); regret [] the mean true F1 given up by the network's best candidate,
+    agreement [] the share of decisions where it is one of the oracle's best."""
+    scores = jnp.where(allowed, learned.apply(weights, x), -1e9)
+    log_p = jax.nn.log_softmax(scores, axis=-1)
+    best = jnp.max(jnp.where(allowed, f1, -jnp.inf), axis=-1, keepdims=True)
+    target = jax.nn.softmax(jnp.where(allowed, (f1 - best) / temperature, -1e9), axis=-1)
+    nll = -jnp.sum(target * jnp.where(allowed, log_p, 0.0), axis=-1)
+    chosen = jnp.take_along_axis(f1, jnp.argmax(scores, axis=-1)[:, None], axis=-1)
+    return jnp.mean(nll), (jnp.mean(best - chosen), jnp.mean(chosen >= best))
+
+
+@functools.partial(jax.jit, static_argnames=("optimizer", "batch", "temperature"))
+def _epoch(weights: dict, opt_state: Any, data: Decisions, key: jax.Array, optimizer: optax.GradientTransformation,
+           batch: int, temperature: float) -> tuple[dict, Any, jax.Array]:
+    """One pass over ``data`` in shuffled batches of ``batch`` (the last partial one left out) under one
+    ``lax.scan``: the new weights and optimiser state, and [steps, 3] each step's (loss, regret, agreement)."""
+    steps = len(data) // batch
+    order = jax.random.permutation(key, len(data))[:steps * batch].reshape(steps, batch)
+
+    def step(carry, rows):
+        w, s = carry
+        part = jax.tree.map(lambda a: a[rows], data)
+        (value, (regret, agree)), grads = jax.value_and_grad(loss, has_aux=True)(
+            w, part.features, part.f1, part.allowed, temperature)
+        updates, s = optimizer.update(grads, s, w)
+        return (optax.apply_updates(w, updates), s), jnp.stack([value, regret, agree])
+
+    (weights, opt_state), per_step = jax.lax.scan(step, (weights, opt_state), order)
+    return weights, opt_state, per_step
+
+
+def fit(weights: dict, opt_state: Any, optimizer: optax.GradientTransformation, data: Decisions, epochs: int,
+        batch: int, temperature: float, key: jax.Array) -> tuple[dict, Any, dict[str, float]]:
+    """``epochs`` passes over ``data`` (batches of ``min(batch, len(data))``); the last epoch's mean loss, regret
+    and agreement."""
+    batch = min(batch, len(data))
+    on_device = jax.device_put(data)
+    per_step = None
+    for epoch in range(epochs):
+        weights, opt_state, per_step = _epoch(weights, opt_state, on_device, jax.random.fold_in(key, epoch),
+                                              optimizer, batch, temperature)
+    value, regret, agree = (float(v) for v in np.asarray(per_step).mean(axis=0))
+    if not math.isfinite(value):
+        raise RuntimeError(f"train-policy: the loss is {value}; the fit diverged (lower learning_rate?)")
+    return weights, opt_state, {"loss": value, "regret": regret, "agreement": agree}
+
+
+@dataclasses.dataclass
+class _Scenes:
+    """A scene set's frames in chunks of the Table 1 config's ``scene_chunk`` (rendered once, kept), with truths."""
+
+    config: Table1Config
+    scene_set: Scenes
+    object_set: Any
+    chunks: list = dataclasses.field(default_factory=list)
+
+    def frames(self) -> list:
+        if not self.chunks:
+            indices = list(range(self.scene_set.count))
+            for at in range(0, len(indices), self.config.scene_chunk):
+                chunk = self.scene_set.chunk(indices[at:at + self.config.scene_chunk])
+                truths = [scoring.Truth.from_scene(s, self.object_set) for s in chunk.scenes]
+                self.chunks.append((indices[at:at + self.config.scene_chunk], chunk, truths))
+        return self.chunks
+
+
+def _runs(seed: int, scenes: list[int], runs: int, views: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(scene position [R], start [R], keys [R]) of ``runs`` runs of each scene (Table 1's starts and keys)."""
+    at = np.repeat(np.arange(len(scenes)), runs)
+    starts = np.concatenate([protocol.start_views(seed, s, runs, views) for s in scenes])
+    with jax.default_device(jax.devices("cpu")[0]):
+        keys = np.concatenate([np.asarray(protocol.run_keys(seed, s, runs)) for s in scenes])
+    return at.astype(np.int32), starts, keys
+
+
+def evaluate(switched: active.Episode, weights: dict, held_out: _Scenes, runs: int, seed: int,
+             moves: int) -> dict[str, Any]:
+    """Macro F1 of the target objects after the last move on the held-out scenes (their first ``runs`` runs, Table
+    1's starts and keys), VisOcclHistGR and the learned policy in one switched program, GR on; the paired
+    difference learned - VisOcclHist with its scene-bootstrap interval."""
+    switched = switched.replace(policy_weights=weights)
+    records: dict[str, list] = {p: [] for p in COMPARED}
+    for scenes, chunk, truths in held_out.frames():
+        at, starts, keys = _runs(seed, scenes, runs, chunk.T_wc.shape[1])
+        for policy in COMPARED:
+            traces = batched.rollouts(switched.choose(policy, True), chunk.depth, chunk.T_wc, at, starts, keys)
+            records[policy] += protocol.episode_records(
+                traces, [truths[a] for a in at], [{"scene": scenes[a], "run": r % runs} for r, a in enumerate(at)])
+    classes = len(switched.spec.classifier.classes)
+    per = {p: protocol.per_scene(records[p], moves) for p in COMPARED}
+    out: dict[str, Any] = {f"f1_{p}": metrics.scene_interval(per[p], classes, resamples=200)[0] for p in COMPARED}
+    out["learned_minus_vis_occl_hist"] = list(metrics.paired_difference(per["learned"], per["vis_occl_hist"], classes,
+                                                                        resamples=200))
+    return out
+
+
+def _resume_point(out: Path, config: PolicyConfig, manager: ocp.CheckpointManager) -> int:
+    """The rounds a run folder finished (0 for a new one), once this config continues it (``rounds`` may grow)."""
+    done = manager.latest_step() or 0
+    saved = out / "config.yaml"
+    if saved.is_file():
+        before = load_config(PolicyConfig, saved).results_defining()
+        changed = sorted(k for k, v in config.results_defining().items() if before.get(k) != v)
+        if changed:
+            raise ValueError(f"train-policy: {out} holds a run with other settings ({', '.join(changed)} differ from "
+                             f"{saved}); resume with the same config or choose another out_dir")
+    if done > config.rounds:
+        raise ValueError(f"train-policy: {out} has finished {done} rounds already, more than rounds = {config.rounds}")
+    return done
+
+
+def train(config: PolicyConfig, show_progress: bool = True) -> Path:
+    """Run (or resume) a training; returns the run folder (``policy.msgpack``, ``metrics.json``, ``curve.png``)."""
+    out = Path(config.out_dir)
+    manager = ocp.CheckpointManager(out.resolve() / "checkpoints")
+    start = _resume_point(out, config, manager)
+    save_config(config, out / "config.yaml")
+    held_out_config = dataclasses.replace(config.table1_config(), scenes=config.eval_scenes)
+    training_config = config.training_config()
+    dataset, train_set = open_scenes(training_config)
+    _, eval_set = open_scenes(held_out_config)
+    object_set = object_set_from_config(dataset.objects)
+    name = config.classifier_name(held_out_config)
+    classifier = setup.load_classifier(held_out_config.classifiers[name], object_set, f"classifiers.{name}")
+    training, held_out = _Scenes(training_config, train_set, object_set), _Scenes(held_out_config, eval_set, object_set)
+    first = training.frames()[0][1]
+    oracle = runner.episode(held_out_config, protocol.ROWS["oracle_gr"], classifier, object_set, first.intrinsics,
+                            first.scenes[0].table_height, dataset.scene.split)
+
+    weights = learned.init(jax.random.key(config.seed), config.hidden)
+    optimizer = optax.adam(config.learning_rate)
+    opt_state = optimizer.init(weights)
+    history: list[dict] = []
+    if start:
+        target = jax.tree.map(ocp.utils.to_shape_dtype_struct, {"weights": weights, "opt_state": opt_state})
+        restored = manager.restore(start, args=ocp.args.StandardRestore(target))
+        weights, opt_state = restored["weights"], restored["opt_state"]
+        history = [h for h in json.loads((out / "metrics.json").read_text())["history"] if h["round"] <= start]
+    switched = oracle.replace(policy_weights=weights).switched(COMPARED)
+
+    bar = tqdm(range(start, config.rounds), desc="train-policy", unit="round", initial=start, total=config.rounds,
+               disable=not show_progress)
+    for r in bar:
+        kept = out / f"decisions_{r}.npz"
+        if not kept.is_file():
+            follow = config.beta ** r
+            rng = np.random.default_rng([config.seed, r])
+            parts = []
+            for scenes, chunk, truths in tqdm(training.frames(), desc=f"round {r + 1}: the oracle's labels",
+                                              unit="chunk", leave=False, disable=not show_progress):
+                at, starts, keys = _runs(config.seed + 7919 * (r + 1), scenes, config.runs, chunk.T_wc.shape[1])
+                parts.append(collect(oracle, chunk.depth, chunk.T_wc, at, starts, keys, [truths[a] for a in at],
+                                     weights if r else None, follow, rng))
+            Decisions.concatenate(parts).save(kept)
+        data = Decisions.concatenate([Decisions.load(out / f"decisions_{i}.npz") for i in range(r + 1)])
+        weights, opt_state, fitted = fit(weights, opt_state, optimizer, data, config.epochs, config.batch,
+                                         config.temperature, jax.random.fold_in(jax.random.key(config.seed + 1), r))
+        scores = evaluate(switched, weights, held_out, config.eval_runs, held_out_config.seed, held_out_config.moves)
+        history.append({"round": r + 1, "decisions": len(data), "follow_oracle": config.beta ** r, **fitted, **scores})
+        io.write_json(out / "metrics.json", {"table1": config.table1, "classifier": name, "history": history})
+        manager.save(r + 1, args=ocp.args.StandardSave({"weights": weights, "opt_state": opt_state}))
+        bar.set_postfix(loss=f"{fitted['loss']:.3f}", regret=f"{fitted['regret']:.3f}",
+                        learned=f"{scores['f1_learned']:.3f}", vis_occl_hist=f"{scores['f1_vis_occl_hist']:.3f}")
+    manager.wait_until_finished()
+    viz.save(viz.policy_curve(history), out / "curve.png")
+    learned.save(out / "policy.msgpack", weights, held_out_config.nbv.max_candidates, {
+        "trained_by": "jaxcls train-policy", "table1": config.table1, "classifier": name,
+        "rounds": len(history), "held_out": {k: v for k, v in history[-1].items() if k.startswith(("f1_", "learned_"))}
+        if history else {}})
+    return out
+
+
+__all__ = ["COMPARED", "evaluate", "fit", "loss", "train"]
