@@ -122,3 +122,13 @@ def test_a_weights_file_of_other_shapes_layout_or_candidate_count_is_refused(tmp
             learned.load(path, 32)
     with pytest.raises(FileNotFoundError, match=r"missing\.msgpack not found"):
         learned.load(tmp_path / "missing.msgpack", 32)
+
+
+def test_a_table1_row_of_the_learned_policy_needs_its_weights_named():
+    from jaxcls.experiments.table1.config import Table1Config
+
+    with pytest.raises(ValueError, match="rows: learned_gr runs the learned policy; name its weights"):
+        Table1Config(rows=("vis_occl_hist_gr", "learned_gr"), classifiers={"shipped": ""})
+    named = Table1Config(rows=("learned_gr",), classifiers={"shipped": ""},
+                         nbv=dataclasses.replace(nbv.NBVConfig(), learned=nbv.Learned(weights="runs/p/policy.msgpack")))
+    assert protocol.ROWS[named.rows[0]].policy == "learned"

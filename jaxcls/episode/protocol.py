@@ -90,6 +90,8 @@ ROWS: dict[str, Row] = {
     "vis_occl_hist_unc_gr": Row("VisOcclHistUncGR", Kind.POLICY, "vis_occl_hist_unc"),
     "info_gain_gr": Row("InfoGainGR", Kind.POLICY, "info_gain"),
     "continuous_gr": Row("ContinuousGR", Kind.POLICY, "continuous"),
+    # The learned policy (``nbv.learned.weights``: ``jaxcls train-policy``'s ``policy.msgpack``).
+    "learned_gr": Row("LearnedGR", Kind.POLICY, "learned"),
     "vis_occl_hist_gr_category": Row("VisOcclHistGR (category models)", Kind.POLICY, "vis_occl_hist",
                                      library="category"),
     "oracle_gr": Row("OracleGR", Kind.ORACLE),

@@ -11,6 +11,7 @@ from jaxcls.config import bounded, check_bounds, load_config
 from jaxcls.episode import active, batched, protocol, setup
 from jaxcls.perception.refine import RefineConfig
 from jaxcls.perception.settings import PerceptionConfig
+from jaxcls.planning.nbv import WEIGHTED as NBV_WEIGHTED
 from jaxcls.planning.nbv import NBVConfig
 
 
@@ -68,7 +69,9 @@ class Table1Config:
     def __post_init__(self) -> None:
         check_bounds(self)
         for name in self.rows:
-            protocol.row(name, "rows")
+            if protocol.row(name, "rows").policy in NBV_WEIGHTED and not self.nbv.learned.weights:
+                raise ValueError(f"rows: {name} runs the learned policy; name its weights with nbv.learned.weights "
+                                 "(a policy.msgpack written by jaxcls train-policy)")
         if not self.classifiers:
             raise ValueError("classifiers: name at least one (name: path, \"\" = the shipped weights)")
 
