@@ -73,23 +73,31 @@ def _picks(weights: dict, x: learned.Features, allowed: jax.Array) -> jax.Array:
 
 def collect(episode: active.Episode, depth: np.ndarray, T_wc: np.ndarray, scene: np.ndarray, starts: np.ndarray,
             keys: jax.Array, truths: list[scoring.Truth], weights: dict | None = None, follow_oracle: float = 1.0,
-            rng: np.random.Generator | None = None) -> Decisions:
+            rng: np.random.Generator | None = None, runs_per_call: int = 0) -> Decisions:
     """The oracle's rollouts of runs ``starts`` [R] (keys [R]) of the scenes ``scene`` [R] (frames depth [S, V, H, W],
-    T_wc [S, V, 4, 4]; ``truths`` a ``Truth`` per run), labelled at every decision after the first move. Each run
-    goes where the oracle goes with probability ``follow_oracle`` (drawn by ``rng`` per run and decision), else
-    to the best allowed candidate by the network ``weights`` (DAgger's mixture; without weights, the oracle)."""
+    T_wc [S, V, 4, 4]; ``truths`` a ``Truth`` per run), labelled at every decision after the first move, in calls of
+    ``runs_per_call`` runs (0: all at once; the last call padded with copies of its last run, dropped: one compiled
+    shape). Each run goes where the oracle goes with probability ``follow_oracle`` (drawn by ``rng`` per run and
+    decision), else to the best allowed candidate by the network ``weights`` (DAgger's mixture; without weights,
+    the oracle)."""
     rng = rng or np.random.default_rng(0)
+    R = len(starts)
+    size = runs_per_call or R
     kept: list[Decisions] = []
+    for first in range(0, R, size):
+        real = min(size, R - first)
+        rows = np.concatenate([np.arange(first, first + real), np.full(size - real, first + real - 1)])
 
-    def tap(states, index, ok, allowed, f1, pick) -> np.ndarray:
-        x = jax.device_get(_features_of_runs(episode, states, jnp.asarray(index, jnp.int32), jnp.asarray(ok)))
-        kept.append(Decisions(x, np.asarray(f1, np.float32), np.asarray(allowed)))
-        if weights is None:
-            return pick
-        ours = np.asarray(_picks(weights, x, jnp.asarray(allowed)))
-        return np.where(rng.random(len(pick)) < follow_oracle, pick, ours)
+        def tap(states, index, ok, allowed, f1, pick, real=real) -> np.ndarray:
+            x = jax.device_get(_features_of_runs(episode, states, jnp.asarray(index, jnp.int32), jnp.asarray(ok)))
+            kept.append(jax.tree.map(lambda a: a[:real], Decisions(x, np.asarray(f1, np.float32), np.asarray(allowed))))
+            if weights is None:
+                return pick
+            ours = np.asarray(_picks(weights, x, jnp.asarray(allowed)))
+            return np.where(rng.random(len(pick)) < follow_oracle, pick, ours)
 
-    protocol.oracle_rollouts(episode, depth, T_wc, starts, keys, truths, scene=scene, tap=tap)
+        protocol.oracle_rollouts(episode, depth, T_wc, starts[rows], np.asarray(keys)[rows], [truths[i] for i in rows],
+                                 scene=np.asarray(scene)[rows], tap=tap)
     return Decisions.concatenate(kept)
 
 

@@ -197,7 +197,7 @@ def train(config: PolicyConfig, show_progress: bool = True) -> Path:
                                               unit="chunk", leave=False, disable=not show_progress):
                 at, starts, keys = _runs(config.seed + 7919 * (r + 1), scenes, config.runs, chunk.T_wc.shape[1])
                 parts.append(collect(oracle, chunk.depth, chunk.T_wc, at, starts, keys, [truths[a] for a in at],
-                                     weights if r else None, follow, rng))
+                                     weights if r else None, follow, rng, runner.oracle_call_size(training_config)))
             Decisions.concatenate(parts).save(kept)
         data = Decisions.concatenate([Decisions.load(out / f"decisions_{i}.npz") for i in range(r + 1)])
         weights, opt_state, fitted = fit(weights, opt_state, optimizer, data, config.epochs, config.batch,
