@@ -7,7 +7,9 @@ entropy between its softmax over the allowed candidates and the target softmax((
 (``loss``: ties of the best share the target); then it is evaluated on held-out scenes against VisOcclHistGR,
 both in one switched program (``evaluate``). A round ends with an orbax checkpoint (the weights and the
 optimiser's state) and ``metrics.json``; a run started again resumes after its last finished round, a round's
-decisions kept on disk (``decisions_<r>.npz``) so that an interrupted round does not collect them again. The run
+decisions kept on disk (``decisions_<r>.npz``) so that an interrupted round does not collect them again. A
+round's ``seconds`` in ``metrics.json``: collecting (with ``states_per_second``, the states the oracle stepped to
+and labelled: every candidate of every decision), fitting, evaluating (wall time, compilation included). The run
 ends with ``policy.msgpack`` (+ ``.json``, ``learned.save``) and ``curve.png``.
 """
 
@@ -17,6 +19,7 @@ import dataclasses
 import functools
 import json
 import math
+import time
 from pathlib import Path
 from typing import Any
 
@@ -188,7 +191,8 @@ def train(config: PolicyConfig, show_progress: bool = True) -> Path:
     bar = tqdm(range(start, config.rounds), desc="train-policy", unit="round", initial=start, total=config.rounds,
                disable=not show_progress)
     for r in bar:
-        kept = out / f"decisions_{r}.npz"
+        kept, seconds = out / f"decisions_{r}.npz", {}
+        began = time.perf_counter()
         if not kept.is_file():
             follow = config.beta ** r
             rng = np.random.default_rng([config.seed, r])
@@ -198,12 +202,20 @@ def train(config: PolicyConfig, show_progress: bool = True) -> Path:
                 at, starts, keys = _runs(config.seed + 7919 * (r + 1), scenes, config.runs, chunk.T_wc.shape[1])
                 parts.append(collect(oracle, chunk.depth, chunk.T_wc, at, starts, keys, [truths[a] for a in at],
                                      weights if r else None, follow, rng, runner.oracle_call_size(training_config)))
-            Decisions.concatenate(parts).save(kept)
+            collected = Decisions.concatenate(parts)
+            collected.save(kept)
+            seconds["collect"] = time.perf_counter() - began
+            seconds["states_per_second"] = collected.f1.size / seconds["collect"]  # (every candidate of every decision)
         data = Decisions.concatenate([Decisions.load(out / f"decisions_{i}.npz") for i in range(r + 1)])
+        began = time.perf_counter()
         weights, opt_state, fitted = fit(weights, opt_state, optimizer, data, config.epochs, config.batch,
                                          config.temperature, jax.random.fold_in(jax.random.key(config.seed + 1), r))
+        seconds["fit"] = time.perf_counter() - began
+        began = time.perf_counter()
         scores = evaluate(switched, weights, held_out, config.eval_runs, held_out_config.seed, held_out_config.moves)
-        history.append({"round": r + 1, "decisions": len(data), "follow_oracle": config.beta ** r, **fitted, **scores})
+        seconds["evaluate"] = time.perf_counter() - began
+        history.append({"round": r + 1, "decisions": len(data), "follow_oracle": config.beta ** r, **fitted, **scores,
+                        "seconds": seconds})
         io.write_json(out / "metrics.json", {"table1": config.table1, "classifier": name, "history": history})
         manager.save(r + 1, args=ocp.args.StandardSave({"weights": weights, "opt_state": opt_state}))
         bar.set_postfix(loss=f"{fitted['loss']:.3f}", regret=f"{fitted['regret']:.3f}",
