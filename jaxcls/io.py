@@ -96,6 +96,28 @@ def write_json(path: str | os.PathLike, data: Any, indent: int | None = 1) -> Pa
     return write_text(path, json.dumps(data, indent=indent, allow_nan=False) + "\n")
 
 
+def read_weights(path: str | os.PathLike, template: Any, owner: str, meaning: str) -> Any:
+    """The arrays of the msgpack file ``path`` (flax's serialised state dict, as ``write_bytes`` wrote it) in the
+    structure of ``template`` (a pytree of shapes, e.g. ``jax.eval_shape`` of the network's init), every leaf's shape
+    checked. ValueError ``"<owner>: <path> does not hold <meaning>: ..."`` where the structure differs, and ``"<owner>:
+    <path>: <layer> has shape ..., expected ... for <meaning>"`` naming the first leaf of another shape."""
+    import jax
+    import numpy as np
+    from flax import serialization
+
+    path = Path(path)
+    try:
+        weights = serialization.from_state_dict(template, serialization.msgpack_restore(path.read_bytes()))
+    except (ValueError, KeyError, TypeError) as e:
+        raise ValueError(f"{owner}: {path} does not hold {meaning}: {e}") from None
+    for (keypath, want), got in zip(jax.tree_util.tree_leaves_with_path(template), jax.tree.leaves(weights),
+                                    strict=True):
+        if np.shape(got) != want.shape:
+            raise ValueError(f"{owner}: {path}: {jax.tree_util.keystr(keypath)} has shape {np.shape(got)}, expected "
+                             f"{want.shape} for {meaning}")
+    return weights
+
+
 def read_json_object(path: str | os.PathLike, error: type[Exception] = ValueError) -> dict[str, Any]:
     """The JSON object in ``path``; ``error`` naming the file when it is missing, not JSON or not an object."""
     path = Path(path)

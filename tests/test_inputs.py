@@ -207,7 +207,8 @@ def test_weights_for_another_class_count_name_the_layer(tmp_path):
     info = json.loads(path.with_suffix(".json").read_text())
     info["classes"] = ["a", "b", "c"]  # the .msgpack holds 8 classes' output layer
     path.with_suffix(".json").write_text(json.dumps(info))
-    with pytest.raises(ValueError, match=r"w\.msgpack: .*\['bias'\] has shape \(8,\), expected \(3,\) for the 3 cl"):
+    layer = r"w\.msgpack: .*\['bias'\] has shape \(8,\), expected \(3,\) for PointNet weights for the 3 classes"
+    with pytest.raises(ValueError, match=layer):
         pointnet.load_classifier(path)
 
 

@@ -114,7 +114,8 @@ def test_a_weights_file_of_other_shapes_layout_or_candidate_count_is_refused(tmp
     with pytest.raises(ValueError, match=r"p\.json: weights trained with 32 candidates.*max_candidates = 20"):
         learned.load(path, 20)
     meta = json.loads(path.with_suffix(".json").read_text())
-    for change, message in [({"hidden": 16}, r"p\.msgpack: .*has shape \(8,\), expected \(16,\) for width 16"),
+    wider = r"p\.msgpack: .*has shape \(8,\), expected \(16,\) for a view policy of width 16"
+    for change, message in [({"hidden": 16}, wider),
                             ({"features": 99}, "feature layout 99"), ({"kind": "pointnet"}, "not a view policy"),
                             ({"hidden": "8"}, "'hidden' must be a positive integer")]:
         path.with_suffix(".json").write_text(json.dumps({**meta, **change}))

@@ -523,16 +523,8 @@ def load_classifier(path: str | Path | None = None, classes: Sequence[str] | Non
         raise ValueError(f"{info_path}: 'model' is not a valid ModelConfig: {e}") from None
     # The variables' shapes, traced, not run: running the network once eagerly cost ~4 s of op-by-op compiles.
     template = jax.eval_shape(lambda: init_variables(jax.random.key(0), len(names), config))
-    try:
-        state = serialization.msgpack_restore(path.read_bytes())
-        variables = serialization.from_state_dict(template, state)
-    except (ValueError, KeyError) as e:
-        raise ValueError(f"classifier: {path} does not hold PointNet weights for {len(names)} classes: {e}") from None
-    for (keypath, want), got in zip(jax.tree_util.tree_leaves_with_path(template), jax.tree.leaves(variables),
-                                    strict=True):
-        if np.shape(got) != want.shape:
-            raise ValueError(f"classifier: {path}: {jax.tree_util.keystr(keypath)} has shape {np.shape(got)}, "
-                             f"expected {want.shape} for the {len(names)} classes of {info_path.name}")
+    variables = io.read_weights(path, template, "classifier",
+                                f"PointNet weights for the {len(names)} classes of {info_path.name}")
     temperature = info.get("temperature", 1.0)  # weights saved before calibration existed: as trained
     if isinstance(temperature, bool) or not isinstance(temperature, int | float) or not 0 < temperature < np.inf:
         raise ValueError(f"{info_path}: 'temperature' must be a positive number, got {temperature!r}")

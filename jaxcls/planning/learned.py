@@ -170,15 +170,8 @@ def load(path: str | Path, max_candidates: int) -> tuple[dict, Info]:
         raise ValueError(f"{info_path}: weights trained with {info['max_candidates']} candidates a move, the planner "
                          f"has nbv.max_candidates = {max_candidates}")
     template = jax.eval_shape(lambda: init(jax.random.key(0), info["hidden"]))
-    try:
-        weights = serialization.from_state_dict(template, serialization.msgpack_restore(path.read_bytes()))
-    except (ValueError, KeyError, TypeError) as e:
-        raise ValueError(f"learned policy: {path} does not hold a view policy of width {info['hidden']}: {e}") from None
-    for (keypath, want), got in zip(jax.tree_util.tree_leaves_with_path(template), jax.tree.leaves(weights),
-                                    strict=True):
-        if np.shape(got) != want.shape:
-            raise ValueError(f"learned policy: {path}: {jax.tree_util.keystr(keypath)} has shape {np.shape(got)}, "
-                             f"expected {want.shape} for width {info['hidden']} ({info_path.name})")
+    weights = io.read_weights(path, template, "learned policy",
+                              f"a view policy of width {info['hidden']} ({info_path.name})")
     metadata = {k: v for k, v in info.items() if k not in ("kind", "hidden", "features", "max_candidates")}
     return (jax.device_put(jax.tree.map(lambda a: np.asarray(a, np.float32), weights)),
             Info(info["hidden"], info["max_candidates"], info["features"], metadata))
