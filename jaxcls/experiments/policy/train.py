@@ -30,7 +30,7 @@ import optax
 import orbax.checkpoint as ocp
 from tqdm.auto import tqdm
 
-from jaxcls import io, metrics, viz
+from jaxcls import devices, io, metrics, viz
 from jaxcls.config import load_config, save_config
 from jaxcls.episode import active, batched, protocol, scoring, setup
 from jaxcls.experiments.policy.config import PolicyConfig
@@ -118,7 +118,7 @@ def _runs(seed: int, scenes: list[int], runs: int, views: int) -> tuple[np.ndarr
     """(scene position [R], start [R], keys [R]) of ``runs`` runs of each scene (Table 1's starts and keys)."""
     at = np.repeat(np.arange(len(scenes)), runs)
     starts = np.concatenate([protocol.start_views(seed, s, runs, views) for s in scenes])
-    with jax.default_device(jax.devices("cpu")[0]):
+    with jax.default_device(devices.host_cpu()):  # (keys on the host: nothing waits for a GPU)
         keys = np.concatenate([np.asarray(protocol.run_keys(seed, s, runs)) for s in scenes])
     return at.astype(np.int32), starts, keys
 
