@@ -59,3 +59,51 @@ def normal_equations(J: jax.Array, w: jax.Array, r: jax.Array, fused: bool | Non
         highest = jax.lax.Precision.HIGHEST
         return jnp.matmul(J.T, Jw, precision=highest), jnp.matmul(J.T, w * r, precision=highest)
     return jnp.sum(Jw[:, :, None] * J[:, None, :], axis=0), jnp.sum(Jw * r[:, None], axis=0)
+
+
+def linear_sum_assignment(cost: jax.Array) -> jax.Array:
+    """[n] i32 the column assigned to each row of ``cost: [n, m]`` (n <= m, finite) that minimises the total cost:
+    what ``scipy.optimize.linear_sum_assignment`` gives (ties aside), jit- and vmap-able. The shortest augmenting
+    path algorithm with dual potentials (Kuhn-Munkres as Jonker and Volgenant run it): a row at a time, O(n^2 m)."""
+    n, m = cost.shape
+    if n > m:
+        raise ValueError(f"linear_sum_assignment: {n} rows and {m} columns; give n <= m (transpose the costs)")
+    big = jnp.finfo(cost.dtype).max
+    # Index 0 of the columns is a virtual one (1-based columns, as the algorithm's usual statement).
+    padded = jnp.pad(cost, ((1, 0), (1, 0)))
+
+    def add_row(i, carry):
+        u, v, owner = carry  # owner [m + 1]: the row (1-based, 0 none) holding each column
+
+        def grow(search):
+            u, v, owner, way, minv, used, j0 = search
+            used = used.at[j0].set(True)
+            i0 = owner[j0]
+            reduced = padded[i0] - u[i0] - v  # [m + 1]
+            better = ~used & (reduced < minv)
+            minv = jnp.where(better, reduced, minv)
+            way = jnp.where(better, j0, way)
+            free = jnp.where(used, big, minv).at[0].set(big)
+            j1 = jnp.argmin(free)
+            delta = free[j1]
+            u = u.at[jnp.where(used, owner, 0)].add(jnp.where(used, delta, 0.0))
+            v = jnp.where(used, v - delta, v)
+            minv = jnp.where(used, minv, minv - delta)
+            return u, v, owner, way, minv, used, j1
+
+        search = (u, v, owner.at[0].set(i), jnp.zeros(m + 1, jnp.int32), jnp.full(m + 1, big, cost.dtype),
+                  jnp.zeros(m + 1, bool), jnp.int32(0))
+        u, v, owner, way, _, _, j0 = jax.lax.while_loop(lambda s: s[2][s[6]] != 0, grow, grow(search))
+
+        def augment(state):
+            owner, j0 = state
+            j1 = way[j0]
+            return owner.at[j0].set(owner[j1]), j1
+
+        owner, _ = jax.lax.while_loop(lambda s: s[1] != 0, augment, (owner, j0))
+        return u, v, owner
+
+    zeros = jnp.zeros(n + 1, cost.dtype), jnp.zeros(m + 1, cost.dtype)
+    _, _, owner = jax.lax.fori_loop(1, n + 1, add_row, (*zeros, jnp.zeros(m + 1, jnp.int32)))
+    # row of each column -> column of each row
+    return jnp.zeros(n + 1, jnp.int32).at[owner[1:]].set(jnp.arange(1, m + 1, dtype=jnp.int32))[1:] - 1

@@ -402,3 +402,51 @@ def test_a_batchs_records_match_each_move_as_the_plain_loop_does():
         labels = np.stack(labels)
         assert record["prior"] == labels[:, 0].tolist() and record["refined"] == labels[:, 1].tolist()
         assert record["path"] == traces.view[e][~done[e]].tolist()
+
+
+def test_the_assignment_in_jax_is_scipys():
+    """``math.linear_sum_assignment`` (JAX, jit and vmap) against ``scipy.optimize.linear_sum_assignment`` on random
+    rectangular costs (ties have measure zero): the same column for every row."""
+    import jax
+    import jax.numpy as jnp
+    from scipy.optimize import linear_sum_assignment as scipy_assignment
+
+    from jaxcls.math import linear_sum_assignment
+
+    rng = np.random.default_rng(0)
+    for n, m in [(1, 1), (1, 5), (3, 3), (4, 9), (7, 7), (6, 12)]:
+        costs = rng.random((20, n, m)).astype(np.float32) * rng.choice([0.01, 1.0, 100.0])
+        got = np.asarray(jax.jit(jax.vmap(linear_sum_assignment))(jnp.asarray(costs)))
+        for cost, cols in zip(costs, got, strict=True):
+            np.testing.assert_array_equal(cols, scipy_assignment(cost)[1])
+    with pytest.raises(ValueError, match="3 rows and 2 columns"):
+        linear_sum_assignment(jnp.zeros((3, 2)))
+
+
+def test_the_target_f1_in_jax_is_the_hosts():
+    """``scoring.target_f1`` (JAX: a reward inside a jitted rollout) gives ``scoring.candidate_f1``'s number (the
+    oracle's, SciPy's assignment) for sets of segments with more, as many and fewer live segments than objects,
+    clutter and padded objects."""
+    import jax
+    import jax.numpy as jnp
+
+    from jaxcls.episode import scoring
+
+    rng = np.random.default_rng(1)
+    f1 = jax.jit(jax.vmap(lambda t, c, v, lab: scoring.target_f1(t, c, v, lab, 5), in_axes=(None, 0, 0, 0)))
+    fewer = 0
+    for _ in range(60):
+        K = int(rng.integers(1, 9))
+        centre = rng.uniform(-0.5, 0.5, (K, 3))
+        truth = scoring.Truth(centroid=centre, label=rng.integers(-1, 5, K), target=rng.random(K) < 0.7,
+                              surface=(), names=())
+        segments = centre[rng.integers(0, K, (6, 10))] + rng.normal(0, 0.06, (6, 10, 3))
+        valid = rng.random((6, 10)) < rng.uniform(0.2, 0.9)
+        labels = rng.integers(0, 5, (6, 10))
+        fewer += int((valid.sum(axis=1) < K).sum())
+        got = f1(scoring.TruthArrays.of(truth, 8), jnp.asarray(segments, jnp.float32), jnp.asarray(valid),
+                 jnp.asarray(labels))
+        np.testing.assert_allclose(np.asarray(got), scoring.candidate_f1(truth, segments, valid, labels, 5), atol=1e-6)
+    assert fewer > 20  # (the case where a dead segment's cost decides)
+    with pytest.raises(ValueError, match="9 objects"):
+        scoring.TruthArrays.of(scoring.Truth(np.zeros((9, 3)), np.zeros(9, int), np.ones(9, bool), (), ()), 8)
