@@ -112,25 +112,42 @@ def training_curve(history: list[dict]) -> Figure:
 
 
 def policy_curve(history: list[dict]) -> Figure:
-    """A learned view policy's training (``jaxcls train-policy``'s ``metrics.json`` history) against the round: the
-    imitation loss and the regret (true F1 given up at a decision), and the held-out macro F1 of the learned policy
-    and of VisOcclHistGR."""
-    figure = Figure(figsize=(10, 4))
-    rounds = [h["round"] for h in history]
-    ax = figure.add_subplot(1, 2, 1)
-    ax.plot(rounds, [h["loss"] for h in history], color="k", lw=1, marker="o", label="imitation loss")
+    """A learned view policy's training (``jaxcls train-policy``'s ``metrics.json`` history): against the imitation
+    round, the loss and the regret (true F1 given up at a decision) and the held-out macro F1 of the learned policy and
+    of VisOcclHistGR; against the PPO update (where there are any), the rollouts' mean F1 after the last move and the
+    held-out F1 where it was evaluated."""
+    rounds = [h for h in history if "round" in h]
+    updates = [h for h in history if "update" in h]
+    figure = Figure(figsize=(15 if updates else 10, 4))
+    panels = 3 if updates else 2
+    ax = figure.add_subplot(1, panels, 1)
+    ax.plot([h["round"] for h in rounds], [h["loss"] for h in rounds], color="k", lw=1, marker="o",
+            label="imitation loss")
     ax.set(xlabel="round", ylabel="loss (nats)")
     regret = ax.twinx()
-    regret.plot(rounds, [h["regret"] for h in history], color="C3", lw=1, marker="s", label="regret")
+    regret.plot([h["round"] for h in rounds], [h["regret"] for h in rounds], color="C3", lw=1, marker="s")
     regret.set(ylabel="regret: F1 given up a decision (red)")
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.legend(fontsize=8, loc="upper right")
-    ax = figure.add_subplot(1, 2, 2)
-    ax.plot(rounds, [h["f1_learned"] for h in history], color="C0", marker="o", label="learned (GR)")
-    ax.plot(rounds, [h["f1_vis_occl_hist"] for h in history], color="0.4", ls="--", label="VisOcclHistGR")
+    ax = figure.add_subplot(1, panels, 2)
+    ax.plot([h["round"] for h in rounds], [h["f1_learned"] for h in rounds], color="C0", marker="o",
+            label="learned (GR)")
+    ax.plot([h["round"] for h in rounds], [h["f1_vis_occl_hist"] for h in rounds], color="0.4", ls="--",
+            label="VisOcclHistGR")
     ax.set(xlabel="round", ylabel="held-out macro F1 after the last move")
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.legend(fontsize=8)
+    if updates:
+        ax = figure.add_subplot(1, panels, 3)
+        ax.plot([h["update"] for h in updates], [h["f1_last"] for h in updates], color="k", lw=1,
+                label="rollouts (sampled), training scenes")
+        evaluated = [h for h in updates if "f1_learned" in h]
+        ax.plot([h["update"] for h in evaluated], [h["f1_learned"] for h in evaluated], color="C0", marker="o",
+                label="learned, held-out")
+        ax.plot([h["update"] for h in evaluated], [h["f1_vis_occl_hist"] for h in evaluated], color="0.4", ls="--",
+                label="VisOcclHistGR, held-out")
+        ax.set(xlabel="PPO update", ylabel="macro F1 after the last move")
+        ax.legend(fontsize=8)
     figure.tight_layout()
     return figure
 

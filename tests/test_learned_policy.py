@@ -1,6 +1,7 @@
 """The learned view policy (``planning.learned``, ``nbv.Learned``): a drop-in policy of the episode under vmap and
 in the switched program; weights whose network passes the paper's utility through choose what VisOcclHist
-chooses; a weights file of other shapes, another layout or another candidate count is refused by name."""
+chooses, in the episode and in PPO's rollouts; a weights file of other shapes, another layout or another candidate
+count is refused by name."""
 
 from __future__ import annotations
 
@@ -92,6 +93,42 @@ def test_the_learned_policy_runs_in_the_switched_program_and_passes_the_papers_u
     mixed = batched.rollouts(switched.choose("learned", True).replace(policy_weights=other), *frames, scene, start,
                              keys)
     assert mixed.view.shape == paper.view.shape and all(len(set(p.tolist())) == 3 for p in mixed.view)
+    reinforcement_rollouts_take_the_actors_paths(episode, world, frames, start, paper)
+
+
+def reinforcement_rollouts_take_the_actors_paths(episode, world, frames, start, paper):
+    """PPO's rollout (``experiments.policy.ppo``) with that actor, argmax: VisOcclHistGR's paths; its last F1 is the
+    host scorer's of the last move, its rewards add up to the F1 gain over the first move. One update from it:
+    finite figures, new weights; the same key, the same update."""
+    from jaxcls.episode import scoring
+    from jaxcls.experiments.policy import ppo
+
+    env = episode.replace(config=dataclasses.replace(episode.config, policy=nbv.PolicyName.random))  # (overridden)
+    truth = scoring.Truth.from_scene(world.scene, world.object_set)
+    truths = jax.tree.map(lambda a: np.stack([a, a]), scoring.TruthArrays.of(truth, episode.spec.num_segments))
+    params = {"actor": utility_passed_through(), "critic": learned.init(jax.random.key(1), 8)}
+    scene, starts = jnp.zeros(2, jnp.int32), jnp.asarray(start, jnp.int32)
+    decided, last = jax.jit(ppo.rollout, static_argnames="sample")(
+        params, env, *frames, scene, starts, jax.random.split(jax.random.key(0), 2), truths, sample=False)
+    for e in range(2):
+        views = [nbv.Views(T_wc=jnp.asarray(frames[1][0]), visited=jnp.zeros(len(world.viewpoints), bool),
+                           current=jnp.int32(v)) for v in paper.view[e, :-1]]
+        index = np.stack([np.asarray(nbv.candidates(v, episode.nbv_config)[0]) for v in views])
+        np.testing.assert_array_equal(index[np.arange(2), np.asarray(decided.action[e])], paper.view[e, 1:])
+        f1 = [scoring.candidate_f1(truth, paper.centroid[e, t][None], paper.refinement.valid[e, t][None],
+                                   paper.refinement.refined[e, t][None], len(episode.spec.classifier.classes))[0]
+              for t in (0, -1)]
+        assert float(last[e]) == pytest.approx(f1[1], abs=1e-6)
+        assert float(decided.reward[e].sum()) == pytest.approx(f1[1] - f1[0], abs=1e-5)
+    config = ppo.PPOConfig(epochs=2, minibatches=2, learning_rate=1e-2)
+    args = (params, ppo.optimizer(config).init(params), env, *frames, scene, starts, truths, jax.random.key(3), config)
+    new, _, figures = ppo.update(*args)
+    again, _, _ = ppo.update(*args)
+    assert all(np.isfinite(float(v)) for v in figures.values()) and 0.0 <= float(figures["f1_last"]) <= 1.0
+    assert any(not np.array_equal(np.asarray(a), np.asarray(b))
+               for a, b in zip(jax.tree.leaves(params), jax.tree.leaves(new), strict=True))
+    for a, b in zip(jax.tree.leaves(new), jax.tree.leaves(again), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
 def test_an_episode_without_the_learned_policys_weights_says_so():

@@ -15,16 +15,17 @@ import pytest
 from jaxcls.experiments.policy import train as policy_train
 from jaxcls.experiments.policy.config import PolicyConfig
 from jaxcls.experiments.policy.data import Decisions
+from jaxcls.experiments.policy.ppo import PPOConfig
 from jaxcls.planning import learned
 
 
 def _table1(tmp: Path) -> Path:
-    """A 2-scene, 12-view synthetic set at a quarter of the Kinect's resolution, 3 moves, the 4 nearest views the
+    """A 2-scene, 12-view synthetic set at a quarter of the Kinect's resolution, 2 moves, the 4 nearest views the
     candidates (the suite runs XLA's least optimised programs: the oracle's moves are what takes the time); the
     paper-recipe weights (their labels change from view to view: candidates differ in F1); frames fused at
     the poses given."""
     config = tmp / "table1.yaml"
-    config.write_text("dataset: synthetic\nscene_source: device\nruns: 2\nmoves: 3\nscene_chunk: 2\n"
+    config.write_text("dataset: synthetic\nscene_source: device\nruns: 2\nmoves: 2\nscene_chunk: 2\n"
                       "rows: [vis_occl_hist_gr]\nclassifiers: {paper: builtin_paper}\n"
                       "nbv: {radius: 2.0, max_candidates: 4}\n"
                       "perception: {tracking: {mode: reported}}\n"
@@ -33,9 +34,25 @@ def _table1(tmp: Path) -> Path:
     return config
 
 
-def _config(tmp: Path, out: str, rounds: int) -> PolicyConfig:
+def _config(tmp: Path, out: str, rounds: int, updates: int = 0) -> PolicyConfig:
     return PolicyConfig(out_dir=str(tmp / out), table1=str(_table1(tmp)), train_scenes=2, eval_scenes=1, runs=1,
-                        eval_runs=1, rounds=rounds, epochs=4, batch=2, hidden=8, seed=0)
+                        eval_runs=1, rounds=rounds, epochs=4, batch=2, hidden=8, seed=0,
+                        ppo=PPOConfig(updates=updates, epochs=2, minibatches=2, eval_every=1))
+
+
+def test_gae_is_its_definition():
+    from jaxcls.experiments.policy import ppo
+
+    rng = np.random.default_rng(0)
+    reward, value = rng.normal(size=(3, 5)), rng.normal(size=(3, 5))
+    gamma, lam = 0.9, 0.8
+    adv, returns = ppo.advantages(jnp.asarray(reward), jnp.asarray(value), gamma, lam)
+    for e in range(3):
+        after = np.append(value[e, 1:], 0.0)  # (no value after the last decision)
+        delta = reward[e] + gamma * after - value[e]
+        want = [sum((gamma * lam) ** (k - t) * delta[k] for k in range(t, 5)) for t in range(5)]
+        np.testing.assert_allclose(np.asarray(adv[e]), want, rtol=1e-5)
+    np.testing.assert_allclose(np.asarray(returns), np.asarray(adv) + value, rtol=1e-6)
 
 
 def test_the_loss_is_the_cross_entropy_to_the_oracles_best_and_scores_regret():
@@ -51,27 +68,33 @@ def test_the_loss_is_the_cross_entropy_to_the_oracles_best_and_scores_regret():
 
 
 def test_training_runs_resumes_bit_for_bit_and_writes_a_policy_the_episode_loads(tmp_path):
-    whole = policy_train.train(_config(tmp_path, "whole", 2), show_progress=False)
+    whole = policy_train.train(_config(tmp_path, "whole", 2, updates=1), show_progress=False)
     history = json.loads((whole / "metrics.json").read_text())["history"]
-    assert [h["round"] for h in history] == [1, 2] and history[0]["follow_oracle"] == 1.0
+    assert [h.get("round") for h in history] == [1, 2, None] and history[0]["follow_oracle"] == 1.0
+    reinforced = history[2]
+    assert reinforced["update"] == 1 and 0 <= reinforced["f1_last"] <= 1 and np.isfinite(reinforced["entropy"])
+    assert 0 <= reinforced["f1_learned"] <= 1  # (evaluated on the held-out scene)
+    history = history[:2]
     decisions = [Decisions.load(whole / f"decisions_{r}.npz") for r in range(2)]
-    assert [len(d) for d in decisions] == [2 * 1 * 2] * 2  # scenes x runs x the decisions after move 1
+    assert [len(d) for d in decisions] == [2 * 1 * 1] * 2  # scenes x runs x the decisions after move 1
     for d in decisions:
         assert np.all(d.f1[~d.allowed] == -1) and np.all((d.f1[d.allowed] >= 0) & (d.f1[d.allowed] <= 1))
         assert np.all(np.isfinite(d.features.pair)) and np.all(np.isfinite(d.features.candidate))
-    for h in history:
+    for h in history[:2]:
         assert 0 <= h["regret"] <= 1 and 0 <= h["agreement"] <= 1 and np.isfinite(h["loss"])
         assert 0 <= h["f1_learned"] <= 1 and 0 <= h["f1_vis_occl_hist"] <= 1
         assert len(h["learned_minus_vis_occl_hist"]) == 3
     weights, info = learned.load(whole / "policy.msgpack", 4)
-    assert info.hidden == 8 and info.metadata["rounds"] == 2 and (whole / "curve.png").is_file()
-    # Stopped after round 1, then run again to 2 rounds: the same decisions, figures and weights, bit for bit.
+    assert info.hidden == 8 and info.metadata["rounds"] == 2 and info.metadata["ppo_updates"] == 1
+    assert (whole / "curve.png").is_file()
+    # Stopped after round 1, then run again to 2 rounds and the update: the same decisions, figures and weights, bit
+    # for bit.
     policy_train.train(_config(tmp_path, "parts", 1), show_progress=False)
-    parts = policy_train.train(_config(tmp_path, "parts", 2), show_progress=False)
+    parts = policy_train.train(_config(tmp_path, "parts", 2, updates=1), show_progress=False)
     def untimed(rounds):
         return [{k: v for k, v in h.items() if k != "seconds"} for h in rounds]
 
-    assert untimed(json.loads((parts / "metrics.json").read_text())["history"]) == untimed(history)
+    assert untimed(json.loads((parts / "metrics.json").read_text())["history"]) == untimed([*history, reinforced])
     assert history[0]["seconds"]["states_per_second"] > 0 and history[1]["seconds"]["fit"] > 0
     for r in range(2):
         again = Decisions.load(parts / f"decisions_{r}.npz")
@@ -81,5 +104,7 @@ def test_training_runs_resumes_bit_for_bit_and_writes_a_policy_the_episode_loads
     for a, b in zip(jax.tree.leaves(weights), jax.tree.leaves(resumed), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     with pytest.raises(ValueError, match="other settings \\(epochs differ"):
-        policy_train.train(PolicyConfig(**{**_config(tmp_path, "parts", 2).__dict__, "epochs": 5}),
+        policy_train.train(PolicyConfig(**{**_config(tmp_path, "parts", 2, 1).__dict__, "epochs": 5}),
                            show_progress=False)
+    with pytest.raises(ValueError, match="began its PPO updates after 2 rounds; rounds stays 2"):
+        policy_train.train(_config(tmp_path, "parts", 3, 1), show_progress=False)

@@ -6,6 +6,7 @@ import dataclasses
 from pathlib import Path
 
 from jaxcls.config import bounded, check_bounds, load_config, resolve_config
+from jaxcls.experiments.policy.ppo import PPOConfig
 from jaxcls.experiments.table1.config import SceneSource, Table1Config
 
 
@@ -39,6 +40,8 @@ class PolicyConfig:
     hidden: int = bounded(64, ge=1)  # the network's width (``learned.ViewScorer``)
     temperature: float = bounded(0.02, gt=0.0)  # the target: softmax((F1 - best F1) / temperature) over the choices
     seed: int = 0  # starts, keys, the network's initialisation, the batches, the DAgger draws
+    # Then reinforcement: PPO updates from the imitated policy, on the training scenes (``ppo.updates``: 0, none).
+    ppo: PPOConfig = dataclasses.field(default_factory=PPOConfig)
 
     def __post_init__(self) -> None:
         check_bounds(self)
@@ -71,8 +74,11 @@ class PolicyConfig:
         return name
 
     def results_defining(self) -> dict:
-        """What a run's decisions and weights depend on (a resumed run must keep them; ``rounds`` may grow)."""
-        return {k: v for k, v in dataclasses.asdict(self).items() if k not in ("out_dir", "rounds")}
+        """What a run's decisions and weights depend on (a resumed run must keep them; ``rounds`` and
+        ``ppo.updates`` may grow, ``rounds`` only until the updates begin)."""
+        out = {k: v for k, v in dataclasses.asdict(self).items() if k not in ("out_dir", "rounds")}
+        out["ppo"] = {k: v for k, v in out["ppo"].items() if k != "updates"}
+        return out
 
 
 def load(path: str | Path | None = None, overrides: tuple[str, ...] = ()) -> PolicyConfig:

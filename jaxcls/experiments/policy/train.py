@@ -33,12 +33,13 @@ from tqdm.auto import tqdm
 from jaxcls import devices, io, metrics, viz
 from jaxcls.config import load_config, save_config
 from jaxcls.episode import active, batched, protocol, scoring, setup
+from jaxcls.experiments.policy import ppo
 from jaxcls.experiments.policy.config import PolicyConfig
 from jaxcls.experiments.policy.data import Decisions, collect
 from jaxcls.experiments.table1 import runner
 from jaxcls.experiments.table1.config import Table1Config
 from jaxcls.experiments.table1.data import Scenes, open_scenes
-from jaxcls.planning import learned
+from jaxcls.planning import learned, nbv
 from jaxcls.world.objects import object_set_from_config
 
 COMPARED = ("vis_occl_hist", "learned")  # the held-out evaluation's policies (GR on), one switched program
@@ -154,8 +155,13 @@ def _resume_point(out: Path, config: PolicyConfig, manager: ocp.CheckpointManage
         if changed:
             raise ValueError(f"train-policy: {out} holds a run with other settings ({', '.join(changed)} differ from "
                              f"{saved}); resume with the same config or choose another out_dir")
-    if done > config.rounds:
-        raise ValueError(f"train-policy: {out} has finished {done} rounds already, more than rounds = {config.rounds}")
+        rounds_before = load_config(PolicyConfig, saved).rounds
+        if done > rounds_before and config.rounds != rounds_before:
+            raise ValueError(f"train-policy: {out} began its PPO updates after {rounds_before} rounds; rounds stays "
+                             f"{rounds_before} (got {config.rounds})")
+    if done > config.rounds + config.ppo.updates:
+        raise ValueError(f"train-policy: {out} has finished {done} rounds and updates already, more than rounds + "
+                         f"ppo.updates = {config.rounds + config.ppo.updates}")
     return done
 
 
@@ -180,16 +186,24 @@ def train(config: PolicyConfig, show_progress: bool = True) -> Path:
     weights = learned.init(jax.random.key(config.seed), config.hidden)
     optimizer = optax.adam(config.learning_rate)
     opt_state = optimizer.init(weights)
+    params = {"actor": weights, "critic": learned.init(jax.random.key(config.seed + 2), config.hidden)}
+    rl_state = ppo.optimizer(config.ppo).init(params)
     history: list[dict] = []
     if start:
-        target = jax.tree.map(ocp.utils.to_shape_dtype_struct, {"weights": weights, "opt_state": opt_state})
-        restored = manager.restore(start, args=ocp.args.StandardRestore(target))
-        weights, opt_state = restored["weights"], restored["opt_state"]
-        history = [h for h in json.loads((out / "metrics.json").read_text())["history"] if h["round"] <= start]
+        saved = ({"weights": weights, "opt_state": opt_state} if start <= config.rounds
+                 else {"params": params, "opt_state": rl_state})
+        restored = manager.restore(start, args=ocp.args.StandardRestore(
+            jax.tree.map(ocp.utils.to_shape_dtype_struct, saved)))
+        if start <= config.rounds:
+            weights, opt_state = restored["weights"], restored["opt_state"]
+        else:
+            params, rl_state = restored["params"], restored["opt_state"]
+        history = [h for h in json.loads((out / "metrics.json").read_text())["history"]
+                   if h.get("round", start + 1) <= start or h.get("update", start + 1) <= start - config.rounds]
     switched = oracle.replace(policy_weights=weights).switched(COMPARED)
 
-    bar = tqdm(range(start, config.rounds), desc="train-policy", unit="round", initial=start, total=config.rounds,
-               disable=not show_progress)
+    bar = tqdm(range(min(start, config.rounds), config.rounds), desc="train-policy", unit="round",
+               initial=min(start, config.rounds), total=config.rounds, disable=not show_progress)
     for r in bar:
         kept, seconds = out / f"decisions_{r}.npz", {}
         began = time.perf_counter()
@@ -220,13 +234,57 @@ def train(config: PolicyConfig, show_progress: bool = True) -> Path:
         manager.save(r + 1, args=ocp.args.StandardSave({"weights": weights, "opt_state": opt_state}))
         bar.set_postfix(loss=f"{fitted['loss']:.3f}", regret=f"{fitted['regret']:.3f}",
                         learned=f"{scores['f1_learned']:.3f}", vis_occl_hist=f"{scores['f1_vis_occl_hist']:.3f}")
+    if config.ppo.updates:
+        if start <= config.rounds:  # (the imitated policy, a fresh critic and optimiser)
+            params = {"actor": weights, "critic": params["critic"]}
+            rl_state = ppo.optimizer(config.ppo).init(params)
+        weights = _reinforce(config, out, manager, params, rl_state, oracle, switched, training, held_out,
+                             held_out_config, max(start - config.rounds, 0), history, name, show_progress)
     manager.wait_until_finished()
     viz.save(viz.policy_curve(history), out / "curve.png")
     learned.save(out / "policy.msgpack", weights, held_out_config.nbv.max_candidates, {
         "trained_by": "jaxcls train-policy", "table1": config.table1, "classifier": name,
-        "rounds": len(history), "held_out": {k: v for k, v in history[-1].items() if k.startswith(("f1_", "learned_"))}
-        if history else {}})
+        "rounds": sum("round" in h for h in history), "ppo_updates": sum("update" in h for h in history),
+        "held_out": next(({k: v for k, v in h.items() if k.startswith(("f1_", "learned_"))} for h in reversed(history)
+                          if "f1_learned" in h), {})})
     return out
+
+
+def _reinforce(config: PolicyConfig, out: Path, manager: ocp.CheckpointManager, params: dict, rl_state: Any,
+               oracle: active.Episode, switched: active.Episode, training: _Scenes, held_out: _Scenes,
+               held_out_config: Table1Config, done: int, history: list[dict], name: str, show_progress: bool) -> dict:
+    """PPO updates ``done``..``ppo.updates`` on every training scene's ``runs`` episodes (new starts each update),
+    each checkpointed as step ``rounds + update``, evaluated on the held-out scenes every ``ppo.eval_every``
+    updates and after the last. Returns the actor's weights."""
+    chunks = training.frames()
+    depth = jnp.concatenate([jnp.asarray(chunk.depth, jnp.float32) for _, chunk, _ in chunks])
+    T_wc = jnp.asarray(np.concatenate([chunk.T_wc for _, chunk, _ in chunks]), jnp.float32)
+    scenes = [s for indices, _, _ in chunks for s in indices]
+    truths = [t for _, _, scene_truths in chunks for t in scene_truths]
+    objects = max(len(t.label) for t in truths)
+    padded = [scoring.TruthArrays.of(t, objects) for t in truths]
+    env = oracle.replace(config=dataclasses.replace(oracle.config, policy=nbv.PolicyName.random))  # (overridden)
+    key = jax.random.key(config.seed + 3)
+    bar = tqdm(range(done, config.ppo.updates), desc="train-policy: PPO", unit="update", initial=done,
+               total=config.ppo.updates, disable=not show_progress)
+    for u in bar:
+        began = time.perf_counter()
+        at, starts, _ = _runs(config.seed + 104729 * (u + 1), scenes, config.runs, T_wc.shape[1])
+        episode_truths = jax.tree.map(lambda *xs: np.stack(xs), *[padded[a] for a in at])
+        params, rl_state, figures = ppo.update(params, rl_state, env, depth, T_wc, jnp.asarray(at),
+                                               jnp.asarray(starts, jnp.int32), episode_truths,
+                                               jax.random.fold_in(key, u), config.ppo)
+        entry: dict[str, Any] = {"update": u + 1, **{k: float(v) for k, v in figures.items()}}
+        entry["seconds"] = {"update": time.perf_counter() - began,
+                            "moves_per_second": len(at) * env.config.moves / (time.perf_counter() - began)}
+        if (u + 1) % config.ppo.eval_every == 0 or u + 1 == config.ppo.updates:
+            entry.update(evaluate(switched, params["actor"], held_out, config.eval_runs, held_out_config.seed,
+                                  held_out_config.moves))
+        history.append(entry)
+        io.write_json(out / "metrics.json", {"table1": config.table1, "classifier": name, "history": history})
+        manager.save(config.rounds + u + 1, args=ocp.args.StandardSave({"params": params, "opt_state": rl_state}))
+        bar.set_postfix(f1=f"{entry['f1_last']:.3f}", entropy=f"{entry['entropy']:.3f}")
+    return params["actor"]
 
 
 __all__ = ["COMPARED", "evaluate", "fit", "loss", "train"]

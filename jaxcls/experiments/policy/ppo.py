@@ -1,0 +1,183 @@
+"""Reinforcement learning of the view policy after its imitation of the oracle: PPO (clipped surrogate, GAE, a
+critic), PureJaxRL-style. One update is one jitted program: E episodes rolled out on frames in memory (vmapped,
+a ``lax.scan`` over the moves, each move the whole perception step), then ``epochs`` passes of shuffled
+minibatches over their decisions.
+
+The actor is the learned policy's network (``learned.ViewScorer``): a softmax over its scores of the allowed
+candidates (``nbv.unvisited_first``), sampled while training; the critic a second ``ViewScorer`` whose scores are
+averaged over the allowed candidates (a value of the state). The reward of a move is the gain in the target objects'
+macro F1 of the refined labels (``scoring.target_f1``, the oracle's score), so an episode's return is its last move's
+F1 minus its first's; episodes are undiscounted (``gamma`` 1 by default).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from jaxcls.config import bounded, check_bounds
+from jaxcls.episode import active, scoring
+from jaxcls.planning import learned, nbv
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOConfig:
+    """The ``ppo:`` block of ``PolicyConfig``: after the imitation rounds, ``updates`` PPO updates (0: none), each
+    on ``runs`` episodes of every training scene."""
+
+    updates: int = bounded(0, ge=0)
+    epochs: int = bounded(4, ge=1)  # passes over an update's decisions
+    minibatches: int = bounded(4, ge=1)
+    learning_rate: float = bounded(1e-4, gt=0.0)
+    clip: float = bounded(0.2, gt=0.0)
+    gamma: float = bounded(1.0, ge=0.0, le=1.0)
+    gae_lambda: float = bounded(0.95, ge=0.0, le=1.0)
+    value_coef: float = bounded(0.5, ge=0.0)
+    entropy_coef: float = bounded(0.01, ge=0.0)
+    max_grad_norm: float = bounded(0.5, gt=0.0)
+    eval_every: int = bounded(10, ge=1)  # updates between held-out evaluations (and the last)
+
+    def __post_init__(self) -> None:
+        check_bounds(self, "ppo.")
+
+
+class Decided(struct.PyTreeNode):
+    """What a rollout keeps of each decision (after the first move), [E, T - 1] leading axes: the network's input,
+    the allowed candidates, the candidate taken, its log-probability, the critic's value, the reward (F1 gain)."""
+
+    features: learned.Features
+    allowed: jax.Array
+    action: jax.Array
+    log_prob: jax.Array
+    value: jax.Array
+    reward: jax.Array
+
+
+def _logits(actor: dict, x: learned.Features, allowed: jax.Array) -> jax.Array:
+    return jnp.where(allowed, learned.apply(actor, x), -1e9)
+
+
+def _value(critic: dict, x: learned.Features, allowed: jax.Array) -> jax.Array:
+    scores = learned.apply(critic, x)
+    return jnp.sum(jnp.where(allowed, scores, 0.0), axis=-1) / jnp.maximum(jnp.sum(allowed, axis=-1), 1)
+
+
+def _f1(truth: scoring.TruthArrays, state: active.EpisodeState, classes: int) -> jax.Array:
+    r = state.refinement
+    return scoring.target_f1(truth, active.centroids(state.observation), r.valid, r.refined, classes)
+
+
+def rollout(params: dict, episode: active.Episode, depth: jax.Array, T_wc: jax.Array, scene: jax.Array,
+            start: jax.Array, keys: jax.Array, truths: scoring.TruthArrays, sample: bool = True
+            ) -> tuple[Decided, jax.Array]:
+    """E episodes (scene [E], start [E], keys [E], truths [E] leaves) on the frames depth [S, V, H, W], T_wc [S, V,
+    4, 4], each decision after the first move the actor's (sampled, or its best with ``sample`` False): the
+    [E, T - 1] decisions and [E] each episode's last F1."""
+    classes = len(episode.spec.classifier.classes)
+    config = episode.nbv_config
+
+    def one(s, first, key, truth):
+        key, reset_key = jax.random.split(key)
+        state = active.reset(episode, T_wc[s], first, reset_key)
+        state = active.step(episode, state, depth[s, first], T_wc[s, first])
+
+        def move(carry, key):
+            state, before = carry
+            views = active.planned_views(state)
+            index, ok = nbv.candidates(views, config)
+            allowed = nbv.unvisited_first(state.views, index, ok)
+            x = learned.features(views, active.belief(episode, state), index, ok, episode.spec.intrinsics, config)
+            logits = _logits(params["actor"], x, allowed)
+            action = jax.random.categorical(key, logits) if sample else jnp.argmax(logits)
+            view = index[action]
+            state = active.step(episode, state.replace(next_view=view, next_pose=state.views.T_wc[view]),
+                                depth[s, view], T_wc[s, view])
+            after = _f1(truth, state, classes)
+            log_prob = jax.nn.log_softmax(logits)[action]
+            return (state, after), Decided(x, allowed, action, log_prob, _value(params["critic"], x, allowed),
+                                           after - before)
+
+        (state, last), decided = jax.lax.scan(move, (state, _f1(truth, state, classes)),
+                                              jax.random.split(key, episode.config.moves - 1))
+        return decided, last
+
+    return jax.vmap(one)(scene, start, keys, truths)
+
+
+def advantages(reward: jax.Array, value: jax.Array, gamma: float, lam: float) -> tuple[jax.Array, jax.Array]:
+    """(advantages, returns) [E, D] by GAE(gamma, lambda) of the rewards and values [E, D] of E episodes' D
+    decisions; an episode ends after its last decision (no value after it)."""
+    def one(r, v):
+        def back(carry, rv):
+            gae, next_value = carry
+            delta = rv[0] + gamma * next_value - rv[1]
+            gae = delta + gamma * lam * gae
+            return (gae, rv[1]), gae
+
+        return jax.lax.scan(back, (jnp.zeros((), r.dtype), jnp.zeros((), r.dtype)), (r, v), reverse=True)[1]
+
+    adv = jax.vmap(one)(reward, value)
+    return adv, adv + value
+
+
+def loss(params: dict, batch: Decided, adv: jax.Array, returns: jax.Array, config: PPOConfig
+         ) -> tuple[jax.Array, dict[str, jax.Array]]:
+    """PPO's loss of a minibatch ([B] leading axes): the clipped surrogate, the value's squared error, the entropy."""
+    logits = _logits(params["actor"], batch.features, batch.allowed)
+    log_p = jax.nn.log_softmax(logits)
+    new = jnp.take_along_axis(log_p, batch.action[:, None], axis=-1)[:, 0]
+    ratio = jnp.exp(new - batch.log_prob)
+    norm = (adv - adv.mean()) / (adv.std() + 1e-8)
+    surrogate = -jnp.mean(jnp.minimum(ratio * norm, jnp.clip(ratio, 1 - config.clip, 1 + config.clip) * norm))
+    value = jnp.mean((_value(params["critic"], batch.features, batch.allowed) - returns) ** 2)
+    entropy = -jnp.mean(jnp.sum(jnp.where(batch.allowed, jnp.exp(log_p) * log_p, 0.0), axis=-1))
+    total = surrogate + config.value_coef * value - config.entropy_coef * entropy
+    return total, {"surrogate": surrogate, "value": value, "entropy": entropy}
+
+
+def optimizer(config: PPOConfig) -> optax.GradientTransformation:
+    return optax.chain(optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.learning_rate))
+
+
+@functools.partial(jax.jit, static_argnames=("config",))
+def update(params: dict, opt_state: Any, episode: active.Episode, depth: jax.Array, T_wc: jax.Array,
+           scene: jax.Array, start: jax.Array, truths: scoring.TruthArrays, key: jax.Array, config: PPOConfig
+           ) -> tuple[dict, Any, dict[str, jax.Array]]:
+    """One PPO update in one program: the rollout of E episodes (scene, start [E]; ``truths`` [E] leaves), GAE,
+    ``epochs`` passes of ``minibatches`` shuffled minibatches. Returns the new parameters (``{"actor", "critic"}``)
+    and optimiser state and the update's figures (the rollout's mean last F1 and return, the last pass's losses)."""
+    roll_key, shuffle_key = jax.random.split(key)
+    decided, last = rollout(params, episode, depth, T_wc, scene, start, jax.random.split(roll_key, start.shape[0]),
+                            truths)
+    adv, returns = advantages(decided.reward, decided.value, config.gamma, config.gae_lambda)
+    flat = jax.tree.map(lambda a: a.reshape(-1, *a.shape[2:]), (decided, adv, returns))
+    size = flat[1].shape[0]
+    per = size // config.minibatches
+    opt = optimizer(config)
+
+    def epoch(carry, key):
+        params, opt_state = carry
+        order = jax.random.permutation(key, size)[:per * config.minibatches].reshape(config.minibatches, per)
+
+        def minibatch(carry, rows):
+            params, opt_state = carry
+            part = jax.tree.map(lambda a: a[rows], flat)
+            (_, figures), grads = jax.value_and_grad(loss, has_aux=True)(params, *part, config)
+            updates, opt_state = opt.update(grads, opt_state, params)
+            return (optax.apply_updates(params, updates), opt_state), figures
+
+        return jax.lax.scan(minibatch, (params, opt_state), order)
+
+    (params, opt_state), figures = jax.lax.scan(epoch, (params, opt_state),
+                                                jax.random.split(shuffle_key, config.epochs))
+    out = {k: v[-1].mean() for k, v in figures.items()}
+    return params, opt_state, {"f1_last": last.mean(), "reward": decided.reward.sum(axis=1).mean(), **out}
+
+
+__all__ = ["Decided", "PPOConfig", "advantages", "loss", "optimizer", "rollout", "update"]
