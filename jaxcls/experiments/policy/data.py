@@ -46,6 +46,7 @@ class Decisions:
 
     @classmethod
     def load(cls, path: str | Path) -> Decisions:
+        """The decisions ``save`` wrote."""
         with np.load(path) as f:
             return cls(learned.Features(pair=f["pair"], live=f["live"], candidate=f["candidate"]), f["f1"],
                        f["allowed"])
