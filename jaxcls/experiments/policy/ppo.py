@@ -159,6 +159,9 @@ def update(params: dict, opt_state: Any, episode: active.Episode, depth: jax.Arr
     flat = jax.tree.map(lambda a: a.reshape(-1, *a.shape[2:]), (decided, adv, returns))
     size = flat[1].shape[0]
     per = size // config.minibatches
+    if per < 1:
+        raise ValueError(f"ppo: {size} decisions an update ({start.shape[0]} episodes x {episode.config.moves - 1} "
+                         f"after the first move) cannot fill ppo.minibatches = {config.minibatches}")
     opt = optimizer(config)
 
     def epoch(carry, key):

@@ -256,6 +256,9 @@ def _reinforce(config: PolicyConfig, out: Path, manager: ocp.CheckpointManager, 
     """PPO updates ``done``..``ppo.updates`` on every training scene's ``runs`` episodes (new starts each update),
     each checkpointed as step ``rounds + update``, evaluated on the held-out scenes every ``ppo.eval_every``
     updates and after the last. Returns the actor's weights."""
+    if oracle.config.moves < 2:
+        raise ValueError(f"train-policy: PPO needs episodes of at least 2 moves (decisions after the first); "
+                         f"{config.table1} has moves = {oracle.config.moves}")
     chunks = training.frames()
     depth = jnp.concatenate([jnp.asarray(chunk.depth, jnp.float32) for _, chunk, _ in chunks])
     T_wc = jnp.asarray(np.concatenate([chunk.T_wc for _, chunk, _ in chunks]), jnp.float32)
