@@ -120,6 +120,10 @@ def reinforcement_rollouts_take_the_actors_paths(episode, world, frames, start, 
               for t in (0, -1)]
         assert float(last[e]) == pytest.approx(f1[1], abs=1e-6)
         assert float(decided.reward[e].sum()) == pytest.approx(f1[1] - f1[0], abs=1e-5)
+    config = ppo.PPOConfig(minibatches=8)  # (2 episodes x 2 decisions: 4, refused while tracing, nothing compiled)
+    with pytest.raises(ValueError, match=r"4 decisions an update \(2 episodes x 2 after the first move\) cannot fill"):
+        ppo.update(params, ppo.optimizer(config).init(params), env, *frames, scene, starts, truths, jax.random.key(0),
+                   config)
 
 
 def test_an_episode_without_the_learned_policys_weights_says_so():

@@ -106,6 +106,7 @@ class _Scenes:
     chunks: list = dataclasses.field(default_factory=list)
 
     def frames(self) -> list:
+        """[(the chunk's scene indices, its ``Chunk``, each scene's ``Truth``)] of every chunk, made once."""
         if not self.chunks:
             indices = list(range(self.scene_set.count))
             for at in range(0, len(indices), self.config.scene_chunk):
