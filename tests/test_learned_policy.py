@@ -27,21 +27,22 @@ SETTINGS = setup.ActiveConfig(
     episode=active.EpisodeConfig(moves=3),
     perception=PerceptionConfig(shapes=ShapeConfig(surface_points=4096, points_per_segment=128),
                                 tracking=TrackingConfig(mode="reported")))
-UTILITY = 6  # the candidate feature that is Eq. 7's VisOcclHist utility
 
 
 def utility_passed_through(hidden: int = 8) -> dict:
     """Weights whose score is the candidate's VisOcclHist utility, exactly: every kernel 0 but the path that
-    carries that feature (>= 0, so the ReLUs pass it) to the score."""
+    carries that feature (>= 0, so the ReLUs pass it) to the MLP's score; the linear term 0."""
     weights = jax.tree.map(np.zeros_like, jax.device_get(learned.init(jax.random.key(0), hidden)))
     p = weights["params"]
-    p["candidate_0"]["kernel"][2 * hidden + UTILITY, 0] = 1.0
+    p["candidate_0"]["kernel"][2 * hidden + learned.VIS_OCCL_HIST, 0] = 1.0
     p["candidate_1"]["kernel"][0, 0] = 1.0
     p["score"]["kernel"][0, 0] = 1.0
     return weights
 
 
-def test_features_are_finite_and_carry_the_papers_utility():
+def test_features_are_finite_and_carry_the_hand_made_utilities():
+    from jaxcls.perception import tsdf
+
     world = make_world(WORLD, seed=1)
     views = nbv.Views.start(world.viewpoints, 0)
     corners = np.tile(np.array([[[x, y, z] for x in (-0.03, 0.03) for y in (-0.03, 0.03) for z in (0, 0.08)]],
@@ -49,7 +50,8 @@ def test_features_are_finite_and_carry_the_papers_utility():
     poses = np.tile(np.eye(4, dtype=np.float32), (3, 1, 1))
     poses[:, :3, 3] = [[0.0, 0.0, world.table_height], [0.1, 0.05, world.table_height], [0, 0, 0]]
     belief = nbv.Belief(corners=jnp.asarray(corners), poses=jnp.asarray(poses), live=jnp.array([True, True, False]),
-                        uncertainty=jnp.array([0.2, 0.9, 0.5]))
+                        uncertainty=jnp.array([0.2, 0.9, 0.5]),
+                        volume=tsdf.create_volume(np.array([0.0, 0.0, world.table_height]), 0.4, 32))
     config = nbv.NBVConfig()
     index, ok = nbv.candidates(views, config)
     x = learned.features(views, belief, index, ok, world.intrinsics, config)
@@ -57,7 +59,17 @@ def test_features_are_finite_and_carry_the_papers_utility():
     assert x.candidate.shape == (len(index), learned.CANDIDATE_FEATURES)
     assert np.all(np.isfinite(np.asarray(x.pair))) and np.all(np.isfinite(np.asarray(x.candidate)))
     want = nbv.VisOcclHist().utilities(views, belief, index, world.intrinsics, config)
-    np.testing.assert_array_equal(np.asarray(x.candidate[:, UTILITY]), np.asarray(want))
+    np.testing.assert_array_equal(np.asarray(x.candidate[:, learned.VIS_OCCL_HIST]), np.asarray(want))
+    want = nbv.InfoGain().utilities(views, belief, index, world.intrinsics, config)
+    np.testing.assert_array_equal(np.asarray(x.candidate[:, learned.INFO_GAIN]), np.asarray(want))
+    # Started from a hand-made policy, the network scores exactly its utility; "none" does not.
+    for base, at in (("info_gain", learned.INFO_GAIN), ("vis_occl_hist", learned.VIS_OCCL_HIST)):
+        np.testing.assert_array_equal(np.asarray(learned.apply(learned.init(jax.random.key(4), 16, base), x)),
+                                      np.asarray(x.candidate[:, at]))
+    assert not np.allclose(np.asarray(learned.apply(learned.init(jax.random.key(4), 16), x)),
+                           np.asarray(x.candidate[:, learned.INFO_GAIN]))
+    with pytest.raises(ValueError, match="volume"):
+        learned.features(views, belief.replace(volume=None), index, ok, world.intrinsics, config)
     assert np.all(np.asarray(x.pair[:, 2, :]) == 0), "a dead segment carries nothing"
     nothing = learned.features(views, belief.replace(live=jnp.zeros(3, bool)), index, ok, world.intrinsics, config)
     scores = learned.apply(learned.init(jax.random.key(1), 16), nothing)

@@ -55,16 +55,26 @@ def test_gae_is_its_definition():
     np.testing.assert_allclose(np.asarray(returns), np.asarray(adv) + value, rtol=1e-6)
 
 
-def test_the_loss_is_the_cross_entropy_to_the_oracles_best_and_scores_regret():
+def test_the_loss_is_minus_the_log_probability_of_the_oracles_best_and_scores_regret():
     weights = jax.tree.map(np.zeros_like, jax.device_get(learned.init(jax.random.key(0), 4)))
-    weights["params"]["score"]["bias"][:] = 0.0  # every candidate scored 0: a uniform softmax over the allowed
     x = learned.Features(pair=jnp.zeros((1, 4, 2, learned.PAIR_FEATURES)), live=jnp.ones((1, 2), bool),
-                         candidate=jnp.zeros((1, 4, learned.CANDIDATE_FEATURES)))
+                         candidate=jnp.zeros((1, 4, learned.CANDIDATE_FEATURES)))  # every score 0: uniform
     f1 = jnp.array([[0.5, 0.9, -1.0, 0.2]])
     allowed = jnp.array([[True, True, False, True]])
     value, (regret, agree) = policy_train.loss(weights, x, f1, allowed, 1e-3)
-    np.testing.assert_allclose(float(value), np.log(3), rtol=1e-5)  # the target all on the best of 3 allowed
+    np.testing.assert_allclose(float(value), np.log(3), rtol=1e-5)  # 1/3 on the best of 3 allowed
     assert float(regret) == pytest.approx(0.9 - 0.5) and float(agree) == 0.0  # (ties: the first, 0.5)
+    # Two best of three: -log(2/3), whatever the order among them; all tied: 0, no gradient.
+    tied = jnp.array([[0.9, 0.9, -1.0, 0.2]])
+    np.testing.assert_allclose(float(policy_train.loss(weights, x, tied, allowed, 1e-3)[0]), np.log(1.5), rtol=1e-5)
+    same = jnp.array([[0.7, 0.7, -1.0, 0.7]])
+    value, grads = jax.value_and_grad(lambda w: policy_train.loss(w, x, same, allowed, 1e-3)[0])(
+        learned.init(jax.random.key(1), 4, "info_gain"))
+    assert abs(float(value)) < 1e-6
+    assert all(float(jnp.max(jnp.abs(g))) < 1e-6 for g in jax.tree.leaves(grads))
+    # A soft temperature: minus the log of the expected exp((F1 - best) / temperature).
+    want = -np.log(np.mean(np.exp((np.array([0.5, 0.9, 0.2]) - 0.9) / 0.5)))
+    np.testing.assert_allclose(float(policy_train.loss(weights, x, f1, allowed, 0.5)[0]), want, rtol=1e-5)
 
 
 def test_training_runs_resumes_bit_for_bit_and_writes_a_policy_the_episode_loads(tmp_path):

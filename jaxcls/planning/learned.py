@@ -10,11 +10,17 @@ N segments (``features``):
   margin of its best rho over the second) and that uncertainty times the second count;
 - per candidate [K, CANDIDATE_FEATURES]: the history weight (Eq. 6), the distance from the current view over the
   radius, within the radius, visited, the cosine between its optical axis and the current one's, how far down
-  it looks (minus its axis' z), the paper's VisOcclHist utility (Eq. 7), and the views fused so far over 10.
+  it looks (minus its axis' z), the paper's VisOcclHist utility (Eq. 7, ``VIS_OCCL_HIST``), the views fused so far
+  over 10, and InfoGain's utility (``INFO_GAIN``: the TSDF's unobserved voxels the view reaches, normalised over
+  the candidates, times the history weight; ``nbv.InfoGain``).
 
 The network (``ViewScorer``) is permutation-invariant over the segments (a shared MLP on each pair, then the
 mean and max over the live segments) and scores each candidate with a second shared MLP: any K and N, the same
-weights. ``scores`` is the policy's utility; ``nbv.Learned`` takes its best candidate within the radius (Eq. 8).
+weights. Its score is a linear term of the candidate features (``skip``) plus the MLP's: ``init(key, hidden,
+base)`` starts it as a hand-made policy exactly (``skip`` one-hot on that utility, the MLP's last layer zero),
+so training (``experiments/policy``) corrects the best hand-made policy where the oracle sees a better view
+instead of learning it again. ``scores`` is the policy's utility; ``nbv.Learned`` takes its best candidate
+within the radius (Eq. 8).
 
 Weights are a ``.msgpack`` and a ``.json`` beside it (``save``, ``load``): the width, the feature layout's
 version and the candidate count the policy was trained with; ``load`` refuses weights of other shapes, another
@@ -39,8 +45,11 @@ from jaxcls.math import safe_div
 from jaxcls.planning import nbv, visibility
 
 PAIR_FEATURES = 4
-CANDIDATE_FEATURES = 8
-FEATURES_VERSION = 1  # the layout above; weights of another layout are refused
+CANDIDATE_FEATURES = 9
+VIS_OCCL_HIST = 6  # the candidate feature that is the paper's VisOcclHist utility (Eq. 7)
+INFO_GAIN = 8  # the candidate feature that is InfoGain's utility
+BASES = {"none": None, "vis_occl_hist": VIS_OCCL_HIST, "info_gain": INFO_GAIN}  # ``init``'s starting policies
+FEATURES_VERSION = 2  # the layout above (1: no InfoGain feature, no skip term); weights of another are refused
 KIND = "jaxcls view policy"
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 SHIPPED_WEIGHTS: dict[str, Path] = {}  # name -> shipped .msgpack (none yet: ``jaxcls train-policy`` makes them)
@@ -58,7 +67,11 @@ class Features(struct.PyTreeNode):
 def features(views: nbv.Views, belief: nbv.Belief, index: jax.Array, ok: jax.Array, intrinsics: Intrinsics,
              config: nbv.NBVConfig) -> Features:
     """The network's input for the candidates ``index`` [K] (``ok`` [K]: within the radius) of a move whose
-    planner sees ``views`` and ``belief``. Pure; finite for any state (no live segment, nothing visible)."""
+    planner sees ``views`` and ``belief`` (its ``volume``, the fused TSDF, is needed: InfoGain's feature). Pure;
+    finite for any state (no live segment, nothing visible, nothing left unobserved)."""
+    if belief.volume is None:
+        raise ValueError("learned.features: the learned policy needs Belief.volume (the fused TSDF) for InfoGain's "
+                         "feature")
     paper = dataclasses.replace(config.visibility, mode=visibility.Mode.paper)
     counts = visibility.counts(belief.corners, belief.poses, belief.live, views.T_wc[index], intrinsics, paper)
     counts = jnp.where(belief.live[None, :], counts, 0.0)  # [K, N]
@@ -76,8 +89,9 @@ def features(views: nbv.Views, belief: nbv.Belief, index: jax.Array, ok: jax.Arr
     distance = jnp.linalg.norm(position[index] - position[views.current], axis=-1) / config.radius
     facing = jnp.sum(axis[index] * axis[views.current], axis=-1)
     fused = jnp.broadcast_to(jnp.sum(views.visited).astype(jnp.float32) / 10.0, index.shape)
+    gain = config.info_gain.utilities(views, belief, index, intrinsics, config)  # (normalised, times the weight)
     candidate = jnp.stack([weight, distance, ok.astype(jnp.float32), views.visited[index].astype(jnp.float32),
-                           facing, -axis[index, 2], utility, fused], axis=-1)
+                           facing, -axis[index, 2], utility, fused, gain], axis=-1)
     return Features(pair=pair.astype(jnp.float32), live=belief.live, candidate=candidate.astype(jnp.float32))
 
 
@@ -97,14 +111,24 @@ class ViewScorer(nn.Module):
         c = jnp.concatenate([mean, peak, x.candidate], axis=-1)
         c = nn.relu(nn.Dense(self.hidden, name="candidate_0")(c))
         c = nn.relu(nn.Dense(self.hidden, name="candidate_1")(c))
-        return nn.Dense(1, name="score")(c)[..., 0]
+        return (nn.Dense(1, name="score")(c) + nn.Dense(1, use_bias=False, name="skip")(x.candidate))[..., 0]
 
 
-def init(key: jax.Array, hidden: int) -> dict:
-    """Fresh weights of a ``ViewScorer`` of width ``hidden`` (any K, N)."""
+def init(key: jax.Array, hidden: int, base: str = "none") -> dict:
+    """Fresh weights of a ``ViewScorer`` of width ``hidden`` (any K, N). ``base`` (``BASES``): "none", random
+    throughout; else the network scores exactly that hand-made utility (``skip`` one-hot on it, the MLP's
+    ``score`` layer zero: its hidden layers random, so their gradients are not)."""
+    if base not in BASES:
+        raise ValueError(f"learned.init: base {base!r} is not one of {list(BASES)}")
     example = Features(pair=jnp.zeros((2, 3, PAIR_FEATURES)), live=jnp.ones(3, bool),
                        candidate=jnp.zeros((2, CANDIDATE_FEATURES)))
-    return ViewScorer(hidden).init(key, example)
+    weights = ViewScorer(hidden).init(key, example)
+    if BASES[base] is None:
+        return weights
+    params = dict(weights["params"])
+    params["score"] = jax.tree.map(jnp.zeros_like, params["score"])
+    params["skip"] = {"kernel": jnp.zeros((CANDIDATE_FEATURES, 1)).at[BASES[base], 0].set(1.0)}
+    return {**weights, "params": params}
 
 
 def apply(weights: dict, x: Features) -> jax.Array:

@@ -8,6 +8,7 @@ from pathlib import Path
 from jaxcls.config import bounded, check_bounds, load_config, resolve_config
 from jaxcls.experiments.policy.ppo import PPOConfig
 from jaxcls.experiments.table1.config import SceneSource, Table1Config
+from jaxcls.planning.learned import BASES
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,6 +39,7 @@ class PolicyConfig:
     batch: int = bounded(64, ge=1)
     learning_rate: float = bounded(1e-3, gt=0.0)
     hidden: int = bounded(64, ge=1)  # the network's width (``learned.ViewScorer``)
+    base: str = "info_gain"  # the hand-made policy the network starts as (``learned.BASES``; "none": random)
     temperature: float = bounded(0.02, gt=0.0)  # the target: softmax((F1 - best F1) / temperature) over the choices
     seed: int = 0  # starts, keys, the network's initialisation, the batches, the DAgger draws
     # Then reinforcement: PPO updates from the imitated policy, on the training scenes (``ppo.updates``: 0, none).
@@ -45,6 +47,8 @@ class PolicyConfig:
 
     def __post_init__(self) -> None:
         check_bounds(self)
+        if self.base not in BASES:
+            raise ValueError(f"base: {self.base!r} is not one of {list(BASES)}")
 
     def table1_config(self) -> Table1Config:
         """The Table 1 config (its own scenes: the held-out ones)."""

@@ -2,9 +2,10 @@
 
 Each round: the training scenes' runs are rolled out by the oracle (every candidate of every move fused,
 segmented, classified, refined and scored by its true F1), each run following the oracle or the network
-(``data.collect``); the network is fitted on every round's decisions so far with a listwise loss, the cross
-entropy between its softmax over the allowed candidates and the target softmax((F1 - best F1) / temperature)
-(``loss``: ties of the best share the target); then it is evaluated on held-out scenes against VisOcclHistGR,
+(``data.collect``); the network is fitted on every round's decisions so far with a listwise loss, minus the log of
+the expected exp((F1 - best F1) / temperature) under its softmax over the allowed candidates (``loss``: 0 where
+every candidate ties, so the network keeps its own order where the oracle sees no difference: the hand-made
+policy it starts from, ``learned.init``'s ``base``); then it is evaluated on held-out scenes against VisOcclHistGR,
 both in one switched program (``evaluate``). A round ends with an orbax checkpoint (the weights and the
 optimiser's state) and ``metrics.json``; a run started again resumes after its last finished round, a round's
 decisions kept on disk (``decisions_<r>.npz``) so that an interrupted round does not collect them again. A
@@ -47,15 +48,19 @@ COMPARED = ("vis_occl_hist", "learned")  # the held-out evaluation's policies (G
 
 def loss(weights: dict, x: learned.Features, f1: jax.Array, allowed: jax.Array, temperature: float
          ) -> tuple[jax.Array, tuple[jax.Array, jax.Array]]:
-    """The listwise imitation loss of a batch of decisions ([B] leading axes) and its (regret, agreement): the
-    mean cross entropy between the network's softmax over the allowed candidates and the oracle's target
-    softmax((F1 - best F1) / temperature); regret [] the mean true F1 given up by the network's best candidate,
-    agreement [] the share of decisions where it is one of the oracle's best."""
+    """The listwise imitation loss of a batch of decisions ([B] leading axes) and its (regret, agreement).
+
+    The loss is -log sum_i p_i exp((F1_i - best F1) / temperature), p the network's softmax over the allowed
+    candidates, averaged over the decisions: as the temperature goes to 0, minus the log of the probability it
+    gives the oracle's best views (any of them: ties need not share it). A decision whose candidates all tie
+    costs 0, so the network's order there stays its own (the hand-made policy it starts from). Regret [] is the
+    mean true F1 given up by the network's best candidate; agreement [] the share of decisions where it is one
+    of the oracle's best."""
     scores = jnp.where(allowed, learned.apply(weights, x), -1e9)
     log_p = jax.nn.log_softmax(scores, axis=-1)
     best = jnp.max(jnp.where(allowed, f1, -jnp.inf), axis=-1, keepdims=True)
-    target = jax.nn.softmax(jnp.where(allowed, (f1 - best) / temperature, -1e9), axis=-1)
-    nll = -jnp.sum(target * jnp.where(allowed, log_p, 0.0), axis=-1)
+    gain = jnp.where(allowed, (f1 - best) / temperature, -jnp.inf)  # <= 0, 0 at the best
+    nll = -jax.nn.logsumexp(jnp.where(allowed, log_p + gain, -jnp.inf), axis=-1)
     chosen = jnp.take_along_axis(f1, jnp.argmax(scores, axis=-1)[:, None], axis=-1)
     return jnp.mean(nll), (jnp.mean(best - chosen), jnp.mean(chosen >= best))
 
@@ -184,7 +189,7 @@ def train(config: PolicyConfig, show_progress: bool = True) -> Path:
     oracle = runner.episode(held_out_config, protocol.ROWS["oracle_gr"], classifier, object_set, first.intrinsics,
                             first.scenes[0].table_height, dataset.scene.split)
 
-    weights = learned.init(jax.random.key(config.seed), config.hidden)
+    weights = learned.init(jax.random.key(config.seed), config.hidden, config.base)
     optimizer = optax.adam(config.learning_rate)
     opt_state = optimizer.init(weights)
     params = {"actor": weights, "critic": learned.init(jax.random.key(config.seed + 2), config.hidden)}
@@ -244,7 +249,7 @@ def train(config: PolicyConfig, show_progress: bool = True) -> Path:
     manager.wait_until_finished()
     viz.save(viz.policy_curve(history), out / "curve.png")
     learned.save(out / "policy.msgpack", weights, held_out_config.nbv.max_candidates, {
-        "trained_by": "jaxcls train-policy", "table1": config.table1, "classifier": name,
+        "trained_by": "jaxcls train-policy", "table1": config.table1, "classifier": name, "base": config.base,
         "rounds": sum("round" in h for h in history), "ppo_updates": sum("update" in h for h in history),
         "held_out": next(({k: v for k, v in h.items() if k.startswith(("f1_", "learned_"))} for h in reversed(history)
                           if "f1_learned" in h), {})})
