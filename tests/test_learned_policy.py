@@ -169,6 +169,17 @@ def test_a_weights_file_of_other_shapes_layout_or_candidate_count_is_refused(tmp
         learned.load(tmp_path / "missing.msgpack", 32)
 
 
+def test_the_shipped_policy_loads_for_the_moves_planner_and_starts_from_infogain():
+    """``real_like`` (``jaxcls train-policy --config policy_real_like``): this layout, the move's candidate
+    count (``setup.episode_nbv``), trained from InfoGain; loaded by name where a run names it."""
+    weights, info = learned.load("real_like", setup.episode_nbv().max_candidates)
+    assert info.features == learned.FEATURES_VERSION and info.metadata["base"] == "info_gain"
+    assert info.metadata["table1"] == "table1_real_like_scale" and info.metadata["rounds"] >= 1
+    assert weights["params"]["skip"]["kernel"].shape == (learned.CANDIDATE_FEATURES, 1)
+    named = setup.policy_weights(dataclasses.replace(setup.episode_nbv(), learned=nbv.Learned(weights="real_like")))
+    assert jax.tree.all(jax.tree.map(lambda a, b: bool(np.array_equal(a, b)), named, weights))
+
+
 def test_a_table1_row_of_the_learned_policy_needs_its_weights_named():
     from jaxcls.experiments.table1.config import Table1Config
 

@@ -28,6 +28,7 @@ from jaxcls.config import ConfigError, load_config
 from jaxcls.episode import protocol
 from jaxcls.experiments.table1 import data, runner, tables
 from jaxcls.experiments.table1.config import Table1Config
+from jaxcls.planning import nbv
 from jaxcls.world.objects import ObjectSetConfig, object_set_from_config
 
 ROOT = Path(__file__).parent.parent
@@ -685,6 +686,25 @@ def test_table_and_csv_against_hand_made_episodes():
                                              np.array([0, 1, 2, 1, 3, 1, 2, 0, -1, -1]), 4)
     assert detected.f1 < policy.f1 and cells[-2].startswith(f"{detected.f1:.3f} [")
     assert cells[-1] == "-0.50 (abs 0.50)"
+
+
+def test_the_learned_row_is_paired_with_the_best_hand_made_policy_and_the_oracle():
+    """With a learned row, the tables pair it with the best hand-made policy by F1 at T (here InfoGainGR, right
+    everywhere, not VisOcclHistGR) and the oracle with it; the differences are the pooled F1s'."""
+    truth = {0: [0, 1, 2], 1: [1, 2, 3]}
+    right = {0: [0, 1, 2], 1: [1, 2, 3]}
+    wrong = {0: [0, 2, 2], 1: [1, 2, 0]}
+    made = {"vis_occl_hist_gr": (right, wrong), "info_gain_gr": (right, right), "learned_gr": (wrong, wrong),
+            "oracle_gr": (right, right)}
+    records = [_record(row, s, 0, truth[s], [labels[s]] * 2) for row, (a, b) in made.items()
+               for s, labels in ((0, a), (1, b))]
+    config = Table1Config(moves=2, runs=1, oracle_scenes=2, rows=tuple(made), classifiers={"c": ""}, resamples=100,
+                          nbv=nbv.NBVConfig(max_candidates=16, learned=nbv.Learned(weights="real_like")))
+    markdown = tables.tables(config, records, 4, None, ["x"])[0]
+    learned = metrics.classification_scores(np.array(truth[0] + truth[1]), np.array(wrong[0] + wrong[1]), 4).f1
+    against = "The learned policy against the best hand-made one: LearnedGR - InfoGainGR"
+    assert f"{against}: {learned - 1:+.3f} [" in markdown
+    assert f"Oracle against the learned policy: OracleGR - LearnedGR: {1 - learned:+.3f} [" in markdown
 
 
 def test_rows_tabulated_while_the_oracle_runs_are_those_tabulated_at_the_end():

@@ -52,7 +52,8 @@ BASES = {"none": None, "vis_occl_hist": VIS_OCCL_HIST, "info_gain": INFO_GAIN}  
 FEATURES_VERSION = 2  # the layout above (1: no InfoGain feature, no skip term); weights of another are refused
 KIND = "jaxcls view policy"
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
-SHIPPED_WEIGHTS: dict[str, Path] = {}  # name -> shipped .msgpack (none yet: ``jaxcls train-policy`` makes them)
+# name -> shipped .msgpack: ``jaxcls train-policy --config policy_real_like`` (RESULTS.md, "The learned view policy")
+SHIPPED_WEIGHTS: dict[str, Path] = {"real_like": WEIGHTS_DIR / "learned_real_like.msgpack"}
 
 
 class Features(struct.PyTreeNode):

@@ -38,7 +38,8 @@ def differences(config: Table1Config, by: dict, c: str, classes: int,
                 labels: dict[str, protocol.SceneLabels] | None = None, made: dict | None = None) -> list[str]:
     """Paired scene-bootstrap differences of F1 at T: GR against none per pair; every policy against
     PointNetSingle; VisOcclHist(GR) against Random(GR); every policy against VisOcclHistGR; the oracle
-    against the best policy (the pairs of the rows ``by`` has). ``by``: (classifier, row) -> that row's records;
+    against the best policy; the learned policy against the best hand-made one, and the oracle against it (the
+    pairs of the rows ``by`` has). ``by``: (classifier, row) -> that row's records;
     ``labels``: row -> its ``protocol.scene_labels`` where the caller has them. ``made``: the differences made
     before of the same records (e.g. while the oracle still ran, ``tables.EarlyRows``), keyed by (classifier, row
     a, row b, a's move, b's move, the scenes paired): used where present, and given those made here (a pair's
@@ -73,10 +74,17 @@ def differences(config: Table1Config, by: dict, c: str, classes: int,
             pairs.append(("VisOcclHist against Random: ", a, b, T, T))
     if "vis_occl_hist_gr" in present:
         pairs += [("Against VisOcclHistGR: ", n, "vis_occl_hist_gr", T, T) for n in policies if n != "vis_occl_hist_gr"]
-    if "oracle_gr" in present and policies:
-        best = max(policies, key=lambda n: metrics.classification_scores(
+    def best_of(names):
+        return max(names, key=lambda n: metrics.classification_scores(
             *map(np.concatenate, zip(*scenes_of(n, T), strict=True)), classes).f1)
-        pairs.append(("Oracle against the best policy: ", "oracle_gr", best, T, T))
+
+    hand_made = [n for n in policies if protocol.ROWS[n].policy != "learned"]
+    if "oracle_gr" in present and policies:
+        pairs.append(("Oracle against the best policy: ", "oracle_gr", best_of(policies), T, T))
+    if "learned_gr" in present and hand_made:  # (issue 37: half the gap best hand-made -> oracle)
+        pairs.append(("The learned policy against the best hand-made one: ", "learned_gr", best_of(hand_made), T, T))
+        if "oracle_gr" in present:
+            pairs.append(("Oracle against the learned policy: ", "oracle_gr", "learned_gr", T, T))
     # Paired on the scenes both rows have (the oracle runs on fewer; an interrupted run may have more); the pairs of
     # one scene set in one bootstrap (``metrics.paired_differences``: the bounds each alone would get).
     shared = [frozenset({r["scene"] for r in by[c, a]} & {r["scene"] for r in by[c, b]}) for _, a, b, _, _ in pairs]
