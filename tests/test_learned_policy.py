@@ -138,6 +138,51 @@ def reinforcement_rollouts_take_the_actors_paths(episode, world, frames, start, 
                    config)
 
 
+def test_rollout_labels_are_the_f1_at_the_end_after_the_base_policys_moves():
+    """``protocol.Label.rollout``: a candidate's label is its true F1 after the moves the episode's own policy
+    (the base) takes from it to T, here checked move by move with ``active.step_jit`` for the first decision's
+    candidates; the last decision has no move after it and its labels are one move ahead, as the greedy oracle's
+    (here: the oracle's pick among them is one of their best)."""
+    from jaxcls.episode import scoring
+
+    world = make_world(WORLD, seed=1)
+    depth, T_wc, _, _ = world.measure(jax.random.PRNGKey(0), np.arange(len(world.viewpoints)))
+    depth, T_wc = jnp.asarray(depth, jnp.float32), jnp.asarray(T_wc, jnp.float32)
+    episode = setup.make_episode(SETTINGS, world.object_set, world.intrinsics, world.table_height)
+    truth = scoring.Truth.from_scene(world.scene, world.object_set)
+    seen = []
+
+    def tap(states, index, ok, allowed, f1, pick):
+        seen.append((states, index, allowed, f1, pick))
+        return pick
+
+    start = protocol.start_views(0, 0, 1, len(world.viewpoints))
+    protocol.oracle_rollouts(episode, depth, T_wc, start, protocol.run_keys(0, 0, 1), truth, tap=tap,
+                             label=protocol.Label.rollout)
+    assert len(seen) == 2  # (3 moves: two decisions)
+    states, index, allowed, f1, _ = seen[0]
+    state = jax.tree.map(lambda a: a[0], states)
+    classes = len(episode.spec.classifier.classes)
+    for c in np.flatnonzero(allowed[0])[:2]:
+        view = int(index[0, c])
+        s = active.step_jit(episode, state.replace(next_view=jnp.int32(view)), depth[view], T_wc[view])
+        s = active.step_jit(episode, s, depth[s.next_view], T_wc[s.next_view])
+        t = active.trace(s, s.views.current)
+        want = scoring.candidate_f1(truth, np.asarray(t.centroid)[None], np.asarray(t.refinement.valid)[None],
+                                    np.asarray(t.refinement.refined)[None], classes)[0]
+        assert float(f1[0, c]) == pytest.approx(want, abs=1e-6), (c, view)
+    _, _, allowed, f1, pick = seen[1]
+    assert f1[0, pick[0]] == np.max(np.where(allowed[0], f1[0], -1.0))
+
+
+def test_a_rollout_label_needs_a_base_policy():
+    from jaxcls.experiments.policy import config
+
+    assert config.load(None, ("label=rollout",)).label is protocol.Label.rollout
+    with pytest.raises(ValueError, match="label: rollout continues each candidate with the base policy"):
+        config.load(None, ("label=rollout", "base=none"))
+
+
 def test_an_episode_without_the_learned_policys_weights_says_so():
     world = make_world(WORLD, seed=1)
     settings = dataclasses.replace(SETTINGS, episode=dataclasses.replace(SETTINGS.episode, policy="learned"))

@@ -184,6 +184,30 @@ _runs_moves_to = jax.jit(jax.vmap(_moves_to, in_axes=(None, 0, None, None, 0, 0)
 _picked = jax.jit(lambda states, pick: jax.tree.map(lambda x: x[jnp.arange(pick.shape[0]), pick], states))
 
 
+class Label(enum.Enum):
+    """What the oracle scores a candidate by (``oracle_rollouts``)."""
+
+    greedy = "greedy"  # its true F1 after its move (the oracle row: one move ahead)
+    rollout = "rollout"  # its true F1 at T, the episode's own policy taking the moves after it (a base policy's
+    # rollout: picking its best is one step of policy improvement over that policy)
+
+
+@jax.jit
+def _continued(episode: active.Episode, states: active.EpisodeState, depth: jax.Array, T_wc: jax.Array,
+               scene: jax.Array, remaining: jax.Array) -> active.Trace:
+    """[R, C] states (runs [R] of scenes ``scene`` [R], frames depth [S, V, H, W], T_wc [S, V, 4, 4]) each taken
+    ``remaining`` ([] i32, traced: one program for every move) more moves by the episode's own policy; the
+    ``Trace`` of each one's last move ([R, C] leaves)."""
+    def run(state, s):
+        def move(_, st):
+            return active.step(episode, st, depth[s, st.next_view], T_wc[s, st.next_view])
+
+        final = jax.lax.fori_loop(0, remaining, move, state)
+        return active.trace(final, final.views.current)
+
+    return jax.vmap(jax.vmap(run, in_axes=(0, None)))(states, scene)
+
+
 @jax.jit
 def _runs_candidates(episode: active.Episode, views: nbv.Views) -> tuple[jax.Array, jax.Array]:
     """Each run's candidates (``nbv.candidates``): index, ok [R, C]; C fixed (``max_candidates``)."""
@@ -193,11 +217,13 @@ def _runs_candidates(episode: active.Episode, views: nbv.Views) -> tuple[jax.Arr
 def oracle_rollouts(episode: active.Episode, depth: np.ndarray, T_wc: np.ndarray, starts: np.ndarray,
                     keys: jax.Array, truth: scoring.Truth | Sequence[scoring.Truth],
                     scene: np.ndarray | None = None, kernels: batched.Kernels = batched.Kernels.fixed,
-                    tap: Callable[..., np.ndarray] | None = None) -> active.Trace:
+                    tap: Callable[..., np.ndarray] | None = None, label: Label = Label.greedy) -> active.Trace:
     """The oracle NBV for the runs ``starts: [R]`` (keys [R]): the first move from each start; then at each move
     every candidate of every run (``nbv.candidates`` within the radius, unvisited ones first) is fused,
     segmented, classified and refined in one vmapped call, and each run keeps the one whose refined labels score
     the best true F1 of the target objects (ties: the nearer candidate). A ``Trace`` with [R, T, ...] leaves.
+    With ``label=Label.rollout`` a candidate's F1 is the one at T after the episode's own policy takes the moves
+    left from there (``_continued``, one more program); the runs still keep the candidate itself.
 
     One scene: depth [V, H, W] m, T_wc [V, 4, 4], ``truth`` its ``Truth``. Several scenes in one call: depth
     [S, V, H, W], T_wc [S, V, 4, 4], ``scene: [R]`` each run's scene and ``truth`` a ``Truth`` per run.
@@ -242,8 +268,11 @@ def oracle_rollouts(episode: active.Episode, depth: np.ndarray, T_wc: np.ndarray
         before, choices = states, (index, ok, allowed)
         index = jax.device_put(jnp.asarray(index, jnp.int32), device)
         states, traces = moves_to(episode, states, depth, T_wc, at, index)
-        traces = jax.device_get(traces)
-        centroid, valid, refined = traces.centroid, traces.refinement.valid, traces.refinement.refined
+        left = episode.config.moves - len(kept) - 1  # (the moves after the candidate's)
+        scored = (_continued(episode, states, depth, T_wc, at, jnp.int32(left))
+                  if Label(label) is Label.rollout and left > 0 else traces)
+        traces, scored = jax.device_get((traces, scored))
+        centroid, valid, refined = scored.centroid, scored.refinement.valid, scored.refinement.refined
         f1 = np.stack([scoring.candidate_f1(truths[r], centroid[r], valid[r], refined[r], num_classes) for r in runs])
         f1 = np.where(allowed, f1, -1.0)
         pick = np.argmax(f1, axis=1)
@@ -459,6 +488,6 @@ def moves_to_correct(records: Sequence[dict[str, Any]], label: str = "refined", 
     return (float(moves.mean()) if moves.size else float("nan")), float(correct[-1].mean())
 
 
-__all__ = ["PAPER_ROWS", "ROWS", "Kind", "Row", "SceneLabels", "all_views", "episode_record", "episode_records",
-           "moves_to_correct", "oracle_rollouts", "per_scene", "prepare_oracle", "rollouts", "row", "run_keys",
-           "scene_labels", "start_views"]
+__all__ = ["PAPER_ROWS", "ROWS", "Kind", "Label", "Row", "SceneLabels", "all_views", "episode_record",
+           "episode_records", "moves_to_correct", "oracle_rollouts", "per_scene", "prepare_oracle", "rollouts", "row",
+           "run_keys", "scene_labels", "start_views"]

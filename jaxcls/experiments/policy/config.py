@@ -6,6 +6,7 @@ import dataclasses
 from pathlib import Path
 
 from jaxcls.config import bounded, check_bounds, load_config, resolve_config
+from jaxcls.episode.protocol import Label
 from jaxcls.experiments.policy.ppo import PPOConfig
 from jaxcls.experiments.table1.config import SceneSource, Table1Config
 from jaxcls.planning.learned import BASES
@@ -40,6 +41,9 @@ class PolicyConfig:
     learning_rate: float = bounded(1e-3, gt=0.0)
     hidden: int = bounded(64, ge=1)  # the network's width (``learned.ViewScorer``)
     base: str = "info_gain"  # the hand-made policy the network starts as (``learned.BASES``; "none": random)
+    # A candidate's label: its true F1 after its move (greedy: the oracle row's), or at T with ``base`` taking the
+    # moves after it (rollout: one step of policy improvement over ``base``; ``base`` must name a policy).
+    label: Label = Label.greedy
     temperature: float = bounded(0.02, gt=0.0)  # the target: softmax((F1 - best F1) / temperature) over the choices
     seed: int = 0  # starts, keys, the network's initialisation, the batches, the DAgger draws
     # Then reinforcement: PPO updates from the imitated policy, on the training scenes (``ppo.updates``: 0, none).
@@ -49,6 +53,9 @@ class PolicyConfig:
         check_bounds(self)
         if self.base not in BASES:
             raise ValueError(f"base: {self.base!r} is not one of {list(BASES)}")
+        if self.label is Label.rollout and BASES[self.base] is None:
+            raise ValueError("label: rollout continues each candidate with the base policy; base is 'none' "
+                             f"(choose one of {[b for b in BASES if BASES[b] is not None]})")
 
     def table1_config(self) -> Table1Config:
         """The Table 1 config (its own scenes: the held-out ones)."""

@@ -74,13 +74,15 @@ def _picks(weights: dict, x: learned.Features, allowed: jax.Array) -> jax.Array:
 
 def collect(episode: active.Episode, depth: np.ndarray, T_wc: np.ndarray, scene: np.ndarray, starts: np.ndarray,
             keys: jax.Array, truths: list[scoring.Truth], weights: dict | None = None, follow_oracle: float = 1.0,
-            rng: np.random.Generator | None = None, runs_per_call: int = 0) -> Decisions:
+            rng: np.random.Generator | None = None, runs_per_call: int = 0,
+            label: protocol.Label = protocol.Label.greedy) -> Decisions:
     """The oracle's rollouts of runs ``starts`` [R] (keys [R]) of the scenes ``scene`` [R] (frames depth [S, V, H, W],
     T_wc [S, V, 4, 4]; ``truths`` a ``Truth`` per run), labelled at every decision after the first move, in calls of
     ``runs_per_call`` runs (0: all at once; the last call padded with copies of its last run, dropped: one compiled
     shape). Each run goes where the oracle goes with probability ``follow_oracle`` (drawn by ``rng`` per run and
     decision), else to the best allowed candidate by the network ``weights`` (DAgger's mixture; without weights,
-    the oracle)."""
+    the oracle). ``label``: what a candidate's F1 is (``protocol.Label``: after its move, or at T with the
+    episode's own policy taking the moves after it)."""
     rng = rng or np.random.default_rng(0)
     R = len(starts)
     size = runs_per_call or R
@@ -98,7 +100,7 @@ def collect(episode: active.Episode, depth: np.ndarray, T_wc: np.ndarray, scene:
             return np.where(rng.random(len(pick)) < follow_oracle, pick, ours)
 
         protocol.oracle_rollouts(episode, depth, T_wc, starts[rows], np.asarray(keys)[rows], [truths[i] for i in rows],
-                                 scene=np.asarray(scene)[rows], tap=tap)
+                                 scene=np.asarray(scene)[rows], tap=tap, label=label)
     return Decisions.concatenate(kept)
 
 

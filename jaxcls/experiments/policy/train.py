@@ -188,6 +188,8 @@ def train(config: PolicyConfig, show_progress: bool = True) -> Path:
     first = training.frames()[0][1]
     oracle = runner.episode(held_out_config, protocol.ROWS["oracle_gr"], classifier, object_set, first.intrinsics,
                             first.scenes[0].table_height, dataset.scene.split)
+    if config.label is protocol.Label.rollout:  # (the labels' continuations: the base policy's moves)
+        oracle = oracle.replace(config=dataclasses.replace(oracle.config, policy=nbv.PolicyName(config.base)))
 
     weights = learned.init(jax.random.key(config.seed), config.hidden, config.base)
     optimizer = optax.adam(config.learning_rate)
@@ -221,7 +223,8 @@ def train(config: PolicyConfig, show_progress: bool = True) -> Path:
                                               unit="chunk", leave=False, disable=not show_progress):
                 at, starts, keys = _runs(config.seed + 7919 * (r + 1), scenes, config.runs, chunk.T_wc.shape[1])
                 parts.append(collect(oracle, chunk.depth, chunk.T_wc, at, starts, keys, [truths[a] for a in at],
-                                     weights if r else None, follow, rng, runner.oracle_call_size(training_config)))
+                                     weights if r else None, follow, rng, runner.oracle_call_size(training_config),
+                                     config.label))
             collected = Decisions.concatenate(parts)
             collected.save(kept)
             seconds["collect"] = time.perf_counter() - began
