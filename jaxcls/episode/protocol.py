@@ -13,6 +13,8 @@ views (``start_views``) with T moves; the episodes of one scene run together, ``
 - ``oracle``: at each move every candidate's real next view is fused, segmented, classified and refined,
   and the one whose refined labels score the best true F1 is taken (``oracle_rollouts``): the upper bound of
   any next-best-view policy.
+- ``oracle_rollout`` (OracleRolloutGR): the same, each candidate scored by its true F1 at T with InfoGain
+  making the moves after it (``Label.rollout``): one step of policy improvement over InfoGain, not greedy.
 
 ``episode_record`` turns an episode into its JSON record (the target objects' labels after every move,
 matched to the segments by Hungarian assignment, ``scoring.object_labels``); ``per_scene`` gathers a row's
@@ -49,17 +51,27 @@ class Kind(enum.Enum):
     ORACLE = "oracle"
 
 
+class Label(enum.Enum):
+    """What the oracle scores a candidate by (``oracle_rollouts``)."""
+
+    greedy = "greedy"  # its true F1 after its move (the oracle row: one move ahead)
+    rollout = "rollout"  # its true F1 at T, the episode's own policy taking the moves after it (a base policy's
+    # rollout: picking its best is one step of policy improvement over that policy)
+
+
 @dataclasses.dataclass(frozen=True)
 class Row:
     """A row of Table 1: ``label`` as printed; ``kind``; the NBV ``policy`` (``nbv.POLICIES``; for ``single``
     and ``full`` it only fills the planner's slot); GR on (``refinement``) or off; GR's model ``library``
-    ("known": the scenes' own instances, the paper's; "category": the training instances only)."""
+    ("known": the scenes' own instances, the paper's; "category": the training instances only); an oracle
+    row's ``scored_by`` (``Label``: greedy, or its ``policy``'s rollouts to T)."""
 
     label: str
     kind: Kind
     policy: str = "vis_occl_hist"
     refinement: bool = True
     library: str = "known"
+    scored_by: Label = Label.greedy
 
     def settings(self, base: ActiveConfig, moves: int) -> ActiveConfig:
         """``base`` with this row's policy, GR and library; one move for ``single``, T otherwise."""
@@ -95,6 +107,9 @@ ROWS: dict[str, Row] = {
     "vis_occl_hist_gr_category": Row("VisOcclHistGR (category models)", Kind.POLICY, "vis_occl_hist",
                                      library="category"),
     "oracle_gr": Row("OracleGR", Kind.ORACLE),
+    # The oracle one step ahead of InfoGain: each candidate scored by its F1 at T with InfoGain making the moves
+    # after it (``Label.rollout``; what ``train-policy label=rollout`` imitates).
+    "oracle_rollout_gr": Row("OracleRolloutGR", Kind.ORACLE, "info_gain", scored_by=Label.rollout),
 }
 PAPER_ROWS = tuple(ROWS)[:12]
 
@@ -182,14 +197,6 @@ _runs_moves_to = jax.jit(jax.vmap(_moves_to, in_axes=(None, 0, None, None, 0, 0)
 # Each run's state after the candidate it keeps: [R, C] states, pick [R] -> [R] states (one program, not a gather
 # of each leaf; its states are like the resets' to the next move's program: no second signature).
 _picked = jax.jit(lambda states, pick: jax.tree.map(lambda x: x[jnp.arange(pick.shape[0]), pick], states))
-
-
-class Label(enum.Enum):
-    """What the oracle scores a candidate by (``oracle_rollouts``)."""
-
-    greedy = "greedy"  # its true F1 after its move (the oracle row: one move ahead)
-    rollout = "rollout"  # its true F1 at T, the episode's own policy taking the moves after it (a base policy's
-    # rollout: picking its best is one step of policy improvement over that policy)
 
 
 @jax.jit

@@ -564,7 +564,8 @@ def run_oracle(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                 traces = protocol.oracle_rollouts(
                     episodes[c, name], depth, T_wc, np.array([starts[s][r] for _, _, s, r in padded]),
                     np.stack([keys[s][r] for _, _, s, r in padded]), [truths[s] for _, _, s, _ in padded],
-                    scene=np.array([place[s] for _, _, s, _ in padded]), kernels=config.kernels)
+                    scene=np.array([place[s] for _, _, s, _ in padded]), kernels=config.kernels,
+                    label=protocol.ROWS[name].scored_by)
             new = np.array([i for i, k in enumerate(call) if k not in done])
             records = protocol.episode_records(
                 jax.tree.map(lambda x, i=new: x[i], traces), [truths[call[i][2]] for i in new],

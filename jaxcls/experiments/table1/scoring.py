@@ -79,8 +79,9 @@ def differences(config: Table1Config, by: dict, c: str, classes: int,
             *map(np.concatenate, zip(*scenes_of(n, T), strict=True)), classes).f1)
 
     hand_made = [n for n in policies if protocol.ROWS[n].policy != "learned"]
-    if "oracle_gr" in present and policies:
-        pairs.append(("Oracle against the best policy: ", "oracle_gr", best_of(policies), T, T))
+    for oracle in ("oracle_gr", "oracle_rollout_gr"):
+        if oracle in present and policies:
+            pairs.append(("Oracle against the best policy: ", oracle, best_of(policies), T, T))
     if "learned_gr" in present and hand_made:  # (issue 37: half the gap best hand-made -> oracle)
         pairs.append(("The learned policy against the best hand-made one: ", "learned_gr", best_of(hand_made), T, T))
         if "oracle_gr" in present:
