@@ -157,8 +157,8 @@ def test_rollout_labels_are_the_f1_at_the_end_after_the_base_policys_moves():
         return pick
 
     start = protocol.start_views(0, 0, 1, len(world.viewpoints))
-    protocol.oracle_rollouts(episode, depth, T_wc, start, protocol.run_keys(0, 0, 1), truth, tap=tap,
-                             label=protocol.Label.rollout)
+    keys = protocol.run_keys(0, 0, 1)
+    oracle = protocol.oracle_rollouts(episode, depth, T_wc, start, keys, truth, tap=tap, label=protocol.Label.rollout)
     assert len(seen) == 2  # (3 moves: two decisions)
     states, index, allowed, f1, _ = seen[0]
     state = jax.tree.map(lambda a: a[0], states)
@@ -173,6 +173,16 @@ def test_rollout_labels_are_the_f1_at_the_end_after_the_base_policys_moves():
         assert float(f1[0, c]) == pytest.approx(want, abs=1e-6), (c, view)
     _, _, allowed, f1, pick = seen[1]
     assert f1[0, pick[0]] == np.max(np.where(allowed[0], f1[0], -1.0))
+    # One step of policy improvement: on frames and keys alike, the path ends at least as high as the base
+    # policy's own (its choice is among the candidates, and its label is the base's F1 at the end).
+    base = batched.rollouts(episode, depth[None], np.asarray(T_wc)[None], np.zeros(1, np.int32), start,
+                            np.asarray(keys))
+
+    def last_f1(t):
+        return scoring.candidate_f1(truth, t.centroid[:, -1], t.refinement.valid[:, -1], t.refinement.refined[:, -1],
+                                    classes)[0]
+
+    assert last_f1(oracle) >= last_f1(base) - 1e-6
 
 
 def test_a_rollout_label_needs_a_base_policy():
