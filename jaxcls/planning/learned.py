@@ -30,6 +30,7 @@ feature layout or another candidate count, naming the file and what differs.
 from __future__ import annotations
 
 import dataclasses
+import enum
 import json
 from pathlib import Path
 
@@ -48,12 +49,24 @@ PAIR_FEATURES = 4
 CANDIDATE_FEATURES = 9
 VIS_OCCL_HIST = 6  # the candidate feature that is the paper's VisOcclHist utility (Eq. 7)
 INFO_GAIN = 8  # the candidate feature that is InfoGain's utility
-BASES = {"none": None, "vis_occl_hist": VIS_OCCL_HIST, "info_gain": INFO_GAIN}  # ``init``'s starting policies
 FEATURES_VERSION = 2  # the layout above (1: no InfoGain feature, no skip term); weights of another are refused
 KIND = "jaxcls view policy"
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 # name -> shipped .msgpack: ``jaxcls train-policy --config policy_real_like`` (RESULTS.md, "The learned view policy")
 SHIPPED_WEIGHTS: dict[str, Path] = {"real_like": WEIGHTS_DIR / "learned_real_like.msgpack"}
+
+
+class Base(enum.Enum):
+    """The hand-made policy a fresh network scores exactly (``init``): its utility's candidate feature."""
+
+    none = "none"  # a random network
+    vis_occl_hist = "vis_occl_hist"
+    info_gain = "info_gain"
+
+    @property
+    def feature(self) -> int | None:
+        """The candidate feature holding this policy's utility (None: none)."""
+        return {Base.vis_occl_hist: VIS_OCCL_HIST, Base.info_gain: INFO_GAIN}.get(self)
 
 
 class Features(struct.PyTreeNode):
@@ -115,20 +128,22 @@ class ViewScorer(nn.Module):
         return (nn.Dense(1, name="score")(c) + nn.Dense(1, use_bias=False, name="skip")(x.candidate))[..., 0]
 
 
-def init(key: jax.Array, hidden: int, base: str = "none") -> dict:
-    """Fresh weights of a ``ViewScorer`` of width ``hidden`` (any K, N). ``base`` (``BASES``): "none", random
+def init(key: jax.Array, hidden: int, base: Base | str = Base.none) -> dict:
+    """Fresh weights of a ``ViewScorer`` of width ``hidden`` (any K, N). ``base`` (``Base``): none, random
     throughout; else the network scores exactly that hand-made utility (``skip`` one-hot on it, the MLP's
     ``score`` layer zero: its hidden layers random, so their gradients are not)."""
-    if base not in BASES:
-        raise ValueError(f"learned.init: base {base!r} is not one of {list(BASES)}")
+    try:
+        base = Base(base)
+    except ValueError:
+        raise ValueError(f"learned.init: base {base!r} is not one of {[b.value for b in Base]}") from None
     example = Features(pair=jnp.zeros((2, 3, PAIR_FEATURES)), live=jnp.ones(3, bool),
                        candidate=jnp.zeros((2, CANDIDATE_FEATURES)))
     weights = ViewScorer(hidden).init(key, example)
-    if BASES[base] is None:
+    if base.feature is None:
         return weights
     params = dict(weights["params"])
     params["score"] = jax.tree.map(jnp.zeros_like, params["score"])
-    params["skip"] = {"kernel": jnp.zeros((CANDIDATE_FEATURES, 1)).at[BASES[base], 0].set(1.0)}
+    params["skip"] = {"kernel": jnp.zeros((CANDIDATE_FEATURES, 1)).at[base.feature, 0].set(1.0)}
     return {**weights, "params": params}
 
 

@@ -9,7 +9,7 @@ from jaxcls.config import bounded, check_bounds, load_config, resolve_config
 from jaxcls.episode.protocol import Label
 from jaxcls.experiments.policy.ppo import PPOConfig
 from jaxcls.experiments.table1.config import SceneSource, Table1Config
-from jaxcls.planning.learned import BASES
+from jaxcls.planning.learned import Base
 
 
 @dataclasses.dataclass(frozen=True)
@@ -40,7 +40,7 @@ class PolicyConfig:
     batch: int = bounded(64, ge=1)
     learning_rate: float = bounded(1e-3, gt=0.0)
     hidden: int = bounded(64, ge=1)  # the network's width (``learned.ViewScorer``)
-    base: str = "info_gain"  # the hand-made policy the network starts as (``learned.BASES``; "none": random)
+    base: Base = Base.info_gain  # the hand-made policy the network starts as exactly (none: a random network)
     # A candidate's label: its true F1 after its move (greedy: the oracle row's), or at T with ``base`` taking the
     # moves after it (rollout: one step of policy improvement over ``base``; ``base`` must name a policy).
     label: Label = Label.greedy
@@ -51,11 +51,9 @@ class PolicyConfig:
 
     def __post_init__(self) -> None:
         check_bounds(self)
-        if self.base not in BASES:
-            raise ValueError(f"base: {self.base!r} is not one of {list(BASES)}")
-        if self.label is Label.rollout and BASES[self.base] is None:
-            raise ValueError("label: rollout continues each candidate with the base policy; base is 'none' "
-                             f"(choose one of {[b for b in BASES if BASES[b] is not None]})")
+        if self.label is Label.rollout and self.base is Base.none:
+            raise ValueError("label: rollout continues each candidate with the base policy; base is none "
+                             f"(choose one of {[b.value for b in Base if b is not Base.none]})")
 
     def table1_config(self) -> Table1Config:
         """The Table 1 config (its own scenes: the held-out ones)."""

@@ -189,7 +189,7 @@ def train(config: PolicyConfig, show_progress: bool = True) -> Path:
     oracle = runner.episode(held_out_config, protocol.ROWS["oracle_gr"], classifier, object_set, first.intrinsics,
                             first.scenes[0].table_height, dataset.scene.split)
     if config.label is protocol.Label.rollout:  # (the labels' continuations: the base policy's moves)
-        oracle = oracle.replace(config=dataclasses.replace(oracle.config, policy=nbv.PolicyName(config.base)))
+        oracle = oracle.replace(config=dataclasses.replace(oracle.config, policy=nbv.PolicyName(config.base.value)))
 
     weights = learned.init(jax.random.key(config.seed), config.hidden, config.base)
     optimizer = optax.adam(config.learning_rate)
@@ -252,7 +252,7 @@ def train(config: PolicyConfig, show_progress: bool = True) -> Path:
     manager.wait_until_finished()
     viz.save(viz.policy_curve(history), out / "curve.png")
     learned.save(out / "policy.msgpack", weights, held_out_config.nbv.max_candidates, {
-        "trained_by": "jaxcls train-policy", "table1": config.table1, "classifier": name, "base": config.base,
+        "trained_by": "jaxcls train-policy", "table1": config.table1, "classifier": name, "base": config.base.value,
         "rounds": sum("round" in h for h in history), "ppo_updates": sum("update" in h for h in history),
         "held_out": next(({k: v for k, v in h.items() if k.startswith(("f1_", "learned_"))} for h in reversed(history)
                           if "f1_learned" in h), {})})
