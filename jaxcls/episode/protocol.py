@@ -108,7 +108,7 @@ ROWS: dict[str, Row] = {
                                      library="category"),
     "oracle_gr": Row("OracleGR", Kind.ORACLE),
     # The oracle one step ahead of InfoGain: each candidate scored by its F1 at T with InfoGain making the moves
-    # after it (``Label.rollout``; what ``train-policy label=rollout`` imitates).
+    # after it (``Label.rollout``; what ``train-policy labels=rollout`` imitates).
     "oracle_rollout_gr": Row("OracleRolloutGR", Kind.ORACLE, "info_gain", scored_by=Label.rollout),
 }
 PAPER_ROWS = tuple(ROWS)[:12]

@@ -43,7 +43,7 @@ class PolicyConfig:
     base: Base = Base.info_gain  # the hand-made policy the network starts as exactly (none: a random network)
     # A candidate's label: its true F1 after its move (greedy: the oracle row's), or at T with ``base`` taking the
     # moves after it (rollout: one step of policy improvement over ``base``; ``base`` must name a policy).
-    label: Label = Label.greedy
+    labels: Label = Label.greedy
     temperature: float = bounded(0.02, gt=0.0)  # the target: softmax((F1 - best F1) / temperature) over the choices
     seed: int = 0  # starts, keys, the network's initialisation, the batches, the DAgger draws
     # Then reinforcement: PPO updates from the imitated policy, on the training scenes (``ppo.updates``: 0, none).
@@ -51,8 +51,8 @@ class PolicyConfig:
 
     def __post_init__(self) -> None:
         check_bounds(self)
-        if self.label is Label.rollout and self.base is Base.none:
-            raise ValueError("label: rollout continues each candidate with the base policy; base is none "
+        if self.labels is Label.rollout and self.base is Base.none:
+            raise ValueError("labels: rollout continues each candidate with the base policy; base is none "
                              f"(choose one of {[b.value for b in Base if b is not Base.none]})")
 
     def table1_config(self) -> Table1Config:

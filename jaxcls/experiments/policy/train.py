@@ -188,7 +188,7 @@ def train(config: PolicyConfig, show_progress: bool = True) -> Path:
     first = training.frames()[0][1]
     oracle = runner.episode(held_out_config, protocol.ROWS["oracle_gr"], classifier, object_set, first.intrinsics,
                             first.scenes[0].table_height, dataset.scene.split)
-    if config.label is protocol.Label.rollout:  # (the labels' continuations: the base policy's moves)
+    if config.labels is protocol.Label.rollout:  # (the labels' continuations: the base policy's moves)
         oracle = oracle.replace(config=dataclasses.replace(oracle.config, policy=nbv.PolicyName(config.base.value)))
 
     weights = learned.init(jax.random.key(config.seed), config.hidden, config.base)
@@ -224,7 +224,7 @@ def train(config: PolicyConfig, show_progress: bool = True) -> Path:
                 at, starts, keys = _runs(config.seed + 7919 * (r + 1), scenes, config.runs, chunk.T_wc.shape[1])
                 parts.append(collect(oracle, chunk.depth, chunk.T_wc, at, starts, keys, [truths[a] for a in at],
                                      weights if r else None, follow, rng, runner.oracle_call_size(training_config),
-                                     config.label))
+                                     config.labels))
             collected = Decisions.concatenate(parts)
             collected.save(kept)
             seconds["collect"] = time.perf_counter() - began

@@ -11,6 +11,7 @@ import numpy as np
 from jaxcls import metrics
 from jaxcls.episode import protocol
 from jaxcls.experiments.table1.config import Table1Config
+from jaxcls.planning import nbv
 
 STATISTICS = ("accuracy", "precision", "recall", "f1")
 
@@ -78,7 +79,7 @@ def differences(config: Table1Config, by: dict, c: str, classes: int,
         return max(names, key=lambda n: metrics.classification_scores(
             *map(np.concatenate, zip(*scenes_of(n, T), strict=True)), classes).f1)
 
-    hand_made = [n for n in policies if protocol.ROWS[n].policy != "learned"]
+    hand_made = [n for n in policies if nbv.PolicyName(protocol.ROWS[n].policy) is not nbv.PolicyName.learned]
     for oracle in ("oracle_gr", "oracle_rollout_gr"):
         if oracle in present and policies:
             pairs.append(("Oracle against the best policy: ", oracle, best_of(policies), T, T))
