@@ -134,6 +134,9 @@ def policy_curve(history: list[dict]) -> Figure:
             label="learned (GR)")
     ax.plot([h["round"] for h in rounds], [h["f1_vis_occl_hist"] for h in rounds], color="0.4", ls="--",
             label="VisOcclHistGR")
+    if all("f1_info_gain" in h for h in rounds):
+        ax.plot([h["round"] for h in rounds], [h["f1_info_gain"] for h in rounds], color="C2", ls=":",
+                label="InfoGainGR")
     ax.set(xlabel="round", ylabel="held-out macro F1 after the last move")
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.legend(fontsize=8)
@@ -146,6 +149,9 @@ def policy_curve(history: list[dict]) -> Figure:
                 label="learned, held-out")
         ax.plot([h["update"] for h in evaluated], [h["f1_vis_occl_hist"] for h in evaluated], color="0.4", ls="--",
                 label="VisOcclHistGR, held-out")
+        if all("f1_info_gain" in h for h in evaluated):
+            ax.plot([h["update"] for h in evaluated], [h["f1_info_gain"] for h in evaluated], color="C2", ls=":",
+                    label="InfoGainGR, held-out")
         ax.set(xlabel="PPO update", ylabel="macro F1 after the last move")
         ax.legend(fontsize=8)
     figure.tight_layout()

@@ -93,7 +93,8 @@ def test_training_runs_resumes_bit_for_bit_and_writes_a_policy_the_episode_loads
     for h in history[:2]:
         assert 0 <= h["regret"] <= 1 and 0 <= h["agreement"] <= 1 and np.isfinite(h["loss"])
         assert 0 <= h["f1_learned"] <= 1 and 0 <= h["f1_vis_occl_hist"] <= 1
-        assert len(h["learned_minus_vis_occl_hist"]) == 3
+        assert len(h["learned_minus_vis_occl_hist"]) == 3 and len(h["learned_minus_info_gain"]) == 3
+        assert 0 <= h["f1_info_gain"] <= 1
     weights, info = learned.load(whole / "policy.msgpack", 4)
     assert info.hidden == 8 and info.metadata["rounds"] == 2 and info.metadata["ppo_updates"] == 1
     assert (whole / "curve.png").is_file()

@@ -20,7 +20,7 @@ class PolicyConfig:
     every candidate at every move and labels it with its true F1; the runs go where the oracle goes with
     probability ``beta ** round`` (round 0: always), else where the network goes. The network is fitted on every
     round's decisions so far, then evaluated on ``eval_scenes`` held-out scenes (the Table 1 config's first
-    scenes) against VisOcclHistGR, with GR on.
+    scenes) against VisOcclHistGR and InfoGainGR, with GR on.
     """
 
     out_dir: str = "runs/policy"

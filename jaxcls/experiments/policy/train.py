@@ -5,8 +5,8 @@ segmented, classified, refined and scored by its true F1), each run following th
 (``data.collect``); the network is fitted on every round's decisions so far with a listwise loss, minus the log of
 the expected exp((F1 - best F1) / temperature) under its softmax over the allowed candidates (``loss``: 0 where
 every candidate ties, so the network keeps its own order where the oracle sees no difference: the hand-made
-policy it starts from, ``learned.init``'s ``base``); then it is evaluated on held-out scenes against VisOcclHistGR,
-both in one switched program (``evaluate``). A round ends with an orbax checkpoint (the weights and the
+policy it starts from, ``learned.init``'s ``base``); then it is evaluated on held-out scenes against VisOcclHistGR
+and InfoGainGR, all in one switched program (``evaluate``). A round ends with an orbax checkpoint (the weights and the
 optimiser's state) and ``metrics.json``; a run started again resumes after its last finished round, a round's
 decisions kept on disk (``decisions_<r>.npz``) so that an interrupted round does not collect them again. A
 round's ``seconds`` in ``metrics.json``: collecting (with ``states_per_second``, the states the oracle stepped to
@@ -43,7 +43,7 @@ from jaxcls.experiments.table1.data import Scenes, open_scenes
 from jaxcls.planning import learned, nbv
 from jaxcls.world.objects import object_set_from_config
 
-COMPARED = ("vis_occl_hist", "learned")  # the held-out evaluation's policies (GR on), one switched program
+COMPARED = ("vis_occl_hist", "info_gain", "learned")  # the held-out evaluation's policies (GR on), one program
 
 
 def loss(weights: dict, x: learned.Features, f1: jax.Array, allowed: jax.Array, temperature: float
@@ -133,8 +133,9 @@ def _runs(seed: int, scenes: list[int], runs: int, views: int) -> tuple[np.ndarr
 def evaluate(switched: active.Episode, weights: dict, held_out: _Scenes, runs: int, seed: int,
              moves: int) -> dict[str, Any]:
     """Macro F1 of the target objects after the last move on the held-out scenes (their first ``runs`` runs, Table
-    1's starts and keys), VisOcclHistGR and the learned policy in one switched program, GR on; the paired
-    difference learned - VisOcclHist with its scene-bootstrap interval."""
+    1's starts and keys), VisOcclHistGR, InfoGainGR (the best hand-made policy in Table 1, the default ``base``)
+    and the learned policy in one switched program, GR on; the paired differences learned - each of the two with
+    their scene-bootstrap intervals."""
     switched = switched.replace(policy_weights=weights)
     records: dict[str, list] = {p: [] for p in COMPARED}
     for scenes, chunk, truths in held_out.frames():
@@ -146,8 +147,9 @@ def evaluate(switched: active.Episode, weights: dict, held_out: _Scenes, runs: i
     classes = len(switched.spec.classifier.classes)
     per = {p: protocol.per_scene(records[p], moves) for p in COMPARED}
     out: dict[str, Any] = {f"f1_{p}": metrics.scene_interval(per[p], classes, resamples=200)[0] for p in COMPARED}
-    out["learned_minus_vis_occl_hist"] = list(metrics.paired_difference(per["learned"], per["vis_occl_hist"], classes,
-                                                                        resamples=200))
+    for other in COMPARED[:-1]:
+        out[f"learned_minus_{other}"] = list(metrics.paired_difference(per["learned"], per[other], classes,
+                                                                       resamples=200))
     return out
 
 
@@ -242,7 +244,7 @@ def train(config: PolicyConfig, show_progress: bool = True) -> Path:
         io.write_json(out / "metrics.json", {"table1": config.table1, "classifier": name, "history": history})
         manager.save(r + 1, args=ocp.args.StandardSave({"weights": weights, "opt_state": opt_state}))
         bar.set_postfix(loss=f"{fitted['loss']:.3f}", regret=f"{fitted['regret']:.3f}",
-                        learned=f"{scores['f1_learned']:.3f}", vis_occl_hist=f"{scores['f1_vis_occl_hist']:.3f}")
+                        learned=f"{scores['f1_learned']:.3f}", info_gain=f"{scores['f1_info_gain']:.3f}")
     if config.ppo.updates:
         if start <= config.rounds:  # (the imitated policy, a fresh critic and optimiser)
             params = {"actor": weights, "critic": params["critic"]}
