@@ -111,11 +111,21 @@ def training_curve(history: list[dict]) -> Figure:
     return figure
 
 
+def _held_out_f1(ax, step: str, entries: list[dict], suffix: str) -> None:
+    """The held-out F1 of the learned policy and of the hand-made ones evaluated beside it, against ``step``."""
+    x = [h[step] for h in entries]
+    for key, label, style in (("f1_learned", "learned (GR)", {"color": "C0", "marker": "o"}),
+                              ("f1_vis_occl_hist", "VisOcclHistGR", {"color": "0.4", "ls": "--"}),
+                              ("f1_info_gain", "InfoGainGR", {"color": "C2", "ls": ":"})):
+        if entries and all(key in h for h in entries):  # (runs before InfoGainGR was evaluated have none)
+            ax.plot(x, [h[key] for h in entries], label=label + suffix, **style)
+
+
 def policy_curve(history: list[dict]) -> Figure:
     """A learned view policy's training (``jaxcls train-policy``'s ``metrics.json`` history): against the imitation
     round, the loss and the regret (true F1 given up at a decision) and the held-out macro F1 of the learned policy and
-    of VisOcclHistGR; against the PPO update (where there are any), the rollouts' mean F1 after the last move and the
-    held-out F1 where it was evaluated."""
+    of the hand-made ones evaluated beside it; against the PPO update (where there are any), the rollouts' mean F1
+    after the last move and the held-out F1 where it was evaluated."""
     rounds = [h for h in history if "round" in h]
     updates = [h for h in history if "update" in h]
     figure = Figure(figsize=(15 if updates else 10, 4))
@@ -130,13 +140,7 @@ def policy_curve(history: list[dict]) -> Figure:
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.legend(fontsize=8, loc="upper right")
     ax = figure.add_subplot(1, panels, 2)
-    ax.plot([h["round"] for h in rounds], [h["f1_learned"] for h in rounds], color="C0", marker="o",
-            label="learned (GR)")
-    ax.plot([h["round"] for h in rounds], [h["f1_vis_occl_hist"] for h in rounds], color="0.4", ls="--",
-            label="VisOcclHistGR")
-    if all("f1_info_gain" in h for h in rounds):
-        ax.plot([h["round"] for h in rounds], [h["f1_info_gain"] for h in rounds], color="C2", ls=":",
-                label="InfoGainGR")
+    _held_out_f1(ax, "round", rounds, "")
     ax.set(xlabel="round", ylabel="held-out macro F1 after the last move")
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.legend(fontsize=8)
@@ -144,14 +148,7 @@ def policy_curve(history: list[dict]) -> Figure:
         ax = figure.add_subplot(1, panels, 3)
         ax.plot([h["update"] for h in updates], [h["f1_last"] for h in updates], color="k", lw=1,
                 label="rollouts (sampled), training scenes")
-        evaluated = [h for h in updates if "f1_learned" in h]
-        ax.plot([h["update"] for h in evaluated], [h["f1_learned"] for h in evaluated], color="C0", marker="o",
-                label="learned, held-out")
-        ax.plot([h["update"] for h in evaluated], [h["f1_vis_occl_hist"] for h in evaluated], color="0.4", ls="--",
-                label="VisOcclHistGR, held-out")
-        if all("f1_info_gain" in h for h in evaluated):
-            ax.plot([h["update"] for h in evaluated], [h["f1_info_gain"] for h in evaluated], color="C2", ls=":",
-                    label="InfoGainGR, held-out")
+        _held_out_f1(ax, "update", [h for h in updates if "f1_learned" in h], ", held-out")
         ax.set(xlabel="PPO update", ylabel="macro F1 after the last move")
         ax.legend(fontsize=8)
     figure.tight_layout()
