@@ -429,6 +429,28 @@ def paired_difference(per_scene_a: Sequence[tuple[np.ndarray, np.ndarray]],
                      len(a), confidence, resamples, seed)
 
 
+SHARE_UNDEFINED = 1e6  # ``share_of_gap`` where the oracle ties the base
+
+
+def share_of_gap(policy: Sequence[tuple[np.ndarray, np.ndarray]], base: Sequence[tuple[np.ndarray, np.ndarray]],
+                 oracle: Sequence[tuple[np.ndarray, np.ndarray]], num_classes: int, statistic: str = "f1",
+                 confidence: float = 0.95, resamples: int = 2000, seed: int = 0) -> tuple[float, float, float]:
+    """(estimate, low, high) of (s(policy) - s(base)) / (s(oracle) - s(base)): the share of the oracle's lead over
+    ``base`` that ``policy`` closes (1: all of it, 0: none, below 0: worse than ``base``), for three label sets of
+    the same scenes, with a scene bootstrap (each resample draws scenes and scores all three on them). A resample
+    where the oracle ties ``base`` has the share +-``SHARE_UNDEFINED`` (0 where ``policy`` ties them too), so
+    that the interval says the share is not defined there rather than hiding it."""
+    cms = _stacked_confusions([policy, base, oracle], num_classes, "share_of_gap")
+
+    def share(picks):
+        s = confusion_scores(_resampled_sum(cms, picks))[statistic]  # [..., 3]: policy, base, oracle
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = (s[..., 0] - s[..., 1]) / (s[..., 2] - s[..., 1])
+        return np.clip(np.nan_to_num(ratio, nan=0.0), -SHARE_UNDEFINED, SHARE_UNDEFINED)
+
+    return _interval(share, len(cms), confidence, resamples, seed)
+
+
 def format_difference(estimate: float, low: float, high: float) -> str:
     """``"+0.012 [-0.004, +0.031]"``: a paired difference and its interval at three decimals; a bound that is
     not 0 but rounds to it gets two significant digits (``+2.1e-04``), so that a reader can check on which

@@ -131,14 +131,13 @@ def policy_curve(history: list[dict]) -> Figure:
     figure = Figure(figsize=(15 if updates else 10, 4))
     panels = 3 if updates else 2
     ax = figure.add_subplot(1, panels, 1)
-    ax.plot([h["round"] for h in rounds], [h["loss"] for h in rounds], color="k", lw=1, marker="o",
-            label="imitation loss")
-    ax.set(xlabel="round", ylabel="loss (nats)")
+    ax.plot([h["round"] for h in rounds], [h["loss"] for h in rounds], color="k", lw=1, marker="o")
+    ax.set(xlabel="round", ylabel="imitation loss (nats, black)")
+    ax.set_title("on every decision so far (the round's training data)", fontsize=9)
     regret = ax.twinx()
     regret.plot([h["round"] for h in rounds], [h["regret"] for h in rounds], color="C3", lw=1, marker="s")
     regret.set(ylabel="regret: F1 given up a decision (red)")
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-    ax.legend(fontsize=8, loc="upper right")
     ax = figure.add_subplot(1, panels, 2)
     _held_out_f1(ax, "round", rounds, "")
     ax.set(xlabel="round", ylabel="held-out macro F1 after the last move")

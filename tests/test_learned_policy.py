@@ -13,7 +13,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxcls.config import load_config, resolve_config
 from jaxcls.episode import active, batched, protocol, setup
+from jaxcls.experiments.policy.config import PolicyConfig
 from jaxcls.geometry import CameraConfig
 from jaxcls.perception.settings import PerceptionConfig, ShapeConfig
 from jaxcls.perception.tracking import TrackingConfig
@@ -227,15 +229,20 @@ def test_a_weights_file_of_other_shapes_layout_or_candidate_count_is_refused(tmp
         learned.load(tmp_path / "missing.msgpack", 32)
 
 
-def test_the_shipped_policy_loads_for_the_moves_planner_and_starts_from_infogain():
-    """``real_like`` (``jaxcls train-policy --config policy_real_like``): this layout, the move's candidate
-    count (``setup.episode_nbv``), trained from InfoGain; loaded by name where a run names it."""
-    weights, info = learned.load("real_like", setup.episode_nbv().max_candidates)
-    assert info.features == learned.FEATURES_VERSION and info.metadata["base"] == "info_gain"
-    assert info.metadata["table1"] == "table1_real_like_scale" and info.metadata["rounds"] >= 1
-    assert weights["params"]["skip"]["kernel"].shape == (learned.CANDIDATE_FEATURES, 1)
-    named = setup.policy_weights(dataclasses.replace(setup.episode_nbv(), learned=nbv.Learned(weights="real_like")))
-    assert jax.tree.all(jax.tree.map(lambda a, b: bool(np.array_equal(a, b)), named, weights))
+def test_the_shipped_policies_load_for_the_moves_planner_and_start_from_infogain():
+    """``real_like`` and ``real_like_paper`` (``jaxcls train-policy --config policy_NAME``): this layout, the
+    move's candidate count (``setup.episode_nbv``), trained from InfoGain for their config's classifier and
+    labels; loaded by name where a run names them."""
+    for name, classifier in (("real_like", "shipped"), ("real_like_paper", "paper")):
+        weights, info = learned.load(name, setup.episode_nbv().max_candidates)
+        assert info.features == learned.FEATURES_VERSION and info.metadata["base"] == "info_gain"
+        assert info.metadata["table1"] == "table1_real_like_scale" and info.metadata["rounds"] >= 1
+        config = load_config(PolicyConfig, resolve_config(f"policy_{name}"))
+        assert info.metadata["classifier"] == config.classifier == classifier
+        assert info.metadata["labels"] == config.labels.value
+        assert weights["params"]["skip"]["kernel"].shape == (learned.CANDIDATE_FEATURES, 1)
+        named = setup.policy_weights(dataclasses.replace(setup.episode_nbv(), learned=nbv.Learned(weights=name)))
+        assert jax.tree.all(jax.tree.map(lambda a, b: bool(np.array_equal(a, b)), named, weights))
 
 
 def test_a_table1_row_of_the_learned_policy_needs_its_weights_named():

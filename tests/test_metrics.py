@@ -287,6 +287,30 @@ def test_several_intervals_in_one_bootstrap_equal_each_alone():
         metrics.scene_intervals([sets[0], sets[1][:39]], 4)
 
 
+def test_the_share_of_the_oracles_lead_is_the_ratio_of_pooled_f1s_and_undefined_where_the_oracle_ties():
+    """``share_of_gap`` (Table 1: how much of the oracle's lead over the best hand-made policy the learned one
+    closes): the ratio of the pooled F1 differences, an interval around it; 1 for the oracle itself and 0 for the
+    base in every resample; +-``SHARE_UNDEFINED`` where the oracle ties the base."""
+    rng = np.random.default_rng(3)
+    truth = [rng.integers(0, 4, 5) for _ in range(30)]
+
+    def labels(error):
+        return [(t, np.where(rng.random(5) < error, rng.integers(0, 4, 5), t)) for t in truth]
+
+    def f1(x):
+        return metrics.classification_scores(*map(np.concatenate, zip(*x, strict=True)), 4).f1
+
+    policy, base, oracle = labels(0.3), labels(0.5), labels(0.1)
+    share, low, high = metrics.share_of_gap(policy, base, oracle, 4, resamples=300)
+    assert share == pytest.approx((f1(policy) - f1(base)) / (f1(oracle) - f1(base)), rel=1e-12)
+    assert low < share < high and 0 < share < 1
+    assert metrics.share_of_gap(oracle, base, oracle, 4, resamples=300) == pytest.approx((1, 1, 1))
+    assert metrics.share_of_gap(base, base, oracle, 4, resamples=300) == (0, 0, 0)
+    assert metrics.share_of_gap(policy, base, base, 4, resamples=300)[0] == metrics.SHARE_UNDEFINED  # (above base)
+    with pytest.raises(ValueError, match=r"share_of_gap: .*\[29, 30\] scenes"):
+        metrics.share_of_gap(policy, base[:29], oracle, 4)
+
+
 def test_scene_pooling_and_confusions_equal_the_plain_loops():
     """``protocol.per_scene`` pools each scene's runs (scenes ascending, runs in the records' order, an episode
     of fewer moves counted with its last) and ``_scene_confusions`` counts them in one bincount: both equal the

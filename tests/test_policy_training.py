@@ -97,6 +97,7 @@ def test_training_runs_resumes_bit_for_bit_and_writes_a_policy_the_episode_loads
         assert 0 <= h["f1_info_gain"] <= 1
     weights, info = learned.load(whole / "policy.msgpack", 4)
     assert info.hidden == 8 and info.metadata["rounds"] == 2 and info.metadata["ppo_updates"] == 1
+    assert info.metadata["labels"] == "greedy" and info.metadata["base"] == "info_gain"
     assert (whole / "curve.png").is_file()
     # Stopped after round 1, then run again to 2 rounds and the update: the same decisions, figures and weights, bit
     # for bit.

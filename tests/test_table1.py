@@ -705,6 +705,33 @@ def test_the_learned_row_is_paired_with_the_best_hand_made_policy_and_the_oracle
     against = "The learned policy against the best hand-made one: LearnedGR - InfoGainGR"
     assert f"{against}: {learned - 1:+.3f} [" in markdown
     assert f"Oracle against the learned policy: OracleGR - LearnedGR: {1 - learned:+.3f} [" in markdown
+    # The share of the oracle's lead the learned policy closes: none to close here (the oracle ties InfoGainGR).
+    assert ("The share of the oracle's lead the learned policy closes: (LearnedGR - InfoGainGR) / (OracleGR - "
+            "InfoGainGR) on the 2 scenes of all three: -inf [-inf, -inf]") in markdown
+
+
+def test_tables_only_reads_the_archived_episodes_and_refuses_a_folder_without_any(table1, tmp_path, capsys):
+    """``--tables-only`` on a results folder, which keeps its episodes as ``episodes.jsonl.xz``: the tables of
+    those; on a folder with no episodes of the config, a clear error, and no table written over the one there."""
+    import lzma
+
+    out = tmp_path / "run"
+    out.mkdir()
+    config = tmp_path / "table1.yaml"
+    config.write_text(f"out_dir: {out}\ndataset: synthetic\nruns: 1\nmoves: 2\nrows: [vis_occl_hist_gr]\n"
+                      "classifiers: {c: ''}\nresamples: 100\n")
+    (out / "table.md").write_text("kept")
+    with pytest.raises(SystemExit):
+        table1.main(["--config", str(config), "--tables-only"])
+    assert "no episodes of this config's rows and classifiers" in capsys.readouterr().err
+    assert (out / "table.md").read_text() == "kept"
+    records = [_record("vis_occl_hist_gr", s, 0, [0, 1, 2], [[0, 1, 2], [0, 1, 1]]) for s in (0, 1)]
+    with lzma.open(out / "episodes.jsonl.xz", "wt") as f:
+        f.writelines(json.dumps(r) + "\n" for r in records)
+    table1.main(["--config", str(config), "--tables-only"])
+    line = next(x for x in (out / "table.md").read_text().splitlines() if x.startswith("| VisOcclHistGR |"))
+    want = metrics.classification_scores(np.array([0, 1, 2] * 2), np.array([0, 1, 1] * 2), 4)
+    assert f"| {want.f1:.3f} |" in line and not (out / "episodes.jsonl").exists()
 
 
 def test_rows_tabulated_while_the_oracle_runs_are_those_tabulated_at_the_end():

@@ -52,8 +52,10 @@ INFO_GAIN = 8  # the candidate feature that is InfoGain's utility
 FEATURES_VERSION = 2  # the layout above (1: no InfoGain feature, no skip term); weights of another are refused
 KIND = "jaxcls view policy"
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
-# name -> shipped .msgpack: ``jaxcls train-policy --config policy_real_like`` (RESULTS.md, "The learned view policy")
-SHIPPED_WEIGHTS: dict[str, Path] = {"real_like": WEIGHTS_DIR / "learned_real_like.msgpack"}
+# name -> shipped .msgpack (RESULTS.md, "The learned view policy"): ``jaxcls train-policy --config NAME`` with
+# policy_NAME; real_like for the shipped classifier, real_like_paper for the paper-recipe one (rollout labels).
+SHIPPED_WEIGHTS: dict[str, Path] = {name: WEIGHTS_DIR / f"learned_{name}.msgpack"
+                                    for name in ("real_like", "real_like_paper")}
 
 
 class Base(enum.Enum):

@@ -255,7 +255,8 @@ def train(config: PolicyConfig, show_progress: bool = True) -> Path:
     viz.save(viz.policy_curve(history), out / "curve.png")
     learned.save(out / "policy.msgpack", weights, held_out_config.nbv.max_candidates, {
         "trained_by": "jaxcls train-policy", "table1": config.table1, "classifier": name, "base": config.base.value,
-        "rounds": sum("round" in h for h in history), "ppo_updates": sum("update" in h for h in history),
+        "labels": config.labels.value, "rounds": sum("round" in h for h in history),
+        "ppo_updates": sum("update" in h for h in history),
         "held_out": next(({k: v for k, v in h.items() if k.startswith(("f1_", "learned_"))} for h in reversed(history)
                           if "f1_learned" in h), {})})
     return out

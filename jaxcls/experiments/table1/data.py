@@ -46,6 +46,12 @@ def store_paths(store: Path) -> list[Path]:
     return [store, *sorted(store.parent.glob(f"{store.stem}.*{store.suffix}"))]
 
 
+def kept_store(store: Path) -> Path:
+    """``store``, or its archive ``store.xz`` where only that is kept (``results/`` keeps a run's episodes so)."""
+    archive = store.with_name(store.name + ".xz")
+    return archive if not store.exists() and archive.exists() else store
+
+
 def stored_records(config: Table1Config, store: Path) -> list[dict[str, Any]]:
     """The stored episodes (every process's, ``read_stores``) of this config (``of_config``)."""
     return of_config(config, read_stores(store))

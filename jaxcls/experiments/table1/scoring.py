@@ -40,11 +40,12 @@ def differences(config: Table1Config, by: dict, c: str, classes: int,
     """Paired scene-bootstrap differences of F1 at T: GR against none per pair; every policy against
     PointNetSingle; VisOcclHist(GR) against Random(GR); every policy against VisOcclHistGR; the oracle
     against the best policy; the learned policy against the best hand-made one, and the oracle against it (the
-    pairs of the rows ``by`` has). ``by``: (classifier, row) -> that row's records;
-    ``labels``: row -> its ``protocol.scene_labels`` where the caller has them. ``made``: the differences made
-    before of the same records (e.g. while the oracle still ran, ``tables.EarlyRows``), keyed by (classifier, row
-    a, row b, a's move, b's move, the scenes paired): used where present, and given those made here (a pair's
-    interval does not depend on the pairs bootstrapped beside it: ``metrics.paired_differences``)."""
+    pairs of the rows ``by`` has); then the share of each oracle's lead over the best hand-made policy that the
+    learned one closes (``metrics.share_of_gap``, on the scenes of all three). ``by``: (classifier, row) -> that
+    row's records; ``labels``: row -> its ``protocol.scene_labels`` where the caller has them. ``made``: the
+    differences made before of the same records (e.g. while the oracle still ran, ``tables.EarlyRows``), keyed by
+    (classifier, row a, row b, a's move, b's move, the scenes paired): used where present, and given those made
+    here (a pair's interval does not depend on the pairs bootstrapped beside it: ``metrics.paired_differences``)."""
     T = config.moves
     prepared: dict[tuple[str, frozenset | None], protocol.SceneLabels] = {
         (name, None): lab for name, lab in (labels or {}).items()}
@@ -80,13 +81,13 @@ def differences(config: Table1Config, by: dict, c: str, classes: int,
             *map(np.concatenate, zip(*scenes_of(n, T), strict=True)), classes).f1)
 
     hand_made = [n for n in policies if nbv.PolicyName(protocol.ROWS[n].policy) is not nbv.PolicyName.learned]
-    for oracle in ("oracle_gr", "oracle_rollout_gr"):
-        if oracle in present and policies:
-            pairs.append(("Oracle against the best policy: ", oracle, best_of(policies), T, T))
-    if "learned_gr" in present and hand_made:  # (issue 37: half the gap best hand-made -> oracle)
-        pairs.append(("The learned policy against the best hand-made one: ", "learned_gr", best_of(hand_made), T, T))
-        if "oracle_gr" in present:
-            pairs.append(("Oracle against the learned policy: ", "oracle_gr", "learned_gr", T, T))
+    oracles = [n for n in ("oracle_gr", "oracle_rollout_gr") if n in present] if policies else []
+    pairs += [("Oracle against the best policy: ", o, best_of(policies), T, T) for o in oracles]
+    best_hand_made = best_of(hand_made) if "learned_gr" in present and hand_made else None
+    if best_hand_made:  # (issue 37: half the gap best hand-made -> oracle)
+        pairs.append(("The learned policy against the best hand-made one: ", "learned_gr", best_hand_made, T, T))
+        if best_of(policies) != "learned_gr":  # (else the oracle against the best policy is that pair)
+            pairs += [("Oracle against the learned policy: ", o, "learned_gr", T, T) for o in oracles]
     # Paired on the scenes both rows have (the oracle runs on fewer; an interrupted run may have more); the pairs of
     # one scene set in one bootstrap (``metrics.paired_differences``: the bounds each alone would get).
     shared = [frozenset({r["scene"] for r in by[c, a]} & {r["scene"] for r in by[c, b]}) for _, a, b, _, _ in pairs]
@@ -105,4 +106,17 @@ def differences(config: Table1Config, by: dict, c: str, classes: int,
         sig = "" if lo <= 0 <= hi else " (the interval excludes 0)"
         notes.append(f"{prefix}{protocol.ROWS[a].label} - {protocol.ROWS[b].label}: "
                      f"{metrics.format_difference(d, lo, hi)}{sig}")
+    for o in oracles if best_hand_made else ():  # the share of the oracle's lead the learned policy closes
+        three = ("learned_gr", best_hand_made, o)
+        scenes = set.intersection(*({r["scene"] for r in by[c, n]} for n in three))
+        share = metrics.share_of_gap(*(scenes_of(n, T, scenes) for n in three), classes, resamples=config.resamples)
+        a, b = protocol.ROWS[best_hand_made].label, protocol.ROWS[o].label
+        notes.append(f"The share of the oracle's lead the learned policy closes: (LearnedGR - {a}) / ({b} - {a}) "
+                     f"on the {len(scenes)} scenes of all three: {_share(share[0])} [{_share(share[1])}, "
+                     f"{_share(share[2])}]")
     return notes
+
+
+def _share(x: float) -> str:
+    """A share at two decimals; +-inf where the oracle ties the base (``metrics.SHARE_UNDEFINED``)."""
+    return f"{x:+.2f}" if abs(x) < metrics.SHARE_UNDEFINED else ("+inf" if x > 0 else "-inf")
