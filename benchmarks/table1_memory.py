@@ -50,7 +50,7 @@ def main(argv: list[str] | None = None) -> None:
 
     def episode(row: str) -> active.Episode:
         return runner.episode(config, protocol.ROWS[row], classifier, object_set, intrinsics,
-                              dataset.scene.table_height, dataset.scene.split)
+                              dataset.scene.table_height, dataset.scene.split, name="any")
 
     S, V = 4, 100
     frames = jax.ShapeDtypeStruct((S, V, intrinsics.height, intrinsics.width), jnp.float32)

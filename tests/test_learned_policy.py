@@ -245,7 +245,8 @@ def test_the_shipped_policies_load_for_the_moves_planner_and_start_from_infogain
         assert jax.tree.all(jax.tree.map(lambda a, b: bool(np.array_equal(a, b)), named, weights))
 
 
-def test_a_table1_row_of_the_learned_policy_needs_its_weights_named():
+def test_a_table1_row_of_the_learned_policy_needs_its_weights_named_per_classifier_where_they_differ():
+    from jaxcls.experiments.table1 import runner
     from jaxcls.experiments.table1.config import Table1Config
 
     with pytest.raises(ValueError, match="rows: learned_gr runs the learned policy; name its weights"):
@@ -253,3 +254,18 @@ def test_a_table1_row_of_the_learned_policy_needs_its_weights_named():
     named = Table1Config(rows=("learned_gr",), classifiers={"shipped": ""},
                          nbv=dataclasses.replace(nbv.NBVConfig(), learned=nbv.Learned(weights="runs/p/policy.msgpack")))
     assert protocol.ROWS[named.rows[0]].policy == "learned"
+    # A policy per classifier (``learned_weights``), each classifier's episodes with its own; one missing is named.
+    both = {"shipped": "", "paper": "builtin_paper"}
+    with pytest.raises(ValueError, match=r"none for \['shipped'\]"):
+        Table1Config(rows=("learned_gr",), classifiers=both, learned_weights={"paper": "real_like_paper"})
+    with pytest.raises(ValueError, match=r"learned_weights: \['other'\] not among the classifiers"):
+        Table1Config(rows=("learned_gr",), classifiers=both, learned_weights={"other": "real_like_paper"})
+    config = Table1Config(rows=("learned_gr",), classifiers=both, learned_weights={"paper": "real_like_paper"},
+                          nbv=dataclasses.replace(setup.episode_nbv(), learned=nbv.Learned(weights="real_like")))
+    world = make_world(WORLD, seed=1)
+    for c, name in (("shipped", "real_like"), ("paper", "real_like_paper")):
+        classifier = setup.load_classifier(both[c], world.object_set, f"classifiers.{c}")
+        episode = runner.episode(config, protocol.ROWS["learned_gr"], classifier, world.object_set, world.intrinsics,
+                                 world.table_height, "test", name=c)
+        want = learned.load(name, config.nbv.max_candidates)[0]
+        assert jax.tree.all(jax.tree.map(lambda a, b: bool(np.array_equal(a, b)), episode.policy_weights, want))

@@ -493,7 +493,7 @@ def test_each_classifiers_programs_loaded_ahead_have_the_whole_runs_shapes_and_p
     prepared = []
     monkeypatch.setattr(runner.compile_cache, "enabled", lambda: True)
     monkeypatch.setattr(runner.compile_cache, "ahead", lambda load, what: (load(), what)[1])
-    monkeypatch.setattr(runner, "episode", lambda config, row, classifier, *rest: types.SimpleNamespace(
+    monkeypatch.setattr(runner, "episode", lambda config, row, classifier, *rest, name: types.SimpleNamespace(
         switched=lambda policies: (classifier, policies)))
     monkeypatch.setattr(runner.batched, "prepare", lambda program, frames, size, mesh, **kw: prepared.append(
         (program, frames, size)))
@@ -524,7 +524,7 @@ def test_a_classifiers_first_call_waits_for_its_own_programs_alone(monkeypatch, 
                           scene_chunk=2)
     todo = [(c, "vis_occl_hist_gr", s, 0) for c in ("a", "b") for s in range(2)]
     seen = []  # (what happened, whether b's programs were loaded then)
-    monkeypatch.setattr(runner, "episode", lambda config, row, classifier, *rest: types.SimpleNamespace(
+    monkeypatch.setattr(runner, "episode", lambda config, row, classifier, *rest, name: types.SimpleNamespace(
         switched=lambda policies: types.SimpleNamespace(choose=lambda policy, gr: classifier)))
     monkeypatch.setattr(runner.scoring.Truth, "from_scene", staticmethod(lambda scene, object_set: scene))
     monkeypatch.setattr(runner.protocol, "episode_records", lambda traces, truths, extra: extra)
@@ -589,7 +589,7 @@ def test_the_classifiers_left_out_of_the_start_load_once_the_first_call_is_out(m
     config = Table1Config(rows=("random_gr", "vis_occl_hist_gr"), classifiers={"a": "", "b": ""}, runs=1, moves=1,
                           scenes=2, scene_chunk=2)
     seen = []
-    monkeypatch.setattr(runner, "episode", lambda config, row, classifier, *rest: types.SimpleNamespace(
+    monkeypatch.setattr(runner, "episode", lambda config, row, classifier, *rest, name: types.SimpleNamespace(
         switched=lambda policies: types.SimpleNamespace(choose=lambda policy, gr: classifier)))
     monkeypatch.setattr(runner.scoring.Truth, "from_scene", staticmethod(lambda scene, object_set: scene))
     monkeypatch.setattr(runner.protocol, "episode_records", lambda traces, truths, extra: extra)

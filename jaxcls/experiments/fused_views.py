@@ -75,7 +75,7 @@ def run(config: Table1Config, dataset: DatasetConfig, files: list[Path], views_f
             for c, classifier in classifiers.items():
                 if c not in episodes:
                     episodes[c] = runner.episode(config, row, classifier, object_set, views.intrinsics,
-                                                 views.table_height, dataset.scene.split)
+                                                 views.table_height, dataset.scene.split, name=c)
                 for k in views_fused:
                     for i in range(1 if k >= V else subsets):
                         chosen = subset(config.seed, s, k, i, V)

@@ -189,7 +189,7 @@ def train(config: PolicyConfig, show_progress: bool = True) -> Path:
     training, held_out = _Scenes(training_config, train_set, object_set), _Scenes(held_out_config, eval_set, object_set)
     first = training.frames()[0][1]
     oracle = runner.episode(held_out_config, protocol.ROWS["oracle_gr"], classifier, object_set, first.intrinsics,
-                            first.scenes[0].table_height, dataset.scene.split)
+                            first.scenes[0].table_height, dataset.scene.split, name=name)
     if config.labels is protocol.Label.rollout:  # (the labels' continuations: the base policy's moves)
         oracle = oracle.replace(config=dataclasses.replace(oracle.config, policy=nbv.PolicyName(config.base.value)))
 

@@ -59,6 +59,9 @@ class Table1Config:
     # name: weights (a .msgpack path or a shipped name, "" = the shipped weights); no default, so that a
     # config's own list is the whole list (OmegaConf merges mappings into the defaults).
     classifiers: dict[str, str] = dataclasses.field(default_factory=dict)
+    # Per classifier, the learned policy's weights where they are not ``nbv.learned.weights`` (a shipped name or a
+    # policy.msgpack): a policy is trained for one classifier (``jaxcls train-policy``'s ``classifier``).
+    learned_weights: dict[str, str] = dataclasses.field(default_factory=dict)
     decision: active.Decision = "evidence"  # how a segment's class is decided (``active.EpisodeConfig``)
     perception: PerceptionConfig = dataclasses.field(default_factory=setup.episode_perception)
     refine: RefineConfig = dataclasses.field(default_factory=setup.episode_refine)
@@ -68,12 +71,24 @@ class Table1Config:
 
     def __post_init__(self) -> None:
         check_bounds(self)
-        for name in self.rows:
-            if protocol.row(name, "rows").policy in NBV_WEIGHTED and not self.nbv.learned.weights:
-                raise ValueError(f"rows: {name} runs the learned policy; name its weights with nbv.learned.weights "
-                                 "(a policy.msgpack written by jaxcls train-policy)")
         if not self.classifiers:
             raise ValueError("classifiers: name at least one (name: path, \"\" = the shipped weights)")
+        if unknown := sorted(set(self.learned_weights) - set(self.classifiers)):
+            raise ValueError(f"learned_weights: {unknown} not among the classifiers {list(self.classifiers)}")
+        without = [c for c in self.classifiers if not self.nbv_of(c).learned.weights]
+        for name in self.rows:
+            if protocol.row(name, "rows").policy in NBV_WEIGHTED and without:
+                raise ValueError(f"rows: {name} runs the learned policy; name its weights with nbv.learned.weights "
+                                 f"or, per classifier, learned_weights (a policy.msgpack written by jaxcls "
+                                 f"train-policy, or a shipped name); none for {without}")
+
+    def nbv_of(self, classifier: str) -> NBVConfig:
+        """The move's NBV settings for ``classifier``'s episodes: ``nbv`` with its learned policy's weights from
+        ``learned_weights`` where that names them."""
+        weights = self.learned_weights.get(classifier)
+        if not weights:
+            return self.nbv
+        return dataclasses.replace(self.nbv, learned=dataclasses.replace(self.nbv.learned, weights=weights))
 
     def results_defining(self) -> dict[str, Any]:
         """What the stored episodes depend on (a rerun with another of these must use another out_dir)."""

@@ -229,7 +229,7 @@ def run_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
                     row = rows[name]
                     if (c, name) not in episodes:
                         episodes[c, name] = episode(config, row, classifiers[c], object_set, views.intrinsics,
-                                                    views.table_height, dataset.scene.split)
+                                                    views.table_height, dataset.scene.split, name=c)
                     bar.set_postfix(scene=s, classifier=c, row=name)
                     with clock("scene by scene (PointNetFull)"):
                         records = row_records(config, row, episodes[c, name], views, truth, starts, keys, missing)
@@ -381,7 +381,7 @@ def run_batched(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
             for row, names in programs.values():
                 if (c, row.library) not in switched:
                     switched[c, row.library] = episode(config, row, classifiers[c], object_set, chunk.intrinsics,
-                                                       chunk.scenes[0].table_height, dataset.scene.split)
+                                                       chunk.scenes[0].table_height, dataset.scene.split, name=c)
                     switched[c, row.library] = switched[c, row.library].switched(policies)
                 chosen = switched[c, row.library].choose(row.policy, row.refinement)
                 for in_call in groups:
@@ -435,7 +435,8 @@ def load_batched_ahead(config: Table1Config, scene_set: Scenes, dataset: Dataset
     frames = (n * per, views, intrinsics.height, intrinsics.width)
 
     def load(c: str, row: protocol.Row) -> None:
-        built = episode(config, row, classifiers[c], object_set, intrinsics, table_height, dataset.scene.split)
+        built = episode(config, row, classifiers[c], object_set, intrinsics, table_height, dataset.scene.split,
+                        name=c)
         batched.prepare(built.switched(policies), frames, per_call * n * config.runs, device_mesh, split_scenes=True,
                         kernels=config.kernels)
 
@@ -478,7 +479,7 @@ def load_oracle_ahead(config: Table1Config, scene_set: Scenes, dataset: DatasetC
 
     def load(c: str, name: str) -> None:
         built = episode(config, protocol.ROWS[name], classifiers[c], object_set, intrinsics, table_height,
-                        dataset.scene.split)
+                        dataset.scene.split, name=c)
         protocol.prepare_oracle(built, frames, oracle_call_size(config), config.kernels)
 
     return [compile_cache.ahead(functools.partial(load, c, name), f"the oracle's program ({c}, {name})")
@@ -556,7 +557,7 @@ def run_oracle(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
             c, name = call[0][:2]
             if (c, name) not in episodes:
                 episodes[c, name] = episode(config, protocol.ROWS[name], classifiers[c], object_set, chunk.intrinsics,
-                                            chunk.scenes[0].table_height, dataset.scene.split)
+                                            chunk.scenes[0].table_height, dataset.scene.split, name=c)
             padded = call + [call[0]] * (size - len(call))
             bar.set_postfix(scenes=f"{call[0][2]}-{call[-1][2]}", classifier=c, row=name)
             loaded()
@@ -622,7 +623,7 @@ def record_episodes(config: Table1Config, scene_set: Scenes, dataset: DatasetCon
         views = scene_set.load([s])[0]
         row = protocol.row(name)
         ep = episode(config, program_row(row), classifier, object_set, views.intrinsics, views.table_height,
-                     dataset.scene.split)
+                     dataset.scene.split, name=c)
         if row.kind is protocol.Kind.SINGLE:
             ep = dataclasses.replace(ep, config=dataclasses.replace(ep.config, moves=1))
         start = protocol.start_views(config.seed, s, config.runs, len(views.T_wc))[r]
@@ -710,10 +711,11 @@ def call_scenes(slots: list[int], devices: int, per_call: int) -> list[set[int]]
 
 
 def episode(config: Table1Config, row: protocol.Row, classifier: pointnet.Classifier, object_set,
-            intrinsics: Intrinsics, table_height: float, scene_split: str) -> active.Episode:
-    """``row``'s episode of this config's move settings (``Row.episode`` owns the wiring)."""
+            intrinsics: Intrinsics, table_height: float, scene_split: str, *, name: str) -> active.Episode:
+    """``row``'s episode of this config's move settings for the classifier ``name`` (its learned policy:
+    ``Table1Config.nbv_of``; ``Row.episode`` owns the wiring)."""
     base = setup.ActiveConfig(episode=active.EpisodeConfig(decision=config.decision), perception=config.perception,
-                              refine=config.refine, nbv=config.nbv)
+                              refine=config.refine, nbv=config.nbv_of(name))
     return row.episode(base, config.moves, classifier, object_set, intrinsics, table_height, scene_split)
 
 
@@ -739,7 +741,7 @@ def time_modules(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig
     views = scene_set.load([0])[0]
     row = protocol.ROWS["vis_occl_hist_gr"]
     timed = episode(dataclasses.replace(config, moves=config.timing_moves), row, classifier, object_set,
-                    views.intrinsics, views.table_height, dataset.scene.split)
+                    views.intrinsics, views.table_height, dataset.scene.split, name=name)
     start = int(protocol.start_views(config.seed, 0, 1, len(views.T_wc))[0])
     runner.run(timed, views, start, jax.random.PRNGKey(config.seed))  # compiles
     log = runner.run(timed, views, start, jax.random.PRNGKey(config.seed))
