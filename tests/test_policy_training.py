@@ -77,7 +77,7 @@ def test_the_loss_is_minus_the_log_probability_of_the_oracles_best_and_scores_re
     np.testing.assert_allclose(float(policy_train.loss(weights, x, f1, allowed, 0.5)[0]), want, rtol=1e-5)
 
 
-def test_training_runs_resumes_bit_for_bit_and_writes_a_policy_the_episode_loads(tmp_path):
+def test_training_runs_resumes_bit_for_bit_and_writes_a_policy_the_episode_loads(tmp_path, monkeypatch):
     whole = policy_train.train(_config(tmp_path, "whole", 2, updates=1), show_progress=False)
     history = json.loads((whole / "metrics.json").read_text())["history"]
     assert [h.get("round") for h in history] == [1, 2, None] and history[0]["follow_oracle"] == 1.0
@@ -99,9 +99,19 @@ def test_training_runs_resumes_bit_for_bit_and_writes_a_policy_the_episode_loads
     assert info.hidden == 8 and info.metadata["rounds"] == 2 and info.metadata["ppo_updates"] == 1
     assert info.metadata["labels"] == "greedy" and info.metadata["base"] == "info_gain"
     assert (whole / "curve.png").is_file()
-    # Stopped after round 1, then run again to 2 rounds and the update: the same decisions, figures and weights, bit
+    # Stopped after round 1; run again to 2 rounds and the update, and stopped by a failure in that update (its
+    # round 2's policy written already: ``publish``); then run again: the same decisions, figures and weights, bit
     # for bit.
     policy_train.train(_config(tmp_path, "parts", 1), show_progress=False)
+
+    def stopped(*args, **kwargs):
+        raise RuntimeError("stopped")
+
+    with monkeypatch.context() as m, pytest.raises(RuntimeError, match="stopped"):
+        m.setattr(policy_train.ppo, "update", stopped)
+        policy_train.train(_config(tmp_path, "parts", 2, updates=1), show_progress=False)
+    _, info = learned.load(tmp_path / "parts" / "policy.msgpack", 4)
+    assert info.metadata["rounds"] == 2 and info.metadata["ppo_updates"] == 0
     parts = policy_train.train(_config(tmp_path, "parts", 2, updates=1), show_progress=False)
     def untimed(rounds):
         return [{k: v for k, v in h.items() if k != "seconds"} for h in rounds]

@@ -241,7 +241,7 @@ def train(config: PolicyConfig, show_progress: bool = True) -> Path:
         seconds["evaluate"] = time.perf_counter() - began
         history.append({"round": r + 1, "decisions": len(data), "follow_oracle": config.beta ** r, **fitted, **scores,
                         "seconds": seconds})
-        io.write_json(out / "metrics.json", {"table1": config.table1, "classifier": name, "history": history})
+        publish(out, config, name, held_out_config.nbv.max_candidates, weights, history)
         manager.save(r + 1, args=ocp.args.StandardSave({"weights": weights, "opt_state": opt_state}))
         bar.set_postfix(loss=f"{fitted['loss']:.3f}", regret=f"{fitted['regret']:.3f}",
                         learned=f"{scores['f1_learned']:.3f}", info_gain=f"{scores['f1_info_gain']:.3f}")
@@ -252,14 +252,23 @@ def train(config: PolicyConfig, show_progress: bool = True) -> Path:
         weights = _reinforce(config, out, manager, params, rl_state, oracle, switched, training, held_out,
                              held_out_config, max(start - config.rounds, 0), history, name, show_progress)
     manager.wait_until_finished()
+    publish(out, config, name, held_out_config.nbv.max_candidates, weights, history)
+    return out
+
+
+def publish(out: Path, config: PolicyConfig, name: str, max_candidates: int, weights: dict,
+            history: list[dict]) -> None:
+    """The run's figures so far (``metrics.json``, ``curve.png``) and its weights (``policy.msgpack`` + ``.json``),
+    each written atomically after every round and update: a run stopped anywhere leaves the policy of its last
+    finished step, ready for ``nbv.learned.weights``."""
+    io.write_json(out / "metrics.json", {"table1": config.table1, "classifier": name, "history": history})
     viz.save(viz.policy_curve(history), out / "curve.png")
-    learned.save(out / "policy.msgpack", weights, held_out_config.nbv.max_candidates, {
+    learned.save(out / "policy.msgpack", weights, max_candidates, {
         "trained_by": "jaxcls train-policy", "table1": config.table1, "classifier": name, "base": config.base.value,
         "labels": config.labels.value, "rounds": sum("round" in h for h in history),
         "ppo_updates": sum("update" in h for h in history),
         "held_out": next(({k: v for k, v in h.items() if k.startswith(("f1_", "learned_"))} for h in reversed(history)
                           if "f1_learned" in h), {})})
-    return out
 
 
 def _reinforce(config: PolicyConfig, out: Path, manager: ocp.CheckpointManager, params: dict, rl_state: Any,
@@ -296,7 +305,7 @@ def _reinforce(config: PolicyConfig, out: Path, manager: ocp.CheckpointManager, 
             entry.update(evaluate(switched, params["actor"], held_out, config.eval_runs, held_out_config.seed,
                                   held_out_config.moves))
         history.append(entry)
-        io.write_json(out / "metrics.json", {"table1": config.table1, "classifier": name, "history": history})
+        publish(out, config, name, held_out_config.nbv.max_candidates, params["actor"], history)
         manager.save(config.rounds + u + 1, args=ocp.args.StandardSave({"params": params, "opt_state": rl_state}))
         bar.set_postfix(f1=f"{entry['f1_last']:.3f}", entropy=f"{entry['entropy']:.3f}")
     return params["actor"]
