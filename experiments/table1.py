@@ -153,10 +153,10 @@ def _main(argv: list[str] | None, command_line: bool, early: local.Started | Non
     classes = None  # the object set's class count, where known already
     if args.tables_only:
         dataset = data.dataset_config(config)
-        records = data.stored_records(config, data.kept_store(store))
+        records = data.stored_records(config, store)
         if not records:  # (rather than tables of nothing over the ones there)
-            parser.error(f"--tables-only: no episodes of this config's rows and classifiers in {store} or "
-                         f"{store.name}.xz beside it")
+            parser.error(f"--tables-only: no episodes of this config's rows and classifiers in {out} "
+                         f"({store.name} and its process stores, or their .xz archives)")
     elif args.local_processes is not None:
         dataset, scene_set = data.open_scenes(config)  # (a dataset's missing scenes rendered here, once)
         save_config(config, out / "config.yaml")

@@ -429,7 +429,7 @@ def paired_difference(per_scene_a: Sequence[tuple[np.ndarray, np.ndarray]],
                      len(a), confidence, resamples, seed)
 
 
-SHARE_UNDEFINED = 1e6  # ``share_of_gap`` where the oracle ties the base
+SHARE_UNDEFINED = 1e6  # ``share_of_gap`` where the oracle does not lead the base
 
 
 def share_of_gap(policy: Sequence[tuple[np.ndarray, np.ndarray]], base: Sequence[tuple[np.ndarray, np.ndarray]],
@@ -437,16 +437,17 @@ def share_of_gap(policy: Sequence[tuple[np.ndarray, np.ndarray]], base: Sequence
                  confidence: float = 0.95, resamples: int = 2000, seed: int = 0) -> tuple[float, float, float]:
     """(estimate, low, high) of (s(policy) - s(base)) / (s(oracle) - s(base)): the share of the oracle's lead over
     ``base`` that ``policy`` closes (1: all of it, 0: none, below 0: worse than ``base``), for three label sets of
-    the same scenes, with a scene bootstrap (each resample draws scenes and scores all three on them). A resample
-    where the oracle ties ``base`` has the share +-``SHARE_UNDEFINED`` (0 where ``policy`` ties them too), so
-    that the interval says the share is not defined there rather than hiding it."""
+    the same scenes, with a scene bootstrap (each resample draws scenes and scores all three on them). Where the
+    oracle does not lead ``base`` (ties or trails it) the share is not defined: ``SHARE_UNDEFINED`` (a bound
+    there says that more than the interval's tail of the resamples have no lead to close). Shares are clipped to
+    +-``SHARE_UNDEFINED``."""
     cms = _stacked_confusions([policy, base, oracle], num_classes, "share_of_gap")
 
     def share(picks):
         s = confusion_scores(_resampled_sum(cms, picks))[statistic]  # [..., 3]: policy, base, oracle
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = (s[..., 0] - s[..., 1]) / (s[..., 2] - s[..., 1])
-        return np.clip(np.nan_to_num(ratio, nan=0.0), -SHARE_UNDEFINED, SHARE_UNDEFINED)
+        lead = s[..., 2] - s[..., 1]
+        ratio = (s[..., 0] - s[..., 1]) / np.where(lead > 0, lead, 1.0)
+        return np.where(lead > 0, np.clip(ratio, -SHARE_UNDEFINED, SHARE_UNDEFINED), SHARE_UNDEFINED)
 
     return _interval(share, len(cms), confidence, resamples, seed)
 

@@ -290,7 +290,7 @@ def test_several_intervals_in_one_bootstrap_equal_each_alone():
 def test_the_share_of_the_oracles_lead_is_the_ratio_of_pooled_f1s_and_undefined_where_the_oracle_ties():
     """``share_of_gap`` (Table 1: how much of the oracle's lead over the best hand-made policy the learned one
     closes): the ratio of the pooled F1 differences, an interval around it; 1 for the oracle itself and 0 for the
-    base in every resample; +-``SHARE_UNDEFINED`` where the oracle ties the base."""
+    base in every resample; ``SHARE_UNDEFINED`` where the oracle does not lead the base (ties or trails it)."""
     rng = np.random.default_rng(3)
     truth = [rng.integers(0, 4, 5) for _ in range(30)]
 
@@ -306,7 +306,10 @@ def test_the_share_of_the_oracles_lead_is_the_ratio_of_pooled_f1s_and_undefined_
     assert low < share < high and 0 < share < 1
     assert metrics.share_of_gap(oracle, base, oracle, 4, resamples=300) == pytest.approx((1, 1, 1))
     assert metrics.share_of_gap(base, base, oracle, 4, resamples=300) == (0, 0, 0)
-    assert metrics.share_of_gap(policy, base, base, 4, resamples=300)[0] == metrics.SHARE_UNDEFINED  # (above base)
+    for weak in (base, labels(0.8)):  # an oracle that ties the base, one below it: no share, whatever the policy
+        assert f1(weak) <= f1(base)
+        for ours in (policy, labels(0.9)):
+            assert metrics.share_of_gap(ours, base, weak, 4, resamples=300)[0] == metrics.SHARE_UNDEFINED
     with pytest.raises(ValueError, match=r"share_of_gap: .*\[29, 30\] scenes"):
         metrics.share_of_gap(policy, base[:29], oracle, 4)
 

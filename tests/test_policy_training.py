@@ -98,6 +98,7 @@ def test_training_runs_resumes_bit_for_bit_and_writes_a_policy_the_episode_loads
     weights, info = learned.load(whole / "policy.msgpack", 4)
     assert info.hidden == 8 and info.metadata["rounds"] == 2 and info.metadata["ppo_updates"] == 1
     assert info.metadata["labels"] == "greedy" and info.metadata["base"] == "info_gain"
+    assert info.metadata["held_out"]["update"] == 1  # (where its held-out figures were measured)
     assert (whole / "curve.png").is_file()
     # Stopped after round 1; run again to 2 rounds and the update, and stopped by a failure in that update (its
     # round 2's policy written already: ``publish``); then run again: the same decisions, figures and weights, bit
@@ -112,6 +113,7 @@ def test_training_runs_resumes_bit_for_bit_and_writes_a_policy_the_episode_loads
         policy_train.train(_config(tmp_path, "parts", 2, updates=1), show_progress=False)
     _, info = learned.load(tmp_path / "parts" / "policy.msgpack", 4)
     assert info.metadata["rounds"] == 2 and info.metadata["ppo_updates"] == 0
+    assert info.metadata["held_out"]["round"] == 2
     parts = policy_train.train(_config(tmp_path, "parts", 2, updates=1), show_progress=False)
     def untimed(rounds):
         return [{k: v for k, v in h.items() if k != "seconds"} for h in rounds]

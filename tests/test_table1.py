@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from jaxcls import io, metrics
-from jaxcls.config import ConfigError, load_config
+from jaxcls.config import ConfigError, load_config, save_config
 from jaxcls.episode import protocol
 from jaxcls.experiments.table1 import data, runner, tables
 from jaxcls.experiments.table1.config import Table1Config
@@ -707,7 +707,28 @@ def test_the_learned_row_is_paired_with_the_best_hand_made_policy_and_the_oracle
     assert f"Oracle against the learned policy: OracleGR - LearnedGR: {1 - learned:+.3f} [" in markdown
     # The share of the oracle's lead the learned policy closes: none to close here (the oracle ties InfoGainGR).
     assert ("The share of the oracle's lead the learned policy closes: (LearnedGR - InfoGainGR) / (OracleGR - "
-            "InfoGainGR) on the 2 scenes of all three: -inf [-inf, -inf]") in markdown
+            "InfoGainGR) on the 2 scenes of all three: +inf [+inf, +inf] (+inf: the oracle does not lead InfoGainGR "
+            "there)") in markdown
+    # A learned policy between the best hand-made one and the rollout oracle, and the best policy: its share is the
+    # ratio of the pooled F1s; the oracle is paired with it once (as the best policy).
+    truth = {s: [0, 1, 2, 3] for s in range(3)}
+    labels = {"info_gain_gr": [[0, 1, 0, 0], [0, 0, 2, 0], [0, 1, 2, 0]],
+              "learned_gr": [[0, 1, 2, 0], [0, 1, 2, 0], [0, 1, 2, 0]],
+              "oracle_rollout_gr": [[0, 1, 2, 3], [0, 1, 2, 3], [0, 1, 2, 3]]}
+    records = [_record(row, s, 0, truth[s], [per_scene[s]] * 2) for row, per_scene in labels.items() for s in range(3)]
+    config = dataclasses.replace(config, rows=tuple(labels), oracle_scenes=3)
+    markdown = tables.tables(config, records, 4, None, ["x"])[0]
+
+    def f1(row):
+        return metrics.classification_scores(np.concatenate(list(truth.values())), np.concatenate(labels[row]), 4).f1
+
+    share = (f1("learned_gr") - f1("info_gain_gr")) / (f1("oracle_rollout_gr") - f1("info_gain_gr"))
+    assert 0 < share < 1
+    assert ("The share of the oracle's lead the learned policy closes: (LearnedGR - InfoGainGR) / (OracleRolloutGR - "
+            f"InfoGainGR) on the 3 scenes of all three: {share:+.2f} [") in markdown
+    assert "does not lead" not in markdown
+    assert "Oracle against the best policy: OracleRolloutGR - LearnedGR" in markdown
+    assert "Oracle against the learned policy" not in markdown
 
 
 def test_tables_only_reads_the_archived_episodes_and_refuses_a_folder_without_any(table1, tmp_path, capsys):
@@ -725,13 +746,18 @@ def test_tables_only_reads_the_archived_episodes_and_refuses_a_folder_without_an
         table1.main(["--config", str(config), "--tables-only"])
     assert "no episodes of this config's rows and classifiers" in capsys.readouterr().err
     assert (out / "table.md").read_text() == "kept"
-    records = [_record("vis_occl_hist_gr", s, 0, [0, 1, 2], [[0, 1, 2], [0, 1, 1]]) for s in (0, 1)]
-    with lzma.open(out / "episodes.jsonl.xz", "wt") as f:
-        f.writelines(json.dumps(r) + "\n" for r in records)
+    records = [_record("vis_occl_hist_gr", s, 0, [0, 1, 2], [[0, 1, 2], [0, 1, 1]]) for s in (0, 1, 2)]
+    for name, part in (("episodes.jsonl.xz", records[:2]), ("episodes.1.jsonl.xz", records[2:])):  # (a process's)
+        with lzma.open(out / name, "wt") as f:
+            f.writelines(json.dumps(r) + "\n" for r in part)
     table1.main(["--config", str(config), "--tables-only"])
     line = next(x for x in (out / "table.md").read_text().splitlines() if x.startswith("| VisOcclHistGR |"))
-    want = metrics.classification_scores(np.array([0, 1, 2] * 2), np.array([0, 1, 1] * 2), 4)
-    assert f"| {want.f1:.3f} |" in line and not (out / "episodes.jsonl").exists()
+    want = metrics.classification_scores(np.array([0, 1, 2] * 3), np.array([0, 1, 1] * 3), 4)
+    assert f"| {want.f1:.3f} |" in line and "| 3 | 3 |" in line and not (out / "episodes.jsonl").exists()
+    # Archived episodes of another config are refused as stored ones are.
+    save_config(load_config(Table1Config, config), out / "config.yaml")
+    with pytest.raises(ValueError, match=r"out_dir holds episodes of another config \(keys \['seed'\] differ"):
+        table1.main(["--config", str(config), "--tables-only", "seed=5"])
 
 
 def test_rows_tabulated_while_the_oracle_runs_are_those_tabulated_at_the_end():
@@ -803,8 +829,6 @@ def test_bad_inputs_are_refused_naming_the_key_or_file(tmp_path):
     other = tmp_path / "other"
     other.mkdir()
     (other / "scene_000.npz").write_bytes(files[0].read_bytes())
-    from jaxcls.config import save_config
-
     save_config(dataclasses.replace(dataset, objects=dataclasses.replace(dataset.objects, seed=1)),
                 other / "config.yaml")
     bad = dataclasses.replace(config, dataset=str(other), dataset_overrides=())

@@ -267,8 +267,9 @@ def publish(out: Path, config: PolicyConfig, name: str, max_candidates: int, wei
         "trained_by": "jaxcls train-policy", "table1": config.table1, "classifier": name, "base": config.base.value,
         "labels": config.labels.value, "rounds": sum("round" in h for h in history),
         "ppo_updates": sum("update" in h for h in history),
-        "held_out": next(({k: v for k, v in h.items() if k.startswith(("f1_", "learned_"))} for h in reversed(history)
-                          if "f1_learned" in h), {})})
+        # (the last held-out evaluation, with its round or update: after a PPO update, maybe an earlier one's)
+        "held_out": next(({k: v for k, v in h.items() if k.startswith(("f1_", "learned_")) or k in ("round", "update")}
+                          for h in reversed(history) if "f1_learned" in h), {})})
 
 
 def _reinforce(config: PolicyConfig, out: Path, manager: ocp.CheckpointManager, params: dict, rl_state: Any,

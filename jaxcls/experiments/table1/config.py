@@ -100,7 +100,7 @@ class Table1Config:
 def check_out_dir(config: Table1Config, out: Path) -> None:
     """An ``out_dir`` holding episodes of another config is refused (its records would mix)."""
     previous = out / "config.yaml"
-    if previous.exists() and any(out.glob("episodes*.jsonl")):  # one process's store or several's
+    if previous.exists() and any(out.glob("episodes*.jsonl*")):  # one process's store or several's, or archives
         old = load_config(Table1Config, previous)
         if old.results_defining() != config.results_defining():
             changed = sorted(k for k, v in config.results_defining().items() if old.results_defining().get(k) != v)

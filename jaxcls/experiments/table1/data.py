@@ -36,20 +36,17 @@ def process_store(store: Path, process: tuple[int, int] = (0, 1)) -> Path:
 
 
 def read_stores(store: Path) -> list[dict[str, Any]]:
-    """The records of ``store`` and of every process's store beside it (``process_store``): a run's episodes
-    whichever processes (and however many) stored them."""
-    return [r for path in store_paths(store) for r in io.read_jsonl(path)]
+    """The records of ``store`` and of every process's store beside it (``process_store``), and of their ``.xz``
+    archives (``results/`` keeps a run's episodes so): a run's episodes whichever processes (and however many)
+    stored them. (An episode in both a store and its archive is there twice: ``of_config`` keeps the first.)"""
+    archives = [store.with_name(store.name + ".xz"),
+                *sorted(store.parent.glob(f"{store.stem}.*{store.suffix}.xz"))]
+    return [r for path in [*store_paths(store), *archives] for r in io.read_jsonl(path)]
 
 
 def store_paths(store: Path) -> list[Path]:
     """``store`` and every process's store beside it (``process_store``), whether they exist or not yet."""
     return [store, *sorted(store.parent.glob(f"{store.stem}.*{store.suffix}"))]
-
-
-def kept_store(store: Path) -> Path:
-    """``store``, or its archive ``store.xz`` where only that is kept (``results/`` keeps a run's episodes so)."""
-    archive = store.with_name(store.name + ".xz")
-    return archive if not store.exists() and archive.exists() else store
 
 
 def stored_records(config: Table1Config, store: Path) -> list[dict[str, Any]]:

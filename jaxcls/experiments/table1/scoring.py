@@ -40,12 +40,14 @@ def differences(config: Table1Config, by: dict, c: str, classes: int,
     """Paired scene-bootstrap differences of F1 at T: GR against none per pair; every policy against
     PointNetSingle; VisOcclHist(GR) against Random(GR); every policy against VisOcclHistGR; the oracle
     against the best policy; the learned policy against the best hand-made one, and the oracle against it (the
-    pairs of the rows ``by`` has); then the share of each oracle's lead over the best hand-made policy that the
-    learned one closes (``metrics.share_of_gap``, on the scenes of all three). ``by``: (classifier, row) -> that
-    row's records; ``labels``: row -> its ``protocol.scene_labels`` where the caller has them. ``made``: the
-    differences made before of the same records (e.g. while the oracle still ran, ``tables.EarlyRows``), keyed by
-    (classifier, row a, row b, a's move, b's move, the scenes paired): used where present, and given those made
-    here (a pair's interval does not depend on the pairs bootstrapped beside it: ``metrics.paired_differences``)."""
+    pairs of the rows ``by`` has; the oracle against the learned policy only where that is not the best policy,
+    else it is the pair before); then the share of each oracle's lead over the best hand-made policy that the
+    learned one closes (``metrics.share_of_gap``, on the scenes of all three, where they are 2 or more).
+    ``by``: (classifier, row) -> that row's records; ``labels``: row -> its ``protocol.scene_labels`` where the
+    caller has them. ``made``: the differences made before of the same records (e.g. while the oracle still ran,
+    ``tables.EarlyRows``), keyed by (classifier, row a, row b, a's move, b's move, the scenes paired): used where
+    present, and given those made here (a pair's interval does not depend on the pairs bootstrapped beside it:
+    ``metrics.paired_differences``)."""
     T = config.moves
     prepared: dict[tuple[str, frozenset | None], protocol.SceneLabels] = {
         (name, None): lab for name, lab in (labels or {}).items()}
@@ -109,14 +111,18 @@ def differences(config: Table1Config, by: dict, c: str, classes: int,
     for o in oracles if best_hand_made else ():  # the share of the oracle's lead the learned policy closes
         three = ("learned_gr", best_hand_made, o)
         scenes = set.intersection(*({r["scene"] for r in by[c, n]} for n in three))
+        if len(scenes) < 2:  # (no interval)
+            continue
         share = metrics.share_of_gap(*(scenes_of(n, T, scenes) for n in three), classes, resamples=config.resamples)
-        a, b = protocol.ROWS[best_hand_made].label, protocol.ROWS[o].label
-        notes.append(f"The share of the oracle's lead the learned policy closes: (LearnedGR - {a}) / ({b} - {a}) "
-                     f"on the {len(scenes)} scenes of all three: {_share(share[0])} [{_share(share[1])}, "
-                     f"{_share(share[2])}]")
+        ours, a, b = (protocol.ROWS[n].label for n in three)
+        estimate, low, high = map(_share, share)
+        why = f" (+inf: the oracle does not lead {a} there)" if "inf" in estimate + low + high else ""
+        notes.append(f"The share of the oracle's lead the learned policy closes: ({ours} - {a}) / ({b} - {a}) on the "
+                     f"{len(scenes)} scenes of all three: {estimate} [{low}, {high}]{why}")
     return notes
 
 
 def _share(x: float) -> str:
-    """A share at two decimals; +-inf where the oracle ties the base (``metrics.SHARE_UNDEFINED``)."""
-    return f"{x:+.2f}" if abs(x) < metrics.SHARE_UNDEFINED else ("+inf" if x > 0 else "-inf")
+    """A share at two decimals; beyond +-1,000 +-inf (+inf: the oracle does not lead the base,
+    ``metrics.SHARE_UNDEFINED``; a percentile between that and a share is no share either)."""
+    return f"{x:+.2f}" if abs(x) < 1e3 else ("+inf" if x > 0 else "-inf")
