@@ -145,7 +145,7 @@ def test_rollout_labels_are_the_f1_at_the_end_after_the_base_policys_moves():
     (the base) takes from it to T: the label of the base's own second view is the base episode's F1 at T. Picking
     the best label is one step of policy improvement: on the same frames and keys the path ends at least as high
     as the base's. The last decision has no move after it: its labels are one move ahead (the pick is their
-    best)."""
+    best), or, with ``policy_last``, the pick is the base's own."""
     from jaxcls.episode import scoring
 
     world = make_world(WORLD, seed=2)  # (with the paper's recipe the candidates' F1 differ, and differ over moves)
@@ -186,8 +186,16 @@ def test_rollout_labels_are_the_f1_at_the_end_after_the_base_policys_moves():
         s = active.step_jit(episode, s, depth[s.next_view], T_wc[s.next_view])
         t = jax.tree.map(lambda a: np.asarray(a)[None, None], active.trace(s, s.views.current))
         assert float(f1[0, c]) == pytest.approx(last_f1(t)[0], abs=1e-6), c
-    _, _, allowed, f1, pick = seen[1]
+    last_states, last_index, allowed, f1, pick = seen[1]
     assert f1[0, pick[0]] == np.max(np.where(allowed[0], f1[0], -1.0))
+    # ``policy_last`` (the row OracleRolloutGR (InfoGain last)): the same picks but the last, which is the base
+    # policy's own choice from there (not the best label: here they differ).
+    fair = protocol.oracle_rollouts(episode, depth, T_wc, start, keys, truth, label=protocol.Label.rollout,
+                                    policy_last=True)
+    policy_view = int(np.asarray(last_states.next_view)[0])
+    assert policy_view != int(last_index[0, pick[0]]), "the best label is not the policy's view here"
+    np.testing.assert_array_equal(np.asarray(fair.view)[0], [*np.asarray(oracle.view)[0, :-1], policy_view])
+    assert protocol.ROWS["oracle_rollout_policy_last_gr"].policy_last
 
 
 def test_a_rollout_label_needs_a_base_policy():

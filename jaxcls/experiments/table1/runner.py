@@ -566,7 +566,7 @@ def run_oracle(config: Table1Config, scene_set: Scenes, dataset: DatasetConfig,
                     episodes[c, name], depth, T_wc, np.array([starts[s][r] for _, _, s, r in padded]),
                     np.stack([keys[s][r] for _, _, s, r in padded]), [truths[s] for _, _, s, _ in padded],
                     scene=np.array([place[s] for _, _, s, _ in padded]), kernels=config.kernels,
-                    label=protocol.ROWS[name].scored_by)
+                    label=protocol.ROWS[name].scored_by, policy_last=protocol.ROWS[name].policy_last)
             new = np.array([i for i, k in enumerate(call) if k not in done])
             records = protocol.episode_records(
                 jax.tree.map(lambda x, i=new: x[i], traces), [truths[call[i][2]] for i in new],

@@ -83,7 +83,7 @@ def differences(config: Table1Config, by: dict, c: str, classes: int,
             *map(np.concatenate, zip(*scenes_of(n, T), strict=True)), classes).f1)
 
     hand_made = [n for n in policies if nbv.PolicyName(protocol.ROWS[n].policy) is not nbv.PolicyName.learned]
-    oracles = [n for n in ("oracle_gr", "oracle_rollout_gr") if n in present] if policies else []
+    oracles = [n for n in present if protocol.ROWS[n].kind is protocol.Kind.ORACLE] if policies else []
     pairs += [("Oracle against the best policy: ", o, best_of(policies), T, T) for o in oracles]
     best_hand_made = best_of(hand_made) if "learned_gr" in present and hand_made else None
     if best_hand_made:  # (issue 37: half the gap best hand-made -> oracle)
