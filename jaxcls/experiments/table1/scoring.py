@@ -83,12 +83,13 @@ def differences(config: Table1Config, by: dict, c: str, classes: int,
             *map(np.concatenate, zip(*scenes_of(n, T), strict=True)), classes).f1)
 
     hand_made = [n for n in policies if nbv.PolicyName(protocol.ROWS[n].policy) is not nbv.PolicyName.learned]
+    best_policy = best_of(policies) if policies else None
     oracles = [n for n in present if protocol.ROWS[n].kind is protocol.Kind.ORACLE] if policies else []
-    pairs += [("Oracle against the best policy: ", o, best_of(policies), T, T) for o in oracles]
+    pairs += [("Oracle against the best policy: ", o, best_policy, T, T) for o in oracles]
     best_hand_made = best_of(hand_made) if "learned_gr" in present and hand_made else None
     if best_hand_made:  # (issue 37: half the gap best hand-made -> oracle)
         pairs.append(("The learned policy against the best hand-made one: ", "learned_gr", best_hand_made, T, T))
-        if best_of(policies) != "learned_gr":  # (else the oracle against the best policy is that pair)
+        if best_policy != "learned_gr":  # (else the oracle against the best policy is that pair)
             pairs += [("Oracle against the learned policy: ", o, "learned_gr", T, T) for o in oracles]
     # Paired on the scenes both rows have (the oracle runs on fewer; an interrupted run may have more); the pairs of
     # one scene set in one bootstrap (``metrics.paired_differences``: the bounds each alone would get).
