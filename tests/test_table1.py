@@ -930,3 +930,22 @@ def test_a_chunk_is_dealt_round_robin_over_the_devices_and_padded_per_device():
     groups = runner.call_scenes(slots, 3, 2)
     assert groups == [{10, 13, 11, 14, 12, 15}, {16}]
     assert runner.call_scenes(runner.chunk_layout(list(range(8)), 2, 4), 2, 4) == [set(range(8))]
+
+
+def test_oracle_moves_gives_each_rows_f1_per_move_and_last_move_gain_on_the_oracles_scenes():
+    """``experiments/oracle_moves.py``: every row's pooled F1 after each move on the scenes the oracle ran (not the
+    policy's others), and its last-move gain paired by scene."""
+    spec = importlib.util.spec_from_file_location("oracle_moves", ROOT / "experiments" / "oracle_moves.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    truth = [0, 1, 2, 3]
+    wrong, right = [0, 1, 0, 0], [0, 1, 2, 3]
+    records = [_record("info_gain_gr", s, 0, truth, [wrong, wrong]) for s in range(3)]  # (scene 2: no oracle)
+    records += [_record("oracle_gr", s, 0, truth, [wrong, right]) for s in range(2)]
+    config = Table1Config(moves=2, runs=1, oracle_scenes=2, rows=("info_gain_gr", "oracle_gr"), classifiers={"c": ""},
+                          resamples=100)
+    text = module.tables(config, records, 4)
+    f1 = [metrics.classification_scores(np.array(truth * 2), np.array(labels * 2), 4).f1 for labels in (wrong, right)]
+    assert "#### Classifier `c`: 2 scenes" in text
+    assert f"| InfoGainGR | {f1[0]:.3f} | {f1[0]:.3f} | +0.000 [+0.000, +0.000] |" in text
+    assert f"| OracleGR | {f1[0]:.3f} | {f1[1]:.3f} | {f1[1] - f1[0]:+.3f} [" in text
