@@ -238,15 +238,16 @@ def test_a_weights_file_of_other_shapes_layout_or_candidate_count_is_refused(tmp
 
 
 def test_the_shipped_policies_load_for_the_moves_planner_and_start_from_infogain():
-    """``real_like`` and ``real_like_paper`` (``jaxcls train-policy --config policy_NAME``): this layout, the
-    move's candidate count (``setup.episode_nbv``), trained from InfoGain for their config's classifier and
-    labels; loaded by name where a run names them."""
-    for name, classifier in (("real_like", "shipped"), ("real_like_paper", "paper")):
+    """Every shipped policy (``jaxcls train-policy --config policy_NAME``): this layout, the move's candidate count
+    (``setup.episode_nbv``), trained from InfoGain for their config's Table 1, classifier and labels; loaded by
+    name where a run names them."""
+    assert set(learned.SHIPPED_WEIGHTS) == {"real_like", "real_like_paper", "synthetic_paper"}
+    for name in learned.SHIPPED_WEIGHTS:
         weights, info = learned.load(name, setup.episode_nbv().max_candidates)
         assert info.features == learned.FEATURES_VERSION and info.metadata["base"] == "info_gain"
-        assert info.metadata["table1"] == "table1_real_like_scale" and info.metadata["rounds"] >= 1
         config = load_config(PolicyConfig, resolve_config(f"policy_{name}"))
-        assert info.metadata["classifier"] == config.classifier == classifier
+        assert info.metadata["table1"] == config.table1 and info.metadata["rounds"] >= 1
+        assert info.metadata["classifier"] == config.classifier == ("shipped" if name == "real_like" else "paper")
         assert info.metadata["labels"] == config.labels.value
         assert weights["params"]["skip"]["kernel"].shape == (learned.CANDIDATE_FEATURES, 1)
         named = setup.policy_weights(dataclasses.replace(setup.episode_nbv(), learned=nbv.Learned(weights=name)))

@@ -53,9 +53,10 @@ FEATURES_VERSION = 2  # the layout above (1: no InfoGain feature, no skip term);
 KIND = "jaxcls view policy"
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 # name -> shipped .msgpack (RESULTS.md, "The learned view policy"): ``jaxcls train-policy --config NAME`` with
-# policy_NAME; real_like for the shipped classifier, real_like_paper for the paper-recipe one (rollout labels).
+# policy_NAME; real_like for the shipped classifier, real_like_paper and synthetic_paper for the paper-recipe one
+# (rollout labels).
 SHIPPED_WEIGHTS: dict[str, Path] = {name: WEIGHTS_DIR / f"learned_{name}.msgpack"
-                                    for name in ("real_like", "real_like_paper")}
+                                    for name in ("real_like", "real_like_paper", "synthetic_paper")}
 
 
 class Base(enum.Enum):
