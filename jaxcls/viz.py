@@ -128,23 +128,26 @@ def policy_curve(history: list[dict]) -> Figure:
     after the last move and the held-out F1 where it was evaluated."""
     rounds = [h for h in history if "round" in h]
     updates = [h for h in history if "update" in h]
-    figure = Figure(figsize=(15 if updates else 10, 4))
-    panels = 3 if updates else 2
-    ax = figure.add_subplot(1, panels, 1)
-    ax.plot([h["round"] for h in rounds], [h["loss"] for h in rounds], color="k", lw=1, marker="o")
-    ax.set(xlabel="round", ylabel="imitation loss (nats, black)")
-    ax.set_title("on every decision so far (the round's training data)", fontsize=9)
-    regret = ax.twinx()
-    regret.plot([h["round"] for h in rounds], [h["regret"] for h in rounds], color="C3", lw=1, marker="s")
-    regret.set(ylabel="regret: F1 given up a decision (red)")
-    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-    ax = figure.add_subplot(1, panels, 2)
-    _held_out_f1(ax, "round", rounds, "")
-    ax.set(xlabel="round", ylabel="held-out macro F1 after the last move")
-    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-    ax.legend(fontsize=8)
+    imitation = bool(rounds) or not updates  # (PPO alone, from a trained policy: its panel only)
+    panels = 2 * imitation + bool(updates)
+    figure = Figure(figsize=(5 * panels, 4))
+    if imitation:
+        ax = figure.add_subplot(1, panels, 1)
+        ax.plot([h["round"] for h in rounds], [h["loss"] for h in rounds], color="k", lw=1, marker="o")
+        ax.set(xlabel="round", ylabel="imitation loss (nats, black)")
+        ax.set_title("on every decision so far (the round's training data)", fontsize=9)
+        regret = ax.twinx()
+        regret.plot([h["round"] for h in rounds], [h["regret"] for h in rounds], color="C3", lw=1, marker="s")
+        regret.set(ylabel="regret: F1 given up a decision (red)")
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax = figure.add_subplot(1, panels, 2)
+        _held_out_f1(ax, "round", rounds, "")
+        ax.set(xlabel="round", ylabel="held-out macro F1 after the last move")
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        if rounds:
+            ax.legend(fontsize=8)
     if updates:
-        ax = figure.add_subplot(1, panels, 3)
+        ax = figure.add_subplot(1, panels, panels)
         ax.plot([h["update"] for h in updates], [h["f1_last"] for h in updates], color="k", lw=1,
                 label="rollouts (sampled), training scenes")
         _held_out_f1(ax, "update", [h for h in updates if "f1_learned" in h], ", held-out")

@@ -5,6 +5,7 @@ and a run stopped after a round resumes to the same weights bit for bit."""
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import jax
@@ -34,9 +35,9 @@ def _table1(tmp: Path) -> Path:
     return config
 
 
-def _config(tmp: Path, out: str, rounds: int, updates: int = 0) -> PolicyConfig:
+def _config(tmp: Path, out: str, rounds: int, updates: int = 0, init: str = "") -> PolicyConfig:
     return PolicyConfig(out_dir=str(tmp / out), table1=str(_table1(tmp)), train_scenes=2, eval_scenes=1, runs=1,
-                        eval_runs=1, rounds=rounds, epochs=4, batch=2, hidden=8, seed=0,
+                        eval_runs=1, rounds=rounds, epochs=4, batch=2, hidden=8, seed=0, init=init,
                         ppo=PPOConfig(updates=updates, epochs=2, minibatches=2, eval_every=1))
 
 
@@ -53,6 +54,20 @@ def test_gae_is_its_definition():
         want = [sum((gamma * lam) ** (k - t) * delta[k] for k in range(t, 5)) for t in range(5)]
         np.testing.assert_allclose(np.asarray(adv[e]), want, rtol=1e-5)
     np.testing.assert_allclose(np.asarray(returns), np.asarray(adv) + value, rtol=1e-6)
+
+
+def test_the_actors_logits_are_its_scores_over_the_temperature_where_allowed():
+    from jaxcls.experiments.policy import ppo
+
+    actor = learned.init(jax.random.key(0), 4, "info_gain")
+    x = learned.Features(pair=jnp.ones((1, 3, 2, learned.PAIR_FEATURES)), live=jnp.ones((1, 2), bool),
+                         candidate=jax.random.uniform(jax.random.key(1), (1, 3, learned.CANDIDATE_FEATURES)))
+    allowed = jnp.array([[True, False, True]])
+    scores = learned.apply(actor, x)
+    for t in (1.0, 0.25):
+        got = ppo.logits(actor, x, allowed, t)
+        np.testing.assert_allclose(np.asarray(got[allowed]), np.asarray(scores[allowed]) / t, rtol=1e-6)
+        assert float(got[0, 1]) == -1e9
 
 
 def test_the_loss_is_minus_the_log_probability_of_the_oracles_best_and_scores_regret():
@@ -114,6 +129,8 @@ def test_training_runs_resumes_bit_for_bit_and_writes_a_policy_the_episode_loads
     _, info = learned.load(tmp_path / "parts" / "policy.msgpack", 4)
     assert info.metadata["rounds"] == 2 and info.metadata["ppo_updates"] == 0
     assert info.metadata["held_out"]["round"] == 2
+    for suffix in (".msgpack", ".json"):  # (round 2's policy, kept for PPO alone from it below)
+        shutil.copy(tmp_path / "parts" / f"policy{suffix}", tmp_path / f"round2{suffix}")
     parts = policy_train.train(_config(tmp_path, "parts", 2, updates=1), show_progress=False)
     def untimed(rounds):
         return [{k: v for k, v in h.items() if k != "seconds"} for h in rounds]
@@ -127,6 +144,19 @@ def test_training_runs_resumes_bit_for_bit_and_writes_a_policy_the_episode_loads
     resumed, _ = learned.load(parts / "policy.msgpack", 4)
     for a, b in zip(jax.tree.leaves(weights), jax.tree.leaves(resumed), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    # PPO alone (rounds: 0) from round 2's policy file: the same update and weights as after the rounds that made it.
+    alone = policy_train.train(_config(tmp_path, "alone", 0, updates=1, init=str(tmp_path / "round2.msgpack")),
+                               show_progress=False)
+    assert untimed(json.loads((alone / "metrics.json").read_text())["history"]) == untimed([reinforced])
+    from_file, info = learned.load(alone / "policy.msgpack", 4)
+    assert info.metadata["rounds"] == 0 and info.metadata["init"] == str(tmp_path / "round2.msgpack")
+    for a, b in zip(jax.tree.leaves(weights), jax.tree.leaves(from_file), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    with pytest.raises(ValueError, match="is a network of width 8; hidden is 4"):
+        policy_train.initial_weights(PolicyConfig(**{**_config(tmp_path, "x", 0, 1, str(tmp_path / "round2.msgpack"))
+                                                     .__dict__, "hidden": 4}), 4)
+    with pytest.raises(ValueError, match=r"rounds: 0 and ppo\.updates: 0 train nothing"):
+        _config(tmp_path, "x", 0)
     with pytest.raises(ValueError, match="other settings \\(epochs differ"):
         policy_train.train(PolicyConfig(**{**_config(tmp_path, "parts", 2, 1).__dict__, "epochs": 5}),
                            show_progress=False)

@@ -34,13 +34,16 @@ class PolicyConfig:
     eval_scenes: int = bounded(8, ge=1)
     runs: int = bounded(4, ge=1)  # start views a training scene and round
     eval_runs: int = bounded(2, ge=1)  # start views a held-out scene
-    rounds: int = bounded(3, ge=1)  # DAgger rounds (may grow when a run resumes)
+    rounds: int = bounded(3, ge=0)  # DAgger rounds (may grow when a run resumes; 0: PPO straight from the start)
     beta: float = bounded(0.5, ge=0.0, le=1.0)  # round r follows the oracle with probability beta ** r
     epochs: int = bounded(30, ge=1)  # passes over every decision so far, each round
     batch: int = bounded(64, ge=1)
     learning_rate: float = bounded(1e-3, gt=0.0)
     hidden: int = bounded(64, ge=1)  # the network's width (``learned.ViewScorer``)
     base: Base = Base.info_gain  # the hand-made policy the network starts as exactly (none: a random network)
+    # Or a trained policy's weights (a shipped name of ``learned.SHIPPED_WEIGHTS`` or a .msgpack with its .json, of
+    # width ``hidden``) it starts from instead: to go on from a shipped policy, e.g. PPO alone with ``rounds: 0``.
+    init: str = ""
     # A candidate's label: its true F1 after its move (greedy: the oracle row's), or at T with ``base`` taking the
     # moves after it (rollout: one step of policy improvement over ``base``; ``base`` must name a policy).
     labels: Label = Label.greedy
@@ -51,6 +54,8 @@ class PolicyConfig:
 
     def __post_init__(self) -> None:
         check_bounds(self)
+        if self.rounds == 0 and self.ppo.updates == 0:
+            raise ValueError("rounds: 0 and ppo.updates: 0 train nothing; give either some")
         if self.labels is Label.rollout and self.base is Base.none:
             raise ValueError("labels: rollout continues each candidate with the base policy; base is none "
                              f"(choose one of {[b.value for b in Base if b is not Base.none]})")

@@ -40,6 +40,7 @@ class PPOConfig:
     gae_lambda: float = bounded(0.95, ge=0.0, le=1.0)
     value_coef: float = bounded(0.5, ge=0.0)
     entropy_coef: float = bounded(0.01, ge=0.0)
+    temperature: float = bounded(1.0, gt=0.0)  # the actor's softmax is over its scores / temperature (< 1: greedier)
     max_grad_norm: float = bounded(0.5, gt=0.0)
     eval_every: int = bounded(10, ge=1)  # updates between held-out evaluations (and the last)
 
@@ -59,8 +60,9 @@ class Decided(struct.PyTreeNode):
     reward: jax.Array
 
 
-def _logits(actor: dict, x: learned.Features, allowed: jax.Array) -> jax.Array:
-    return jnp.where(allowed, learned.apply(actor, x), -1e9)
+def logits(actor: dict, x: learned.Features, allowed: jax.Array, temperature: float = 1.0) -> jax.Array:
+    """The actor's logits [..., C]: its scores of the candidates / ``temperature``, -1e9 where not ``allowed``."""
+    return jnp.where(allowed, learned.apply(actor, x) / temperature, -1e9)
 
 
 def _value(critic: dict, x: learned.Features, allowed: jax.Array) -> jax.Array:
@@ -74,11 +76,11 @@ def _f1(truth: scoring.TruthArrays, state: active.EpisodeState, classes: int) ->
 
 
 def rollout(params: dict, episode: active.Episode, depth: jax.Array, T_wc: jax.Array, scene: jax.Array,
-            start: jax.Array, keys: jax.Array, truths: scoring.TruthArrays, sample: bool = True
-            ) -> tuple[Decided, jax.Array]:
+            start: jax.Array, keys: jax.Array, truths: scoring.TruthArrays, sample: bool = True,
+            temperature: float = 1.0) -> tuple[Decided, jax.Array]:
     """E episodes (scene [E], start [E], keys [E], truths [E] leaves) on the frames depth [S, V, H, W], T_wc [S, V,
-    4, 4], each decision after the first move the actor's (sampled, or its best with ``sample`` False): the
-    [E, T - 1] decisions and [E] each episode's last F1."""
+    4, 4], each decision after the first move the actor's (sampled from ``logits`` at ``temperature``, or its best
+    with ``sample`` False): the [E, T - 1] decisions and [E] each episode's last F1."""
     classes = len(episode.spec.classifier.classes)
     config = episode.nbv_config
 
@@ -93,13 +95,13 @@ def rollout(params: dict, episode: active.Episode, depth: jax.Array, T_wc: jax.A
             index, ok = nbv.candidates(views, config)
             allowed = nbv.unvisited_first(state.views, index, ok)
             x = learned.features(views, active.belief(episode, state), index, ok, episode.spec.intrinsics, config)
-            logits = _logits(params["actor"], x, allowed)
-            action = jax.random.categorical(key, logits) if sample else jnp.argmax(logits)
+            scores = logits(params["actor"], x, allowed, temperature)
+            action = jax.random.categorical(key, scores) if sample else jnp.argmax(scores)
             view = index[action]
             state = active.step(episode, state.replace(next_view=view, next_pose=state.views.T_wc[view]),
                                 depth[s, view], T_wc[s, view])
             after = _f1(truth, state, classes)
-            log_prob = jax.nn.log_softmax(logits)[action]
+            log_prob = jax.nn.log_softmax(scores)[action]
             return (state, after), Decided(x, allowed, action, log_prob, _value(params["critic"], x, allowed),
                                            after - before)
 
@@ -129,8 +131,7 @@ def advantages(reward: jax.Array, value: jax.Array, gamma: float, lam: float) ->
 def loss(params: dict, batch: Decided, adv: jax.Array, returns: jax.Array, config: PPOConfig
          ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """PPO's loss of a minibatch ([B] leading axes): the clipped surrogate, the value's squared error, the entropy."""
-    logits = _logits(params["actor"], batch.features, batch.allowed)
-    log_p = jax.nn.log_softmax(logits)
+    log_p = jax.nn.log_softmax(logits(params["actor"], batch.features, batch.allowed, config.temperature))
     new = jnp.take_along_axis(log_p, batch.action[:, None], axis=-1)[:, 0]
     ratio = jnp.exp(new - batch.log_prob)
     norm = (adv - adv.mean()) / (adv.std() + 1e-8)
@@ -154,7 +155,7 @@ def update(params: dict, opt_state: Any, episode: active.Episode, depth: jax.Arr
     and optimiser state and the update's figures (the rollout's mean last F1 and return, the last pass's losses)."""
     roll_key, shuffle_key = jax.random.split(key)
     decided, last = rollout(params, episode, depth, T_wc, scene, start, jax.random.split(roll_key, start.shape[0]),
-                            truths)
+                            truths, temperature=config.temperature)
     adv, returns = advantages(decided.reward, decided.value, config.gamma, config.gae_lambda)
     flat = jax.tree.map(lambda a: a.reshape(-1, *a.shape[2:]), (decided, adv, returns))
     size = flat[1].shape[0]
@@ -183,4 +184,4 @@ def update(params: dict, opt_state: Any, episode: active.Episode, depth: jax.Arr
     return params, opt_state, {"f1_last": last.mean(), "reward": decided.reward.sum(axis=1).mean(), **out}
 
 
-__all__ = ["Decided", "PPOConfig", "advantages", "loss", "optimizer", "rollout", "update"]
+__all__ = ["Decided", "PPOConfig", "advantages", "logits", "loss", "optimizer", "rollout", "update"]

@@ -11,7 +11,8 @@ optimiser's state) and ``metrics.json``; a run started again resumes after its l
 decisions kept on disk (``decisions_<r>.npz``) so that an interrupted round does not collect them again. A
 round's ``seconds`` in ``metrics.json``: collecting (with ``states_per_second``, the states the oracle stepped to
 and labelled: every candidate of every decision), fitting, evaluating (wall time, compilation included). The run
-ends with ``policy.msgpack`` (+ ``.json``, ``learned.save``) and ``curve.png``.
+ends with ``policy.msgpack`` (+ ``.json``, ``learned.save``) and ``curve.png``. ``init`` starts the network from a
+trained policy's weights instead of ``base``'s (with ``rounds: 0``, PPO alone from a shipped policy).
 """
 
 from __future__ import annotations
@@ -153,6 +154,18 @@ def evaluate(switched: active.Episode, weights: dict, held_out: _Scenes, runs: i
     return out
 
 
+def initial_weights(config: PolicyConfig, max_candidates: int) -> dict:
+    """The network's first weights: those of ``config.init`` (a shipped name or a policy file, of width ``hidden``
+    and ``max_candidates`` candidates, else a ValueError naming both), else ``base``'s exactly (``learned.init``)."""
+    if not config.init:
+        return learned.init(jax.random.key(config.seed), config.hidden, config.base)
+    weights, info = learned.load(config.init, max_candidates)
+    if info.hidden != config.hidden:
+        raise ValueError(f"init: {config.init} is a network of width {info.hidden}; hidden is {config.hidden} "
+                         f"(set hidden={info.hidden})")
+    return weights
+
+
 def _resume_point(out: Path, config: PolicyConfig, manager: ocp.CheckpointManager) -> int:
     """The rounds a run folder finished (0 for a new one), once this config continues it (``rounds`` may grow)."""
     done = manager.latest_step() or 0
@@ -193,7 +206,7 @@ def train(config: PolicyConfig, show_progress: bool = True) -> Path:
     if config.labels is protocol.Label.rollout:  # (the labels' continuations: the base policy's moves)
         oracle = oracle.replace(config=dataclasses.replace(oracle.config, policy=nbv.PolicyName(config.base.value)))
 
-    weights = learned.init(jax.random.key(config.seed), config.hidden, config.base)
+    weights = initial_weights(config, held_out_config.nbv.max_candidates)
     optimizer = optax.adam(config.learning_rate)
     opt_state = optimizer.init(weights)
     params = {"actor": weights, "critic": learned.init(jax.random.key(config.seed + 2), config.hidden)}
@@ -265,6 +278,7 @@ def publish(out: Path, config: PolicyConfig, name: str, max_candidates: int, wei
     viz.save(viz.policy_curve(history), out / "curve.png")
     learned.save(out / "policy.msgpack", weights, max_candidates, {
         "trained_by": "jaxcls train-policy", "table1": config.table1, "classifier": name, "base": config.base.value,
+        "init": config.init,
         "labels": config.labels.value, "rounds": sum("round" in h for h in history),
         "ppo_updates": sum("update" in h for h in history),
         # (the last held-out evaluation, with its round or update: after a PPO update, maybe an earlier one's)
@@ -312,4 +326,4 @@ def _reinforce(config: PolicyConfig, out: Path, manager: ocp.CheckpointManager, 
     return params["actor"]
 
 
-__all__ = ["COMPARED", "evaluate", "fit", "loss", "train"]
+__all__ = ["COMPARED", "evaluate", "fit", "initial_weights", "loss", "train"]
