@@ -152,9 +152,10 @@ def test_training_runs_resumes_bit_for_bit_and_writes_a_policy_the_episode_loads
     assert info.metadata["rounds"] == 0 and info.metadata["init"] == str(tmp_path / "round2.msgpack")
     for a, b in zip(jax.tree.leaves(weights), jax.tree.leaves(from_file), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
-    with pytest.raises(ValueError, match="is a network of width 8; hidden is 4"):
-        policy_train.initial_weights(PolicyConfig(**{**_config(tmp_path, "x", 0, 1, str(tmp_path / "round2.msgpack"))
-                                                     .__dict__, "hidden": 4}), 4)
+    with pytest.raises(ValueError, match="is a network of width 8; hidden is 4"):  # (refused before it is kept)
+        policy_train.train(PolicyConfig(**{**_config(tmp_path, "wide", 0, 1, str(tmp_path / "round2.msgpack"))
+                                           .__dict__, "hidden": 4}), show_progress=False)
+    assert not (tmp_path / "wide" / "config.yaml").exists()
     with pytest.raises(ValueError, match=r"rounds: 0 and ppo\.updates: 0 train nothing"):
         _config(tmp_path, "x", 0)
     with pytest.raises(ValueError, match="other settings \\(epochs differ"):

@@ -951,23 +951,29 @@ def test_oracle_moves_gives_each_rows_f1_per_move_and_last_move_gain_on_the_orac
     assert f"| OracleGR | {f1[0]:.3f} | {f1[1]:.3f} | {f1[1] - f1[0]:+.3f} [" in text
 
 
-def test_compare_runs_pairs_a_row_of_two_runs_after_checking_that_they_drew_the_same_scenes():
-    """``experiments/compare_runs.py``: B's row - A's on their common scenes, the share of A's oracle lead for
-    both; runs whose reference row differs in any episode are refused by name."""
+def test_compare_runs_pairs_a_row_of_two_runs_episode_by_episode_after_checking_that_they_drew_the_same_scenes():
+    """``experiments/compare_runs.py``: B's row - A's on the (scene, run) episodes both hold, the share of each run's
+    oracle lead for both; runs whose reference row differs in any episode, or share none, are refused by name."""
     spec = importlib.util.spec_from_file_location("compare_runs", ROOT / "experiments" / "compare_runs.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     truth, wrong, half, right = [0, 1, 2, 3], [0, 1, 0, 0], [0, 1, 2, 0], [0, 1, 2, 3]
     base = [_record("info_gain_gr", s, 0, truth, [wrong]) for s in range(3)]
     a = base + [_record("learned_gr", s, 0, truth, [wrong]) for s in range(3)]
+    a += [_record("learned_gr", 0, 1, truth, [right])]  # (a run B lacks: left out of the pairs)
     a += [_record("oracle_gr", s, 0, truth, [right]) for s in range(2)]
     b = base + [_record("learned_gr", s, 0, truth, [half]) for s in range(3)]
-    text = module.tables(a, b, ["c"], "learned_gr", "info_gain_gr", 4, moves=1, resamples=100)
+    b += [_record("oracle_gr", 0, 0, truth, [right])]  # (B's oracle on one scene: no interval)
+    text = module.tables(a, b, ["c"], "learned_gr", "info_gain_gr", 4, 1, resamples=100)
     f1 = [metrics.classification_scores(np.array(truth * 3), np.array(x * 3), 4).f1 for x in (wrong, half, right)]
-    assert "- InfoGainGR: the same path and labels in all 3 episodes both runs hold." in text
-    assert f"- LearnedGR: B - A on 3 scenes: {f1[1] - f1[0]:+.3f} [" in text
+    assert "- InfoGainGR: the same start, path and labels in all 3 episodes both runs hold." in text
+    assert f"- LearnedGR: B - A on 3 episodes of 3 scenes: {f1[1] - f1[0]:+.3f} [" in text
     share = (f1[1] - f1[0]) / (f1[2] - f1[0])
-    assert f"| OracleGR (2) | {f1[2] - f1[0]:+.3f} [" in text and f"| +0.000 [+0.000, +0.000] | {share:+.3f} [" in text
+    assert f"| OracleGR (A: 2, 2) | {f1[2] - f1[0]:+.3f} [" in text
+    assert f"| +0.00 [+0.00, +0.00] | {share:+.2f} [" in text
+    assert "| OracleGR (B: 1, 1) | fewer than 2 scenes in common: no interval |" in text
     other = [dict(r, path=[5]) if r["row"] == "info_gain_gr" and r["scene"] == 1 else r for r in b]
     with pytest.raises(ValueError, match=r"info_gain_gr episode \(scene 1, run 0\) has another path"):
-        module.tables(a, other, ["c"], "learned_gr", "info_gain_gr", 4, moves=1, resamples=100)
+        module.tables(a, other, ["c"], "learned_gr", "info_gain_gr", 4, 1, resamples=100)
+    with pytest.raises(ValueError, match="share no vis_occl_gr episode"):
+        module.tables(a, b, ["c"], "learned_gr", "vis_occl_gr", 4, 1, resamples=100)

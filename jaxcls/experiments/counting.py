@@ -41,6 +41,7 @@ import numpy as np
 from jaxcls import metrics, perception
 from jaxcls.episode import protocol
 from jaxcls.experiments import segmentation
+from jaxcls.experiments.table1.data import paired_runs, settings_differ
 from jaxcls.perception import segment
 from jaxcls.perception.settings import ESTIMATED_COUNT_FIELDS
 from jaxcls.world import scenes
@@ -203,25 +204,6 @@ def count_summary(records: Sequence[dict[str, Any]], move: int, resamples: int =
             "scene_count": len(scenes)}
 
 
-def paired_runs(known: Sequence[dict[str, Any]], estimated: Sequence[dict[str, Any]]
-                ) -> dict[tuple[str, str], tuple[list[dict[str, Any]], list[dict[str, Any]]]]:
-    """(classifier, row) -> (its episodes with N given, with N estimated): the (scene, run) episodes both runs
-    stored, in the same order (scene, then run), each once; rows either run lacks are left out."""
-    def index(records):
-        out: dict[tuple[str, str, int, int], dict[str, Any]] = {}
-        for r in records:
-            out.setdefault((r["classifier"], r["row"], int(r["scene"]), int(r["run"])), r)
-        return out
-
-    a, b = index(known), index(estimated)
-    pairs: dict[tuple[str, str], tuple[list, list]] = {}
-    for key in sorted(a.keys() & b.keys(), key=lambda k: (k[0], k[1], k[2], k[3])):
-        x, y = pairs.setdefault(key[:2], ([], []))
-        x.append(a[key])
-        y.append(b[key])
-    return pairs
-
-
 def f1_comparison(known: Sequence[dict[str, Any]], estimated: Sequence[dict[str, Any]], classes: int,
                   resamples: int = 2000) -> dict[str, Any]:
     """F1 of one row's paired episodes (``paired_runs``) after its last move (T): each run's F1 (``given``,
@@ -290,19 +272,9 @@ def run_settings_differ(known: Any, estimated: Any) -> list[str]:
     """The keys (dotted) in which two ``Table1Config``s' results-defining settings differ, besides how N is set
     (``perception.shapes``' ``COUNT_SETTINGS``) and the segmentation settings only an estimated count reads
     (``settings.ESTIMATED_COUNT_FIELDS``): [] where the runs are comparable."""
-    def flat(tree, prefix=""):
-        out = {}
-        for k, v in tree.items():
-            if isinstance(v, dict):
-                out.update(flat(v, f"{prefix}{k}."))
-            else:
-                out[f"{prefix}{k}"] = v
-        return out
-
     skip = ({f"perception.shapes.{k}" for k in COUNT_SETTINGS}
             | {f"perception.segmentation.{k}" for k in ESTIMATED_COUNT_FIELDS})
-    a, b = flat(known.results_defining()), flat(estimated.results_defining())
-    return sorted(k for k in a.keys() | b.keys() if k not in skip and a.get(k) != b.get(k))
+    return [k for k in settings_differ(known, estimated) if k not in skip]
 
 
 def compare_runs(known_dir: str | Path, estimated_dir: str | Path, moves: Sequence[int] = EPISODE_MOVES,

@@ -19,9 +19,11 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
 import json
 import math
 import time
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -154,16 +156,28 @@ def evaluate(switched: active.Episode, weights: dict, held_out: _Scenes, runs: i
     return out
 
 
-def initial_weights(config: PolicyConfig, max_candidates: int) -> dict:
+def initial_weights(config: PolicyConfig, max_candidates: int, classifier: str = "") -> dict:
     """The network's first weights: those of ``config.init`` (a shipped name or a policy file, of width ``hidden``
-    and ``max_candidates`` candidates, else a ValueError naming both), else ``base``'s exactly (``learned.init``)."""
+    and ``max_candidates`` candidates, else a ValueError naming both; a warning where the file was trained for
+    another ``classifier``), else ``base``'s exactly (``learned.init``)."""
     if not config.init:
         return learned.init(jax.random.key(config.seed), config.hidden, config.base)
     weights, info = learned.load(config.init, max_candidates)
     if info.hidden != config.hidden:
         raise ValueError(f"init: {config.init} is a network of width {info.hidden}; hidden is {config.hidden} "
                          f"(set hidden={info.hidden})")
+    trained_for = info.metadata.get("classifier")
+    if classifier and trained_for and trained_for != classifier:
+        warnings.warn(f"init: {config.init} was trained for classifier {trained_for!r}; this run trains it for "
+                      f"{classifier!r}", stacklevel=2)
     return weights
+
+
+def _init_digest(config: PolicyConfig) -> str:
+    """The SHA-256 of ``config.init``'s weights file ("" without one): which weights a run started from."""
+    if not config.init:
+        return ""
+    return hashlib.sha256(Path(learned.SHIPPED_WEIGHTS.get(config.init, config.init)).read_bytes()).hexdigest()
 
 
 def _resume_point(out: Path, config: PolicyConfig, manager: ocp.CheckpointManager) -> int:
@@ -191,13 +205,14 @@ def train(config: PolicyConfig, show_progress: bool = True) -> Path:
     out = Path(config.out_dir)
     manager = ocp.CheckpointManager(out.resolve() / "checkpoints")
     start = _resume_point(out, config, manager)
-    save_config(config, out / "config.yaml")
     held_out_config = dataclasses.replace(config.table1_config(), scenes=config.eval_scenes)
+    name = config.classifier_name(held_out_config)
+    weights = initial_weights(config, held_out_config.nbv.max_candidates, name)  # (checked before the run is kept)
+    save_config(config, out / "config.yaml")
     training_config = config.training_config()
     dataset, train_set = open_scenes(training_config)
     _, eval_set = open_scenes(held_out_config)
     object_set = object_set_from_config(dataset.objects)
-    name = config.classifier_name(held_out_config)
     classifier = setup.load_classifier(held_out_config.classifiers[name], object_set, f"classifiers.{name}")
     training, held_out = _Scenes(training_config, train_set, object_set), _Scenes(held_out_config, eval_set, object_set)
     first = training.frames()[0][1]
@@ -206,7 +221,6 @@ def train(config: PolicyConfig, show_progress: bool = True) -> Path:
     if config.labels is protocol.Label.rollout:  # (the labels' continuations: the base policy's moves)
         oracle = oracle.replace(config=dataclasses.replace(oracle.config, policy=nbv.PolicyName(config.base.value)))
 
-    weights = initial_weights(config, held_out_config.nbv.max_candidates)
     optimizer = optax.adam(config.learning_rate)
     opt_state = optimizer.init(weights)
     params = {"actor": weights, "critic": learned.init(jax.random.key(config.seed + 2), config.hidden)}
@@ -278,7 +292,7 @@ def publish(out: Path, config: PolicyConfig, name: str, max_candidates: int, wei
     viz.save(viz.policy_curve(history), out / "curve.png")
     learned.save(out / "policy.msgpack", weights, max_candidates, {
         "trained_by": "jaxcls train-policy", "table1": config.table1, "classifier": name, "base": config.base.value,
-        "init": config.init,
+        "init": config.init, "init_sha256": _init_digest(config),
         "labels": config.labels.value, "rounds": sum("round" in h for h in history),
         "ppo_updates": sum("update" in h for h in history),
         # (the last held-out evaluation, with its round or update: after a PPO update, maybe an earlier one's)

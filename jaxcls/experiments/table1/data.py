@@ -59,6 +59,40 @@ def record_key(r: dict[str, Any]) -> tuple[str, str, int, int]:
     return r["classifier"], r["row"], int(r["scene"]), int(r["run"])
 
 
+def paired_runs(first: Sequence[dict[str, Any]], second: Sequence[dict[str, Any]]
+                ) -> dict[tuple[str, str], tuple[list[dict[str, Any]], list[dict[str, Any]]]]:
+    """(classifier, row) -> (the first run's episodes, the second's): the (scene, run) episodes both runs stored
+    (``record_key``), in the same order (scene, then run), each once; rows either run lacks are left out."""
+    def index(records):
+        out: dict[tuple[str, str, int, int], dict[str, Any]] = {}
+        for r in records:
+            out.setdefault(record_key(r), r)
+        return out
+
+    a, b = index(first), index(second)
+    pairs: dict[tuple[str, str], tuple[list, list]] = {}
+    for key in sorted(a.keys() & b.keys()):
+        x, y = pairs.setdefault(key[:2], ([], []))
+        x.append(a[key])
+        y.append(b[key])
+    return pairs
+
+
+def settings_differ(a: Table1Config, b: Table1Config) -> list[str]:
+    """The keys (dotted, sorted) in which two Table 1 configs' results-defining settings differ: [] for the same."""
+    def flat(tree, prefix=""):
+        out = {}
+        for k, v in tree.items():
+            if isinstance(v, dict):
+                out.update(flat(v, f"{prefix}{k}."))
+            else:
+                out[f"{prefix}{k}"] = v
+        return out
+
+    x, y = flat(a.results_defining()), flat(b.results_defining())
+    return sorted(k for k in x.keys() | y.keys() if x.get(k) != y.get(k))
+
+
 def of_config(config: Table1Config, records: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """The episodes of ``records`` of this config's classifiers, rows and first ``scenes`` scenes (all if 0),
     the oracle's on its first ``oracle_scenes`` (``runner.run_episodes``' rule), each (classifier, row, scene,

@@ -116,14 +116,14 @@ def differences(config: Table1Config, by: dict, c: str, classes: int,
             continue
         share = metrics.share_of_gap(*(scenes_of(n, T, scenes) for n in three), classes, resamples=config.resamples)
         ours, a, b = (protocol.ROWS[n].label for n in three)
-        estimate, low, high = map(_share, share)
+        estimate, low, high = map(format_share, share)
         why = f" (+inf: the oracle does not lead {a} there)" if "inf" in estimate + low + high else ""
         notes.append(f"The share of the oracle's lead the learned policy closes: ({ours} - {a}) / ({b} - {a}) on the "
                      f"{len(scenes)} scenes of all three: {estimate} [{low}, {high}]{why}")
     return notes
 
 
-def _share(x: float) -> str:
+def format_share(x: float) -> str:
     """A share at two decimals; beyond +-1,000 +-inf (+inf: the oracle does not lead the base,
     ``metrics.SHARE_UNDEFINED``; a percentile between that and a share is no share either)."""
     return f"{x:+.2f}" if abs(x) < 1e3 else ("+inf" if x > 0 else "-inf")
