@@ -148,7 +148,8 @@ def policy_curve(history: list[dict]) -> Figure:
             ax.legend(fontsize=8)
     if updates:
         ax = figure.add_subplot(1, panels, panels)
-        ax.plot([h["update"] for h in updates], [h["f1_last"] for h in updates], color="k", lw=1,
+        rolled = [h for h in updates if "f1_last" in h]  # (update 0: the starting policy, evaluated only)
+        ax.plot([h["update"] for h in rolled], [h["f1_last"] for h in rolled], color="k", lw=1,
                 label="rollouts (sampled), training scenes")
         _held_out_f1(ax, "update", [h for h in updates if "f1_learned" in h], ", held-out")
         ax.set(xlabel="PPO update", ylabel="macro F1 after the last move")

@@ -147,9 +147,12 @@ def test_training_runs_resumes_bit_for_bit_and_writes_a_policy_the_episode_loads
     # PPO alone (rounds: 0) from round 2's policy file: the same update and weights as after the rounds that made it.
     alone = policy_train.train(_config(tmp_path, "alone", 0, updates=1, init=str(tmp_path / "round2.msgpack")),
                                show_progress=False)
-    assert untimed(json.loads((alone / "metrics.json").read_text())["history"]) == untimed([reinforced])
+    start, *rest = json.loads((alone / "metrics.json").read_text())["history"]
+    assert untimed(rest) == untimed([reinforced])
+    assert start["update"] == 0 and start["f1_learned"] == history[1]["f1_learned"]  # (round 2's policy, evaluated)
     from_file, info = learned.load(alone / "policy.msgpack", 4)
-    assert info.metadata["rounds"] == 0 and info.metadata["init"] == str(tmp_path / "round2.msgpack")
+    assert info.metadata["rounds"] == 0 and info.metadata["ppo_updates"] == 1
+    assert info.metadata["init"] == str(tmp_path / "round2.msgpack") and len(info.metadata["init_sha256"]) == 64
     for a, b in zip(jax.tree.leaves(weights), jax.tree.leaves(from_file), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     with pytest.raises(ValueError, match="is a network of width 8; hidden is 4"):  # (refused before it is kept)

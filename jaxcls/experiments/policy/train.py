@@ -294,7 +294,7 @@ def publish(out: Path, config: PolicyConfig, name: str, max_candidates: int, wei
         "trained_by": "jaxcls train-policy", "table1": config.table1, "classifier": name, "base": config.base.value,
         "init": config.init, "init_sha256": _init_digest(config),
         "labels": config.labels.value, "rounds": sum("round" in h for h in history),
-        "ppo_updates": sum("update" in h for h in history),
+        "ppo_updates": sum(h.get("update", 0) > 0 for h in history),
         # (the last held-out evaluation, with its round or update: after a PPO update, maybe an earlier one's)
         "held_out": next(({k: v for k, v in h.items() if k.startswith(("f1_", "learned_")) or k in ("round", "update")}
                           for h in reversed(history) if "f1_learned" in h), {})})
@@ -305,7 +305,8 @@ def _reinforce(config: PolicyConfig, out: Path, manager: ocp.CheckpointManager, 
                held_out_config: Table1Config, done: int, history: list[dict], name: str, show_progress: bool) -> dict:
     """PPO updates ``done``..``ppo.updates`` on every training scene's ``runs`` episodes (new starts each update),
     each checkpointed as step ``rounds + update``, evaluated on the held-out scenes every ``ppo.eval_every``
-    updates and after the last. Returns the actor's weights."""
+    updates and after the last (and before the first where there were no imitation rounds: ``update`` 0). Returns
+    the actor's weights."""
     if oracle.config.moves < 2:
         raise ValueError(f"train-policy: PPO needs episodes of at least 2 moves (decisions after the first); "
                          f"{config.table1} has moves = {oracle.config.moves}")
@@ -317,6 +318,10 @@ def _reinforce(config: PolicyConfig, out: Path, manager: ocp.CheckpointManager, 
     objects = max(len(t.label) for t in truths)
     padded = [scoring.TruthArrays.of(t, objects) for t in truths]
     env = oracle.replace(config=dataclasses.replace(oracle.config, policy=nbv.PolicyName.random))  # (overridden)
+    if done == 0 and config.rounds == 0:  # (PPO alone: the starting policy's held-out figures, as update 0)
+        history.append({"update": 0, **evaluate(switched, params["actor"], held_out, config.eval_runs,
+                                                held_out_config.seed, held_out_config.moves)})
+        publish(out, config, name, held_out_config.nbv.max_candidates, params["actor"], history)
     key = jax.random.key(config.seed + 3)
     bar = tqdm(range(done, config.ppo.updates), desc="train-policy: PPO", unit="update", initial=done,
                total=config.ppo.updates, disable=not show_progress)
