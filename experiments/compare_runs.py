@@ -35,10 +35,11 @@ from jaxcls.world.objects import object_set_from_config
 Records = list[dict[str, Any]]
 
 
-def check_same_scenes(a: Records, b: Records, classifier: str, reference: str) -> int:
-    """The number of ``reference`` episodes of ``classifier`` both record lists hold, each with the same start,
-    path, true and refined labels; ValueError naming the first that differs, or where none is shared."""
-    pair = data.paired_runs(a, b).get((classifier, reference))
+def check_same_scenes(pairs: dict[tuple[str, str], tuple[Records, Records]], classifier: str, reference: str) -> int:
+    """The number of ``reference`` episodes of ``classifier`` two runs both hold (``pairs``: ``data.paired_runs``
+    of them), each with the same start, path, true and refined labels; ValueError naming the first that differs,
+    or where none is shared."""
+    pair = pairs.get((classifier, reference))
     if not pair:
         raise ValueError(f"classifier {classifier!r}: the runs share no {reference} episode to check that they "
                          "drew the same scenes, starts and keys (choose another --reference)")
@@ -70,10 +71,9 @@ def tables(a: Records, b: Records, classifiers: list[str], row: str, reference: 
     and each oracle row's (of run A or B) lead over ``reference`` with the shares of it both close, on the
     episodes all of them hold (at least 2 scenes; fewer: said, no interval)."""
     label, ref_label = protocol.ROWS[row].label, protocol.ROWS[reference].label
-    lines = []
+    lines, pairs = [], data.paired_runs(a, b)
     for c in classifiers:
-        checked = check_same_scenes(a, b, c, reference)
-        pairs = data.paired_runs(a, b)
+        checked = check_same_scenes(pairs, c, reference)
         if (c, row) not in pairs:
             raise ValueError(f"classifier {c!r}: the runs have no episode of {row} in common")
         (row_a, row_b), (ref_a, _) = pairs[c, row], pairs[c, reference]

@@ -187,11 +187,16 @@ def save(path: str | Path, weights: dict, max_candidates: int, metadata: dict | 
     return path
 
 
+def weights_file(path: str | Path) -> Path:
+    """The ``.msgpack`` a policy's weights are in: a shipped name's (``SHIPPED_WEIGHTS``), else ``path``."""
+    return Path(SHIPPED_WEIGHTS.get(str(path), path))
+
+
 def load(path: str | Path, max_candidates: int) -> tuple[dict, Info]:
     """The weights at ``path`` (a shipped name of ``SHIPPED_WEIGHTS``, or a ``.msgpack`` with its ``.json``) for
     a planner of ``max_candidates`` candidates, on the default device, and their ``Info``. ValueError naming the
     file where they are not a view policy's, of another feature layout, other shapes or another candidate count."""
-    path = Path(SHIPPED_WEIGHTS.get(str(path), path))
+    path = weights_file(path)
     info_path = path.with_suffix(".json")
     for p in (path, info_path):
         if not p.is_file():

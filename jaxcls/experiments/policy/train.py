@@ -177,7 +177,7 @@ def _init_digest(config: PolicyConfig) -> str:
     """The SHA-256 of ``config.init``'s weights file ("" without one): which weights a run started from."""
     if not config.init:
         return ""
-    return hashlib.sha256(Path(learned.SHIPPED_WEIGHTS.get(config.init, config.init)).read_bytes()).hexdigest()
+    return hashlib.sha256(learned.weights_file(config.init).read_bytes()).hexdigest()
 
 
 def _resume_point(out: Path, config: PolicyConfig, manager: ocp.CheckpointManager) -> int:
