@@ -139,10 +139,13 @@ def test_config_errors_name_the_problem(workspace):
     assert cli_main(["train", "--config", "configs/pointnet.yaml", "batch_size=0"]) == 2
 
 
-def test_data_parallel_over_four_host_devices(workspace, straight_run):
+def test_data_parallel_over_four_host_devices(workspace):
     """The batch split over 4 forced host devices: the compiled epoch all-reduces, two steps give the same
-    losses as on one device, and ``train`` runs there (its first epoch matches; later ones
-    drift apart as float rounding differs and training amplifies it)."""
+    losses as on one device, and ``train`` runs there: with one step an epoch, its first loss (before any update)
+    is the one-device run's. (Later steps drift apart as the sums' order differs and Adam amplifies it: after five
+    steps the first epoch's mean loss differed by 4%, with jax 0.10.2, flax 0.12.8 and optax 0.2.8.)"""
+    one_step = {"steps_per_epoch": 1, "epochs": 1}
+    single = train(_tiny_config(workspace, out_dir=str(workspace / "single"), **one_step), show_progress=False)
     script = textwrap.dedent(f"""
         import dataclasses, json, sys
         from pathlib import Path
@@ -154,7 +157,7 @@ def test_data_parallel_over_four_host_devices(workspace, straight_run):
         from jaxcls.learn.clouds import CloudSet
         from jaxcls.learn.train import create_state, make_bank, make_train_epoch, train
         assert jax.device_count() == 4, jax.devices()
-        config = _tiny_config(Path({str(workspace)!r}), out_dir={str(workspace / "parallel")!r})
+        config = _tiny_config(Path({str(workspace)!r}), out_dir={str(workspace / "parallel")!r}, **{one_step!r})
         rng = np.random.default_rng(0)
         fake = CloudSet(rng.normal(size=(8, 64, 3)).astype(np.float32), np.ones((8, 64), bool),
                         np.arange(8, dtype=np.int32), np.zeros(8, np.int32), np.zeros(8, np.int32),
@@ -181,8 +184,8 @@ def test_data_parallel_over_four_host_devices(workspace, straight_run):
                             cwd=Path(__file__).parent.parent)
     assert result.returncode == 0, result.stderr[-3000:]
     losses = json.loads(result.stdout.strip().splitlines()[-1])
-    assert len(losses) == 4 and np.all(np.isfinite(losses))
-    assert losses[0] == pytest.approx(_history(straight_run)[0]["loss"], rel=2e-2)
+    assert len(losses) == 1 and np.all(np.isfinite(losses))
+    assert losses[0] == pytest.approx(_history(single)[0]["loss"], rel=2e-4)
 
 
 def test_training_on_a_model_folder(tmp_path):
