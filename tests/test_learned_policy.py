@@ -6,6 +6,7 @@ count is refused by name."""
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 
 import jax
@@ -241,12 +242,18 @@ def test_the_shipped_policies_load_for_the_moves_planner_and_start_from_infogain
     """Every shipped policy (``jaxcls train-policy --config policy_NAME``): this layout, the move's candidate count
     (``setup.episode_nbv``), trained from InfoGain for their config's Table 1, classifier and labels; loaded by
     name where a run names them."""
-    assert set(learned.SHIPPED_WEIGHTS) == {"real_like", "real_like_paper", "synthetic_paper"}
+    assert set(learned.SHIPPED_WEIGHTS) == {"real_like", "real_like_paper", "synthetic_paper", "real_like_paper_ppo",
+                                            "synthetic_paper_ppo"}
     for name in learned.SHIPPED_WEIGHTS:
         weights, info = learned.load(name, setup.episode_nbv().max_candidates)
         assert info.features == learned.FEATURES_VERSION and info.metadata["base"] == "info_gain"
         config = load_config(PolicyConfig, resolve_config(f"policy_{name}"))
-        assert info.metadata["table1"] == config.table1 and info.metadata["rounds"] >= 1
+        assert info.metadata["table1"] == config.table1 and info.metadata["rounds"] == config.rounds
+        assert info.metadata["ppo_updates"] == config.ppo.updates and config.rounds + config.ppo.updates >= 1
+        if config.init:  # PPO from a shipped imitation policy: that very file (its digest)
+            assert info.metadata["init"] == config.init and config.init in learned.SHIPPED_WEIGHTS
+            digest = hashlib.sha256(learned.weights_file(config.init).read_bytes()).hexdigest()
+            assert info.metadata["init_sha256"] == digest
         assert info.metadata["classifier"] == config.classifier == ("shipped" if name == "real_like" else "paper")
         assert info.metadata["labels"] == config.labels.value
         assert weights["params"]["skip"]["kernel"].shape == (learned.CANDIDATE_FEATURES, 1)

@@ -52,11 +52,12 @@ INFO_GAIN = 8  # the candidate feature that is InfoGain's utility
 FEATURES_VERSION = 2  # the layout above (1: no InfoGain feature, no skip term); weights of another are refused
 KIND = "jaxcls view policy"
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
-# name -> shipped .msgpack (RESULTS.md, "The learned view policy"): ``jaxcls train-policy --config NAME`` with
-# policy_NAME; real_like for the shipped classifier, real_like_paper and synthetic_paper for the paper-recipe one
-# (rollout labels).
+# name -> shipped .msgpack (RESULTS.md, "The learned view policy"): ``jaxcls train-policy --config policy_NAME``;
+# real_like for the shipped classifier; for the paper-recipe one real_like_paper and synthetic_paper (imitation of
+# rollout labels), and real_like_paper_ppo and synthetic_paper_ppo (PPO from those two).
 SHIPPED_WEIGHTS: dict[str, Path] = {name: WEIGHTS_DIR / f"learned_{name}.msgpack"
-                                    for name in ("real_like", "real_like_paper", "synthetic_paper")}
+                                    for name in ("real_like", "real_like_paper", "synthetic_paper",
+                                                 "real_like_paper_ppo", "synthetic_paper_ppo")}
 
 
 class Base(enum.Enum):
