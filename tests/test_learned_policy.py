@@ -254,6 +254,8 @@ def test_the_shipped_policies_load_for_the_moves_planner_and_start_from_infogain
             assert info.metadata["init"] == config.init and config.init in learned.SHIPPED_WEIGHTS
             digest = hashlib.sha256(learned.weights_file(config.init).read_bytes()).hexdigest()
             assert info.metadata["init_sha256"] == digest
+        else:  # (imitation from ``base``)
+            assert not info.metadata.get("init")
         assert info.metadata["classifier"] == config.classifier == ("shipped" if name == "real_like" else "paper")
         assert info.metadata["labels"] == config.labels.value
         assert weights["params"]["skip"]["kernel"].shape == (learned.CANDIDATE_FEATURES, 1)

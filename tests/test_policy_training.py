@@ -99,6 +99,7 @@ def test_training_runs_resumes_bit_for_bit_and_writes_a_policy_the_episode_loads
     reinforced = history[2]
     assert reinforced["update"] == 1 and 0 <= reinforced["f1_last"] <= 1 and np.isfinite(reinforced["entropy"])
     assert 0 <= reinforced["f1_learned"] <= 1  # (evaluated on the held-out scene)
+    assert reinforced["seconds"]["evaluate"] > 0 and reinforced["seconds"]["kept"] > 0  # (the update's other costs)
     history = history[:2]
     decisions = [Decisions.load(whole / f"decisions_{r}.npz") for r in range(2)]
     assert [len(d) for d in decisions] == [2 * 1 * 1] * 2  # scenes x runs x the decisions after move 1

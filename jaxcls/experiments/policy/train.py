@@ -336,11 +336,15 @@ def _reinforce(config: PolicyConfig, out: Path, manager: ocp.CheckpointManager, 
         entry["seconds"] = {"update": time.perf_counter() - began,
                             "moves_per_second": len(at) * env.config.moves / (time.perf_counter() - began)}
         if (u + 1) % config.ppo.eval_every == 0 or u + 1 == config.ppo.updates:
+            began = time.perf_counter()
             entry.update(evaluate(switched, params["actor"], held_out, config.eval_runs, held_out_config.seed,
                                   held_out_config.moves))
+            entry["seconds"]["evaluate"] = time.perf_counter() - began
         history.append(entry)
+        began = time.perf_counter()
         publish(out, config, name, held_out_config.nbv.max_candidates, params["actor"], history)
         manager.save(config.rounds + u + 1, args=ocp.args.StandardSave({"params": params, "opt_state": rl_state}))
+        entry["seconds"]["kept"] = time.perf_counter() - began  # (in metrics.json from the next update's on)
         bar.set_postfix(f1=f"{entry['f1_last']:.3f}", entropy=f"{entry['entropy']:.3f}")
     return params["actor"]
 
