@@ -210,7 +210,7 @@ def test_a_rollout_label_needs_a_base_policy():
 def test_an_episode_without_the_learned_policys_weights_says_so():
     world = make_world(WORLD, seed=1)
     settings = dataclasses.replace(SETTINGS, episode=dataclasses.replace(SETTINGS.episode, policy="learned"))
-    with pytest.raises(ValueError, match="needs its weights"):
+    with pytest.raises(ValueError, match=r"needs its weights .*a shipped name: real_like, .*real_like_paper_ppo"):
         setup.make_episode(settings, world.object_set, world.intrinsics, world.table_height)
     episode = setup.make_episode(SETTINGS, world.object_set, world.intrinsics, world.table_height)
     assert nbv.PolicyName.learned not in episode.switched().policies
@@ -267,7 +267,7 @@ def test_a_table1_row_of_the_learned_policy_needs_its_weights_named_per_classifi
     from jaxcls.experiments.table1 import runner
     from jaxcls.experiments.table1.config import Table1Config
 
-    with pytest.raises(ValueError, match="rows: learned_gr runs the learned policy; name its weights"):
+    with pytest.raises(ValueError, match=r"rows: learned_gr runs the learned policy; name its weights .*name: real_"):
         Table1Config(rows=("vis_occl_hist_gr", "learned_gr"), classifiers={"shipped": ""})
     named = Table1Config(rows=("learned_gr",), classifiers={"shipped": ""},
                          nbv=dataclasses.replace(nbv.NBVConfig(), learned=nbv.Learned(weights="runs/p/policy.msgpack")))

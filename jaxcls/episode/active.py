@@ -39,7 +39,7 @@ from jaxcls.perception import observation, pose
 from jaxcls.perception.observation import Observation
 from jaxcls.perception.refine import ModelLibrary, RefineConfig, Refinement, YawSource, explained, refine
 from jaxcls.perception.settings import ObjectCount, Spec
-from jaxcls.planning import nbv
+from jaxcls.planning import learned, nbv
 
 STABLE_DISTANCE = 0.05  # m: a segment is the same object as last move's nearest segment within this
 
@@ -121,7 +121,8 @@ class Episode:
             raise ValueError("episode: the perception spec has no classifier (Spec.create(..., classifier=...))")
         if config.policy in nbv.WEIGHTED and policy_weights is None:
             raise ValueError(f"episode: policy {config.policy} needs its weights (nbv.learned.weights: a file "
-                             "written by jaxcls train-policy)")
+                             f"written by jaxcls train-policy, or a shipped name: {', '.join(learned.SHIPPED_WEIGHTS)};"
+                             " RESULTS.md, \"The learned view policy\", says which classifier each was trained for)")
         spec.classifier.check_classes(library.classes, "model library")
         refine_config = refine_config.resolve(spec.classifier.config.yaw_head, "the classifier's weights")
         points = np.asarray(library.targets.points, np.float32)  # [L, S, 3]
