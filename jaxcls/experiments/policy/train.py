@@ -173,11 +173,13 @@ def initial_weights(config: PolicyConfig, max_candidates: int, classifier: str =
     return weights
 
 
-def _init_digest(config: PolicyConfig) -> str:
-    """The SHA-256 of ``config.init``'s weights file ("" without one): which weights a run started from."""
-    if not config.init:
+@functools.cache
+def _init_digest(init: str) -> str:
+    """The SHA-256 of the weights file ``init`` names ("" for none): which weights a run started from (read once a
+    process, not at every ``publish``)."""
+    if not init:
         return ""
-    return hashlib.sha256(learned.weights_file(config.init).read_bytes()).hexdigest()
+    return hashlib.sha256(learned.weights_file(init).read_bytes()).hexdigest()
 
 
 def _resume_point(out: Path, config: PolicyConfig, manager: ocp.CheckpointManager) -> int:
@@ -292,7 +294,7 @@ def publish(out: Path, config: PolicyConfig, name: str, max_candidates: int, wei
     viz.save(viz.policy_curve(history), out / "curve.png")
     learned.save(out / "policy.msgpack", weights, max_candidates, {
         "trained_by": "jaxcls train-policy", "table1": config.table1, "classifier": name, "base": config.base.value,
-        "init": config.init, "init_sha256": _init_digest(config),
+        "init": config.init, "init_sha256": _init_digest(config.init),
         "labels": config.labels.value, "rounds": sum("round" in h for h in history),
         "ppo_updates": sum(h.get("update", 0) > 0 for h in history),
         # (the last held-out evaluation, with its round or update: after a PPO update, maybe an earlier one's)

@@ -11,7 +11,7 @@ from jaxcls.config import bounded, check_bounds, load_config
 from jaxcls.episode import active, batched, protocol, setup
 from jaxcls.perception.refine import RefineConfig
 from jaxcls.perception.settings import PerceptionConfig
-from jaxcls.planning.learned import SHIPPED_WEIGHTS as SHIPPED_POLICIES
+from jaxcls.planning import learned
 from jaxcls.planning.nbv import WEIGHTED as NBV_WEIGHTED
 from jaxcls.planning.nbv import NBVConfig
 
@@ -81,7 +81,8 @@ class Table1Config:
             if protocol.row(name, "rows").policy in NBV_WEIGHTED and without:
                 raise ValueError(f"rows: {name} runs the learned policy; name its weights with nbv.learned.weights "
                                  f"or, per classifier, learned_weights (a policy.msgpack written by jaxcls "
-                                 f"train-policy, or a shipped name: {', '.join(SHIPPED_POLICIES)}); none for {without}")
+                                 f"train-policy, or a shipped name: {', '.join(learned.SHIPPED_WEIGHTS)}); none for "
+                                 f"{without}")
 
     def nbv_of(self, classifier: str) -> NBVConfig:
         """The move's NBV settings for ``classifier``'s episodes: ``nbv`` with its learned policy's weights from
