@@ -243,7 +243,7 @@ def test_the_shipped_policies_load_for_the_moves_planner_and_start_from_infogain
     (``setup.episode_nbv``), trained from InfoGain for their config's Table 1, classifier and labels; loaded by
     name where a run names them."""
     assert set(learned.SHIPPED_WEIGHTS) == {"real_like", "real_like_paper", "synthetic_paper", "real_like_paper_ppo",
-                                            "synthetic_paper_ppo"}
+                                            "synthetic_paper_ppo", "real_like_paper_ppo_scenes256"}
     for name in learned.SHIPPED_WEIGHTS:
         weights, info = learned.load(name, setup.episode_nbv().max_candidates)
         assert info.features == learned.FEATURES_VERSION and info.metadata["base"] == "info_gain"

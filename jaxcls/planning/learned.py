@@ -54,10 +54,12 @@ KIND = "jaxcls view policy"
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 # name -> shipped .msgpack (RESULTS.md, "The learned view policy"): ``jaxcls train-policy --config policy_NAME``;
 # real_like for the shipped classifier; for the paper-recipe one real_like_paper and synthetic_paper (imitation of
-# rollout labels), and real_like_paper_ppo and synthetic_paper_ppo (PPO from those two).
+# rollout labels), real_like_paper_ppo and synthetic_paper_ppo (PPO from those two), and real_like_paper_ppo_scenes256
+# (PPO from real_like_paper_ppo on 4x the training scenes: the best on the real-like set).
 SHIPPED_WEIGHTS: dict[str, Path] = {name: WEIGHTS_DIR / f"learned_{name}.msgpack"
                                     for name in ("real_like", "real_like_paper", "synthetic_paper",
-                                                 "real_like_paper_ppo", "synthetic_paper_ppo")}
+                                                 "real_like_paper_ppo", "synthetic_paper_ppo",
+                                                 "real_like_paper_ppo_scenes256")}
 
 
 class Base(enum.Enum):
