@@ -4,6 +4,7 @@ and a run stopped after a round resumes to the same weights bit for bit."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -13,11 +14,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxcls.episode import scoring
 from jaxcls.experiments.policy import train as policy_train
 from jaxcls.experiments.policy.config import PolicyConfig
 from jaxcls.experiments.policy.data import Decisions
 from jaxcls.experiments.policy.ppo import PPOConfig
+from jaxcls.experiments.table1.data import open_scenes
 from jaxcls.planning import learned
+from jaxcls.world.objects import object_set_from_config
 
 
 def _table1(tmp: Path) -> Path:
@@ -167,3 +171,42 @@ def test_training_runs_resumes_bit_for_bit_and_writes_a_policy_the_episode_loads
                            show_progress=False)
     with pytest.raises(ValueError, match="began its PPO updates after 2 rounds; rounds stays 2"):
         policy_train.train(_config(tmp_path, "parts", 3, 1), show_progress=False)
+
+
+def test_ppo_slides_its_window_over_the_training_scenes_and_resumes_it_bit_for_bit(tmp_path):
+    """``ppo.new_scenes``: update u sees training scenes [u * new, u * new + train_scenes), scene i's frames and
+    truth in slot i % train_scenes, the very frames the scene set renders for it; a run grown from 1 update to 2
+    (the window made anew at update 2) ends with the weights and figures of a run of 2."""
+    def sliding(out: str, updates: int) -> PolicyConfig:
+        config = _config(tmp_path, out, 0, updates=updates)
+        return dataclasses.replace(config, ppo=dataclasses.replace(config.ppo, new_scenes=1))
+
+    config = sliding("whole", 2)
+    assert config.stream_scenes() == 3 and config.training_config().scenes == 2
+    training_config = sliding("unit", 4).training_config()  # (scenes 0-4)
+    _, scene_set = open_scenes(training_config)
+    object_set = object_set_from_config(scene_set.dataset.objects)
+    window = policy_train._Window(policy_train._Scenes(training_config, scene_set, object_set), 2, 1,
+                                  scene_set.dataset.scene.num_objects)
+    assert window.at(0) == 2 and window.scene == [0, 1]
+    assert window.at(2) == 2 and window.scene == [2, 3] and window.at(2) == 0
+    assert window.at(3) == 1 and window.scene == [4, 3]  # (scene 4 in the oldest's slot)
+    alone = scene_set.chunk([3, 4])
+    np.testing.assert_array_equal(np.asarray(window.depth), np.asarray(alone.depth)[::-1])
+    np.testing.assert_array_equal(np.asarray(window.T_wc), np.asarray(alone.T_wc, np.float32)[::-1])
+    truth = scoring.Truth.from_scene(alone.scenes[1], object_set)
+    np.testing.assert_array_equal(window.truths[0].label, truth.label)
+
+    whole = policy_train.train(config, show_progress=False)
+    policy_train.train(sliding("grown", 1), show_progress=False)
+    grown = policy_train.train(sliding("grown", 2), show_progress=False)
+    histories = [json.loads((run / "metrics.json").read_text())["history"] for run in (whole, grown)]
+    assert [h.get("scenes") for h in histories[0]] == [None, [0, 1], [1, 2]]  # (update 0: the start's evaluation)
+    assert [{k: v for k, v in h.items() if k != "seconds"} for h in histories[1]] == \
+        [{k: v for k, v in h.items() if k != "seconds"} for h in histories[0]]
+    for a, b in zip(jax.tree.leaves(learned.load(whole / "policy.msgpack", 4)[0]),
+                    jax.tree.leaves(learned.load(grown / "policy.msgpack", 4)[0]), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    with pytest.raises(ValueError, match=r"ppo\.new_scenes: 3 scenes replaced an update, more than the "
+                                         r"train_scenes = 2"):
+        dataclasses.replace(config, ppo=dataclasses.replace(config.ppo, new_scenes=3))

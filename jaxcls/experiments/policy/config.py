@@ -56,6 +56,9 @@ class PolicyConfig:
         check_bounds(self)
         if self.rounds == 0 and self.ppo.updates == 0:
             raise ValueError("rounds: 0 and ppo.updates: 0 train nothing; give either some")
+        if self.ppo.new_scenes > self.train_scenes:
+            raise ValueError(f"ppo.new_scenes: {self.ppo.new_scenes} scenes replaced an update, more than the "
+                             f"train_scenes = {self.train_scenes} in memory; give at most {self.train_scenes}")
         if self.labels is Label.rollout and self.base is Base.none:
             raise ValueError("labels: rollout continues each candidate with the base policy; base is none "
                              f"(choose one of {[b.value for b in Base if b is not Base.none]})")
@@ -66,8 +69,9 @@ class PolicyConfig:
 
     def training_config(self) -> Table1Config:
         """The Table 1 config over the training scenes: its dataset's config drawn with ``train_seed`` and
-        rendered where the episodes run. Refused where that is its own seed (the scenes would be the held-out
-        ones)."""
+        rendered where the episodes run: ``train_scenes`` of them, and as many as PPO's window slides over
+        (``ppo.new_scenes``; a scene is the same whatever their count). Refused where that is its own seed (the
+        scenes would be the held-out ones)."""
         from jaxcls.experiments.table1.data import dataset_config
 
         held_out = self.table1_config()
@@ -77,7 +81,12 @@ class PolicyConfig:
                              "choose another")
         return dataclasses.replace(held_out, scene_source=SceneSource.device, scenes=self.train_scenes,
                                    dataset_overrides=(*held_out.dataset_overrides, f"seed={self.train_seed}",
-                                                      f"num_scenes={max(self.train_scenes, 1)}"))
+                                                      f"num_scenes={self.stream_scenes()}"))
+
+    def stream_scenes(self) -> int:
+        """The training scenes the run draws: ``train_scenes``, and ``ppo.new_scenes`` more for each PPO update
+        after the first."""
+        return self.train_scenes + max(self.ppo.updates - 1, 0) * self.ppo.new_scenes
 
     def classifier_name(self, config: Table1Config) -> str:
         """``classifier``, or the Table 1 config's first; ValueError naming the choices."""

@@ -29,9 +29,16 @@ from jaxcls.planning import learned, nbv
 @dataclasses.dataclass(frozen=True)
 class PPOConfig:
     """The ``ppo:`` block of ``PolicyConfig``: after the imitation rounds, ``updates`` PPO updates (0: none), each
-    on ``runs`` episodes of every training scene."""
+    on ``runs`` episodes of every one of the ``train_scenes`` training scenes whose frames are in memory.
+
+    With ``new_scenes`` > 0 those scenes are a window that slides along the training draw: update u (from 0) sees
+    scenes [u * new_scenes, u * new_scenes + train_scenes), the ``new_scenes`` it has not seen rendered in place
+    of the oldest before it runs. Every update then rolls out as many episodes as before, and a run of U updates
+    sees train_scenes + (U - 1) * new_scenes scenes, each for train_scenes / new_scenes updates. 0: the same scenes
+    every update."""
 
     updates: int = bounded(0, ge=0)
+    new_scenes: int = bounded(0, ge=0)  # training scenes replaced before each update (at most train_scenes)
     epochs: int = bounded(4, ge=1)  # passes over an update's decisions
     minibatches: int = bounded(4, ge=1)
     learning_rate: float = bounded(1e-4, gt=0.0)

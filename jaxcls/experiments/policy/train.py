@@ -124,6 +124,61 @@ class _Scenes:
         return self.chunks
 
 
+@functools.partial(jax.jit, donate_argnums=0)
+def _put(pool: jax.Array, slots: jax.Array, values: jax.Array) -> jax.Array:
+    """``pool`` [P, ...] with rows ``slots`` [S] set to ``values`` [S, ...], in place (its buffer donated)."""
+    return pool.at[slots].set(values)
+
+
+@dataclasses.dataclass
+class _Window:
+    """PPO's training scenes in memory: ``size`` scenes' frames (depth [size, V, H, W] m, T_wc [size, V, 4, 4] f32,
+    on the device) and truths (``TruthArrays`` padded to ``objects``), scene ``i`` of the training draw in slot
+    ``i % size``. Update u (from 0) sees scenes [u * step, u * step + size) (``ppo.new_scenes``: 0, the same
+    ``size`` scenes every update)."""
+
+    training: _Scenes
+    size: int
+    step: int
+    objects: int
+    scene: list[int] = dataclasses.field(default_factory=list)  # [size] the scene in each slot (-1: none yet)
+    truths: list = dataclasses.field(default_factory=list)  # [size] ``TruthArrays``
+    depth: Any = None
+    T_wc: Any = None
+
+    def at(self, update: int) -> int:
+        """Holds update ``update``'s scenes, rendering (or taking from the rounds' frames) those it lacks; returns
+        how many it added."""
+        first = update * self.step
+        wanted = [i for i in range(first, first + self.size) if self.scene[i % self.size] != i] if self.scene else \
+            list(range(first, first + self.size))
+        if not wanted:
+            return 0
+        if not self.scene:
+            self.scene, self.truths = [-1] * self.size, [None] * self.size
+        if first == 0 and self.depth is None and self.training.chunks:  # (the rounds' frames: no new render)
+            parts = list(self.training.chunks)
+        else:
+            step = self.training.config.scene_chunk
+            parts = [(wanted[at:at + step], None, None) for at in range(0, len(wanted), step)]
+        for indices, chunk, truths in parts:
+            if chunk is None:
+                chunk = self.training.scene_set.chunk(indices)
+                truths = [scoring.Truth.from_scene(s, self.training.object_set) for s in chunk.scenes]
+            depth, T_wc = jnp.asarray(chunk.depth, jnp.float32), jnp.asarray(chunk.T_wc, jnp.float32)
+            if self.depth is None:  # (the pool, made once; chunks go in place after)
+                self.depth = jnp.zeros((self.size, *depth.shape[1:]), jnp.float32)
+                self.T_wc = jnp.zeros((self.size, *T_wc.shape[1:]), jnp.float32)
+            slots = jnp.asarray([i % self.size for i in indices], jnp.int32)
+            self.depth, self.T_wc = _put(self.depth, slots, depth), _put(self.T_wc, slots, T_wc)
+            for i, truth in zip(indices, truths, strict=True):
+                self.scene[i % self.size] = i
+                self.truths[i % self.size] = scoring.TruthArrays.of(truth, self.objects)
+        self.training.chunks.clear()  # (the rounds' frames are in the pool now, or not needed: memory back)
+        jax.block_until_ready((self.depth, self.T_wc))
+        return len(wanted)
+
+
 def _runs(seed: int, scenes: list[int], runs: int, views: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(scene position [R], start [R], keys [R]) of ``runs`` runs of each scene (Table 1's starts and keys)."""
     at = np.repeat(np.arange(len(scenes)), runs)
@@ -217,9 +272,9 @@ def train(config: PolicyConfig, show_progress: bool = True) -> Path:
     object_set = object_set_from_config(dataset.objects)
     classifier = setup.load_classifier(held_out_config.classifiers[name], object_set, f"classifiers.{name}")
     training, held_out = _Scenes(training_config, train_set, object_set), _Scenes(held_out_config, eval_set, object_set)
-    first = training.frames()[0][1]
-    oracle = runner.episode(held_out_config, protocol.ROWS["oracle_gr"], classifier, object_set, first.intrinsics,
-                            first.scenes[0].table_height, dataset.scene.split, name=name)
+    intrinsics, table_height, _ = train_set.frame_layout()  # (from the config: no frame rendered for them)
+    oracle = runner.episode(held_out_config, protocol.ROWS["oracle_gr"], classifier, object_set, intrinsics,
+                            table_height, dataset.scene.split, name=name)
     if config.labels is protocol.Label.rollout:  # (the labels' continuations: the base policy's moves)
         oracle = oracle.replace(config=dataclasses.replace(oracle.config, policy=nbv.PolicyName(config.base.value)))
 
@@ -305,20 +360,16 @@ def publish(out: Path, config: PolicyConfig, name: str, max_candidates: int, wei
 def _reinforce(config: PolicyConfig, out: Path, manager: ocp.CheckpointManager, params: dict, rl_state: Any,
                oracle: active.Episode, switched: active.Episode, training: _Scenes, held_out: _Scenes,
                held_out_config: Table1Config, done: int, history: list[dict], name: str, show_progress: bool) -> dict:
-    """PPO updates ``done``..``ppo.updates`` on every training scene's ``runs`` episodes (new starts each update),
-    each checkpointed as step ``rounds + update``, evaluated on the held-out scenes every ``ppo.eval_every``
-    updates and after the last (and before the first where there were no imitation rounds: ``update`` 0). Returns
-    the actor's weights."""
+    """PPO updates ``done``..``ppo.updates`` on ``runs`` episodes of each training scene in memory (new starts each
+    update; the scenes a ``_Window`` of the training draw: ``ppo.new_scenes`` new ones each update), each
+    checkpointed as step ``rounds + update``, evaluated on the held-out scenes every ``ppo.eval_every`` updates and
+    after the last (and before the first where there were no imitation rounds: ``update`` 0). Returns the actor's
+    weights."""
     if oracle.config.moves < 2:
         raise ValueError(f"train-policy: PPO needs episodes of at least 2 moves (decisions after the first); "
                          f"{config.table1} has moves = {oracle.config.moves}")
-    chunks = training.frames()
-    depth = jnp.concatenate([jnp.asarray(chunk.depth, jnp.float32) for _, chunk, _ in chunks])
-    T_wc = jnp.asarray(np.concatenate([chunk.T_wc for _, chunk, _ in chunks]), jnp.float32)
-    scenes = [s for indices, _, _ in chunks for s in indices]
-    truths = [t for _, _, scene_truths in chunks for t in scene_truths]
-    objects = max(len(t.label) for t in truths)
-    padded = [scoring.TruthArrays.of(t, objects) for t in truths]
+    window = _Window(training, config.train_scenes, config.ppo.new_scenes,
+                     training.scene_set.dataset.scene.num_objects)
     env = oracle.replace(config=dataclasses.replace(oracle.config, policy=nbv.PolicyName.random))  # (overridden)
     if done == 0 and config.rounds == 0:  # (PPO alone: the starting policy's held-out figures, as update 0)
         history.append({"update": 0, **evaluate(switched, params["actor"], held_out, config.eval_runs,
@@ -329,14 +380,18 @@ def _reinforce(config: PolicyConfig, out: Path, manager: ocp.CheckpointManager, 
                total=config.ppo.updates, disable=not show_progress)
     for u in bar:
         began = time.perf_counter()
-        at, starts, _ = _runs(config.seed + 104729 * (u + 1), scenes, config.runs, T_wc.shape[1])
-        episode_truths = jax.tree.map(lambda *xs: np.stack(xs), *[padded[a] for a in at])
-        params, rl_state, figures = ppo.update(params, rl_state, env, depth, T_wc, jnp.asarray(at),
+        added = {"new_scenes": time.perf_counter() - began} if window.at(u) else {}  # (their frames made or moved in)
+        scenes_in = {"scenes": [min(window.scene), max(window.scene)]}  # (the window's first and last scene)
+        began = time.perf_counter()
+        at, starts, _ = _runs(config.seed + 104729 * (u + 1), window.scene, config.runs, window.T_wc.shape[1])
+        episode_truths = jax.tree.map(lambda *xs: np.stack(xs), *[window.truths[a] for a in at])
+        params, rl_state, figures = ppo.update(params, rl_state, env, window.depth, window.T_wc, jnp.asarray(at),
                                                jnp.asarray(starts, jnp.int32), episode_truths,
                                                jax.random.fold_in(key, u), config.ppo)
-        entry: dict[str, Any] = {"update": u + 1, **{k: float(v) for k, v in figures.items()}}
+        entry: dict[str, Any] = {"update": u + 1, **{k: float(v) for k, v in figures.items()}, **scenes_in}
         entry["seconds"] = {"update": time.perf_counter() - began,
-                            "moves_per_second": len(at) * env.config.moves / (time.perf_counter() - began)}
+                            "moves_per_second": len(at) * env.config.moves / (time.perf_counter() - began),
+                            **added}
         if (u + 1) % config.ppo.eval_every == 0 or u + 1 == config.ppo.updates:
             began = time.perf_counter()
             entry.update(evaluate(switched, params["actor"], held_out, config.eval_runs, held_out_config.seed,

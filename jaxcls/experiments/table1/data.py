@@ -224,6 +224,10 @@ class Scenes:
             views = self.load(indices)
             return Chunk(scenes=[v.scene for v in views], depth=np.stack([v.depth for v in views]),
                          T_wc=np.stack([v.T_wc for v in views]), intrinsics=views[0].intrinsics)
+        beyond = [i for i in indices if not 0 <= i < self.dataset.num_scenes]
+        if beyond:
+            raise ValueError(f"Scenes.chunk: scenes {beyond} asked of a draw of {self.dataset.num_scenes} "
+                             f"(dataset num_scenes)")
         return _render(self.dataset, tuple(indices), self.backend)
 
 
