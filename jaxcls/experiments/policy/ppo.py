@@ -34,8 +34,8 @@ class PPOConfig:
     With ``new_scenes`` > 0 those scenes are a window that slides along the training draw: update u (from 0) sees
     scenes [u * new_scenes, u * new_scenes + train_scenes), the ``new_scenes`` it has not seen rendered in place
     of the oldest before it runs. Every update then rolls out as many episodes as before, and a run of U updates
-    sees train_scenes + (U - 1) * new_scenes scenes, each for train_scenes / new_scenes updates. 0: the same scenes
-    every update."""
+    sees train_scenes + (U - 1) * new_scenes scenes, each in about train_scenes / new_scenes updates. 0: the same
+    scenes every update."""
 
     updates: int = bounded(0, ge=0)
     new_scenes: int = bounded(0, ge=0)  # training scenes replaced before each update (at most train_scenes)

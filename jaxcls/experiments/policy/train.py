@@ -156,12 +156,15 @@ class _Window:
             return 0
         if not self.scene:
             self.scene, self.truths = [-1] * self.size, [None] * self.size
-        if first == 0 and self.depth is None and self.training.chunks:  # (the rounds' frames: no new render)
-            parts = list(self.training.chunks)
+        rounds = self.training.chunks  # (the rounds' frames of scenes 0.., let go one by one once in the pool)
+        if first == 0 and self.depth is None and rounds:
+            queue = rounds
         else:
+            rounds.clear()
             step = self.training.config.scene_chunk
-            parts = [(wanted[at:at + step], None, None) for at in range(0, len(wanted), step)]
-        for indices, chunk, truths in parts:
+            queue = [(wanted[at:at + step], None, None) for at in range(0, len(wanted), step)]
+        while queue:
+            indices, chunk, truths = queue.pop(0)
             if chunk is None:
                 chunk = self.training.scene_set.chunk(indices)
                 truths = [scoring.Truth.from_scene(s, self.training.object_set) for s in chunk.scenes]
@@ -174,7 +177,7 @@ class _Window:
             for i, truth in zip(indices, truths, strict=True):
                 self.scene[i % self.size] = i
                 self.truths[i % self.size] = scoring.TruthArrays.of(truth, self.objects)
-        self.training.chunks.clear()  # (the rounds' frames are in the pool now, or not needed: memory back)
+            del chunk, depth
         jax.block_until_ready((self.depth, self.T_wc))
         return len(wanted)
 
