@@ -253,7 +253,7 @@ def _render(dataset: DatasetConfig, indices: tuple[int, ...], backend: Backend) 
     from jaxcls.world.setup import make_world
 
     object_set, bank = _bank(dataset.objects, dataset.scene, dataset.camera)
-    seeds = scene_seeds(dataset.seed, max(indices) + 1)  # (the first of the draw's: the same whatever its count)
+    seeds = scene_seeds(dataset.seed, max(indices, default=-1) + 1)  # (the draw's first: the same whatever its count)
     drawn = [scenes.sample_scene(object_set, dataset.scene, seeds[i], dataset.objects) for i in indices]
     T_true = np.stack([make_world(dataset.world_config(), scene=s, object_set=object_set).viewpoints for s in drawn])
     frames = bank.render(drawn, T_true, backend, batch=1024, kinematics=KINEMATICS)  # (loads_beside_renders')
