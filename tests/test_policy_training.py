@@ -186,8 +186,7 @@ def test_ppo_slides_its_window_over_the_training_scenes_and_resumes_it_bit_for_b
     training_config = sliding("unit", 4).training_config()  # (scenes 0-4)
     _, scene_set = open_scenes(training_config)
     object_set = object_set_from_config(scene_set.dataset.objects)
-    window = policy_train._Window(policy_train._Scenes(training_config, scene_set, object_set), 2, 1,
-                                  scene_set.dataset.scene.num_objects)
+    window = policy_train._Window(policy_train._Scenes(training_config, scene_set, object_set), 1)
     assert window.at(0) == 2 and window.scene == [0, 1]
     assert window.at(2) == 2 and window.scene == [2, 3] and window.at(2) == 0
     assert window.at(3) == 1 and window.scene == [4, 3]  # (scene 4 in the oldest's slot)

@@ -132,30 +132,33 @@ def _put(pool: jax.Array, slots: jax.Array, values: jax.Array) -> jax.Array:
 
 @dataclasses.dataclass
 class _Window:
-    """PPO's training scenes in memory: ``size`` scenes' frames (depth [size, V, H, W] m, T_wc [size, V, 4, 4] f32,
-    on the device) and truths (``TruthArrays`` padded to ``objects``), scene ``i`` of the training draw in slot
-    ``i % size``. Update u (from 0) sees scenes [u * step, u * step + size) (``ppo.new_scenes``: 0, the same
-    ``size`` scenes every update)."""
+    """PPO's training scenes in memory: ``training``'s ``size`` scenes' frames (depth [size, V, H, W] m, T_wc [size,
+    V, 4, 4] f32, on the device) and truths (``TruthArrays`` padded to the scenes' object count), scene ``i`` of the
+    training draw in slot ``i % size``. Update u (from 0) sees scenes [u * step, u * step + size) (``step``:
+    ``ppo.new_scenes``; 0, the same ``size`` scenes every update)."""
 
     training: _Scenes
-    size: int
     step: int
-    objects: int
-    scene: list[int] = dataclasses.field(default_factory=list)  # [size] the scene in each slot (-1: none yet)
-    truths: list = dataclasses.field(default_factory=list)  # [size] ``TruthArrays``
+    scene: list[int] = dataclasses.field(init=False)  # [size] the scene in each slot (-1: none yet)
+    truths: list = dataclasses.field(init=False)  # [size] ``TruthArrays``
     depth: Any = None
     T_wc: Any = None
+
+    def __post_init__(self) -> None:
+        self.scene, self.truths = [-1] * self.size, [None] * self.size
+
+    @property
+    def size(self) -> int:
+        return self.training.scene_set.count
 
     def at(self, update: int) -> int:
         """Holds update ``update``'s scenes, rendering (or taking from the rounds' frames) those it lacks; returns
         how many it added."""
         first = update * self.step
-        wanted = [i for i in range(first, first + self.size) if self.scene[i % self.size] != i] if self.scene else \
-            list(range(first, first + self.size))
+        wanted = [i for i in range(first, first + self.size) if self.scene[i % self.size] != i]
         if not wanted:
             return 0
-        if not self.scene:
-            self.scene, self.truths = [-1] * self.size, [None] * self.size
+        objects = self.training.scene_set.dataset.scene.num_objects  # (the truths' padding: every scene's count)
         rounds = self.training.chunks  # (the rounds' frames of scenes 0.., let go one by one once in the pool)
         if first == 0 and self.depth is None and rounds:
             queue = rounds
@@ -176,7 +179,7 @@ class _Window:
             self.depth, self.T_wc = _put(self.depth, slots, depth), _put(self.T_wc, slots, T_wc)
             for i, truth in zip(indices, truths, strict=True):
                 self.scene[i % self.size] = i
-                self.truths[i % self.size] = scoring.TruthArrays.of(truth, self.objects)
+                self.truths[i % self.size] = scoring.TruthArrays.of(truth, objects)
             del chunk, depth
         jax.block_until_ready((self.depth, self.T_wc))
         return len(wanted)
@@ -371,8 +374,7 @@ def _reinforce(config: PolicyConfig, out: Path, manager: ocp.CheckpointManager, 
     if oracle.config.moves < 2:
         raise ValueError(f"train-policy: PPO needs episodes of at least 2 moves (decisions after the first); "
                          f"{config.table1} has moves = {oracle.config.moves}")
-    window = _Window(training, config.train_scenes, config.ppo.new_scenes,
-                     training.scene_set.dataset.scene.num_objects)
+    window = _Window(training, config.ppo.new_scenes)
     env = oracle.replace(config=dataclasses.replace(oracle.config, policy=nbv.PolicyName.random))  # (overridden)
     if done == 0 and config.rounds == 0:  # (PPO alone: the starting policy's held-out figures, as update 0)
         history.append({"update": 0, **evaluate(switched, params["actor"], held_out, config.eval_runs,
