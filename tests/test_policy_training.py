@@ -196,7 +196,11 @@ def test_ppo_slides_its_window_over_the_training_scenes_and_resumes_it_bit_for_b
     truth = scoring.Truth.from_scene(alone.scenes[1], object_set)
     np.testing.assert_array_equal(window.truths[0].label, truth.label)
 
+    programs = policy_train.ppo.update._cache_size()
     whole = policy_train.train(config, show_progress=False)
+    # One program for both updates: the first update's inputs (the init's weights, a fresh critic and optimiser)
+    # are placed as the later ones' (the update's outputs), else the second update compiles it again.
+    assert policy_train.ppo.update._cache_size() == programs + 1
     policy_train.train(sliding("grown", 1), show_progress=False)
     grown = policy_train.train(sliding("grown", 2), show_progress=False)
     histories = [json.loads((run / "metrics.json").read_text())["history"] for run in (whole, grown)]

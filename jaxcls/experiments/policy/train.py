@@ -172,9 +172,10 @@ class _Window:
                 chunk = self.training.scene_set.chunk(indices)
                 truths = [scoring.Truth.from_scene(s, self.training.object_set) for s in chunk.scenes]
             depth, T_wc = jnp.asarray(chunk.depth, jnp.float32), jnp.asarray(chunk.T_wc, jnp.float32)
-            if self.depth is None:  # (the pool, made once; chunks go in place after)
-                self.depth = jnp.zeros((self.size, *depth.shape[1:]), jnp.float32)
-                self.T_wc = jnp.zeros((self.size, *T_wc.shape[1:]), jnp.float32)
+            if self.depth is None:  # (the pool, made once, committed to the frames' device; chunks go in place after)
+                device = next(iter(depth.devices()))
+                self.depth = jnp.zeros((self.size, *depth.shape[1:]), jnp.float32, device=device)
+                self.T_wc = jnp.zeros((self.size, *T_wc.shape[1:]), jnp.float32, device=device)
             slots = jnp.asarray([i % self.size for i in indices], jnp.int32)
             self.depth, self.T_wc = _put(self.depth, slots, depth), _put(self.T_wc, slots, T_wc)
             for i, truth in zip(indices, truths, strict=True):
@@ -390,6 +391,9 @@ def _reinforce(config: PolicyConfig, out: Path, manager: ocp.CheckpointManager, 
         began = time.perf_counter()
         at, starts, _ = _runs(config.seed + 104729 * (u + 1), window.scene, config.runs, window.T_wc.shape[1])
         episode_truths = jax.tree.map(lambda *xs: np.stack(xs), *[window.truths[a] for a in at])
+        # (committed where the frames are, as the update's outputs are: the first update's inputs then place like
+        # every later one's, and ``ppo.update`` compiles once, not twice; BENCHMARKS.md, "the slow second update")
+        params, rl_state = jax.device_put((params, rl_state), window.depth.sharding)
         params, rl_state, figures = ppo.update(params, rl_state, env, window.depth, window.T_wc, jnp.asarray(at),
                                                jnp.asarray(starts, jnp.int32), episode_truths,
                                                jax.random.fold_in(key, u), config.ppo)
