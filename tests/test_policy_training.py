@@ -160,6 +160,20 @@ def test_training_runs_resumes_bit_for_bit_and_writes_a_policy_the_episode_loads
     assert info.metadata["init"] == str(tmp_path / "round2.msgpack") and len(info.metadata["init_sha256"]) == 64
     for a, b in zip(jax.tree.leaves(weights), jax.tree.leaves(from_file), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    # Its 2 episodes rolled out one after the other (ppo.rollout_batch: 1), not together: the same decisions, so the
+    # same F1 and rewards; the update's steps then agree to float32 rounding (a group of 1 is computed in another
+    # order than one of 2), which Adam may turn into up to a step apart: each of the 4 steps moves a weight by at
+    # most about the learning rate.
+    config = _config(tmp_path, "grouped", 0, updates=1, init=str(tmp_path / "round2.msgpack"))
+    config = dataclasses.replace(config, ppo=dataclasses.replace(config.ppo, rollout_batch=1))
+    grouped = policy_train.train(config, show_progress=False)
+    _, one_by_one = json.loads((grouped / "metrics.json").read_text())["history"]
+    assert one_by_one["f1_last"] == reinforced["f1_last"] and one_by_one["reward"] == reinforced["reward"]
+    assert one_by_one["entropy"] == pytest.approx(reinforced["entropy"], rel=1e-4)
+    steps = config.ppo.epochs * config.ppo.minibatches
+    for a, b in zip(jax.tree.leaves(from_file), jax.tree.leaves(learned.load(grouped / "policy.msgpack", 4)[0]),
+                    strict=True):
+        assert np.max(np.abs(np.asarray(b) - np.asarray(a))) <= 2 * steps * config.ppo.learning_rate
     with pytest.raises(ValueError, match="is a network of width 8; hidden is 4"):  # (refused before it is kept)
         policy_train.train(PolicyConfig(**{**_config(tmp_path, "wide", 0, 1, str(tmp_path / "round2.msgpack"))
                                            .__dict__, "hidden": 4}), show_progress=False)

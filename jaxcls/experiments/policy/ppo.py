@@ -35,7 +35,11 @@ class PPOConfig:
     scenes [u * new_scenes, u * new_scenes + train_scenes), the ``new_scenes`` it has not seen rendered in place
     of the oldest before it runs. Every update then rolls out as many episodes as before, and a run of U updates
     sees train_scenes + (U - 1) * new_scenes scenes, each in about train_scenes / new_scenes updates. 0: the same
-    scenes every update."""
+    scenes every update.
+
+    ``rollout_batch`` > 0 rolls an update's episodes out in groups of that many, one group after the other
+    (``lax.map``), so the rollout's memory is a group's, not every episode's: more episodes an update than fit on
+    the device at once, at the same figures. 0: all at once (``vmap``)."""
 
     updates: int = bounded(0, ge=0)
     new_scenes: int = bounded(0, ge=0)  # training scenes replaced before each update (at most train_scenes)
@@ -50,6 +54,7 @@ class PPOConfig:
     temperature: float = bounded(1.0, gt=0.0)  # the actor's softmax is over its scores / temperature (< 1: greedier)
     max_grad_norm: float = bounded(0.5, gt=0.0)
     eval_every: int = bounded(10, ge=1)  # updates between held-out evaluations (and the last)
+    rollout_batch: int = bounded(0, ge=0)  # episodes rolled out at once (0: all; else groups of it under lax.map)
 
     def __post_init__(self) -> None:
         check_bounds(self, "ppo.")
@@ -84,10 +89,11 @@ def _f1(truth: scoring.TruthArrays, state: active.EpisodeState, classes: int) ->
 
 def rollout(params: dict, episode: active.Episode, depth: jax.Array, T_wc: jax.Array, scene: jax.Array,
             start: jax.Array, keys: jax.Array, truths: scoring.TruthArrays, sample: bool = True,
-            temperature: float = 1.0) -> tuple[Decided, jax.Array]:
+            temperature: float = 1.0, batch: int = 0) -> tuple[Decided, jax.Array]:
     """E episodes (scene [E], start [E], keys [E], truths [E] leaves) on the frames depth [S, V, H, W], T_wc [S, V,
     4, 4], each decision after the first move the actor's (sampled from ``logits`` at ``temperature``, or its best
-    with ``sample`` False): the [E, T - 1] decisions and [E] each episode's last F1."""
+    with ``sample`` False): the [E, T - 1] decisions and [E] each episode's last F1. ``batch`` > 0: the episodes
+    in groups of ``batch`` (``lax.map``; the last group the remainder), else all at once."""
     classes = len(episode.spec.classifier.classes)
     config = episode.nbv_config
 
@@ -116,6 +122,8 @@ def rollout(params: dict, episode: active.Episode, depth: jax.Array, T_wc: jax.A
                                               jax.random.split(key, episode.config.moves - 1))
         return decided, last
 
+    if 0 < batch < start.shape[0]:
+        return jax.lax.map(lambda args: one(*args), (scene, start, keys, truths), batch_size=batch)
     return jax.vmap(one)(scene, start, keys, truths)
 
 
@@ -162,7 +170,7 @@ def update(params: dict, opt_state: Any, episode: active.Episode, depth: jax.Arr
     and optimiser state and the update's figures (the rollout's mean last F1 and return, the last pass's losses)."""
     roll_key, shuffle_key = jax.random.split(key)
     decided, last = rollout(params, episode, depth, T_wc, scene, start, jax.random.split(roll_key, start.shape[0]),
-                            truths, temperature=config.temperature)
+                            truths, temperature=config.temperature, batch=config.rollout_batch)
     adv, returns = advantages(decided.reward, decided.value, config.gamma, config.gae_lambda)
     flat = jax.tree.map(lambda a: a.reshape(-1, *a.shape[2:]), (decided, adv, returns))
     size = flat[1].shape[0]
