@@ -386,7 +386,8 @@ def _reinforce(config: PolicyConfig, out: Path, manager: ocp.CheckpointManager, 
                total=config.ppo.updates, disable=not show_progress)
     for u in bar:
         began = time.perf_counter()
-        added = {"new_scenes": time.perf_counter() - began} if window.at(u) else {}  # (their frames made or moved in)
+        moved_in = window.at(u)  # (the scenes whose frames it rendered or moved into the window)
+        added = {"new_scenes": time.perf_counter() - began} if moved_in else {}
         scenes_in = {"scenes": [min(window.scene), max(window.scene)]}  # (the window's first and last scene)
         began = time.perf_counter()
         at, starts, _ = _runs(config.seed + 104729 * (u + 1), window.scene, config.runs, window.T_wc.shape[1])
