@@ -60,6 +60,24 @@ def test_gae_is_its_definition():
     np.testing.assert_allclose(np.asarray(returns), np.asarray(adv) + value, rtol=1e-6)
 
 
+def test_the_groups_baseline_is_the_mean_of_the_other_episodes_return_to_go():
+    from jaxcls.experiments.policy import ppo
+
+    rng = np.random.default_rng(1)
+    reward = rng.normal(size=(6, 4))  # (2 groups of 3 episodes, 4 decisions)
+    gamma = 0.9
+    adv, returns = ppo.group_advantages(jnp.asarray(reward), 3, gamma)
+    to_go = np.array([[sum(gamma ** (k - t) * reward[e, k] for k in range(t, 4)) for t in range(4)]
+                      for e in range(6)])
+    np.testing.assert_allclose(np.asarray(returns), to_go, rtol=1e-5)
+    for e in range(6):
+        others = [o for o in range(3 * (e // 3), 3 * (e // 3) + 3) if o != e]
+        np.testing.assert_allclose(np.asarray(adv[e]), to_go[e] - to_go[others].mean(axis=0), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(adv).reshape(2, 3, 4).sum(axis=1), 0.0, atol=1e-5)
+    with pytest.raises(ValueError, match="6 episodes do not make groups of 4"):
+        ppo.group_advantages(jnp.asarray(reward), 4, gamma)
+
+
 def test_the_actors_logits_are_its_scores_over_the_temperature_where_allowed():
     from jaxcls.experiments.policy import ppo
 
@@ -174,6 +192,14 @@ def test_training_runs_resumes_bit_for_bit_and_writes_a_policy_the_episode_loads
     for a, b in zip(jax.tree.leaves(from_file), jax.tree.leaves(learned.load(grouped / "policy.msgpack", 4)[0]),
                     strict=True):
         assert np.max(np.abs(np.asarray(b) - np.asarray(a))) <= 2 * steps * config.ppo.learning_rate
+    # ppo.group: each run twice, the actor (nearly) greedy. The two episodes of a run then take the same views,
+    # their returns are equal and every advantage is 0: the groups hold one scene and start, and the update takes
+    # the group's baseline. GAE over a fresh critic (a group of 1, the run above) gives advantages that are not.
+    config = _config(tmp_path, "twice", 0, updates=1, init=str(tmp_path / "round2.msgpack"))
+    config = dataclasses.replace(config, ppo=dataclasses.replace(config.ppo, group=2, temperature=1e-6))
+    _, twice = json.loads((policy_train.train(config, show_progress=False) / "metrics.json").read_text())["history"]
+    assert twice["advantage"] == 0.0 and reinforced["advantage"] > 0
+    assert 0 <= twice["f1_last"] <= 1
     with pytest.raises(ValueError, match="is a network of width 8; hidden is 4"):  # (refused before it is kept)
         policy_train.train(PolicyConfig(**{**_config(tmp_path, "wide", 0, 1, str(tmp_path / "round2.msgpack"))
                                            .__dict__, "hidden": 4}), show_progress=False)

@@ -7,7 +7,9 @@ The actor is the learned policy's network (``learned.ViewScorer``): a softmax ov
 candidates (``nbv.unvisited_first``), sampled while training; the critic a second ``ViewScorer`` whose scores are
 averaged over the allowed candidates (a value of the state). The reward of a move is the gain in the target objects'
 macro F1 of the refined labels (``scoring.target_f1``, the oracle's score), so an episode's return is its last move's
-F1 minus its first's; episodes are undiscounted (``gamma`` 1 by default).
+F1 minus its first's; episodes are undiscounted (``gamma`` 1 by default). A decision's advantage is GAE over the
+critic's values, or, with ``group`` > 1, its return-to-go less that of the other episodes of its group at the same
+decision (``group_advantages``).
 """
 
 from __future__ import annotations
@@ -39,7 +41,14 @@ class PPOConfig:
 
     ``rollout_batch`` > 0 rolls an update's episodes out in groups of that many, one group after the other
     (``lax.map``), so the rollout's memory is a group's, not every episode's: more episodes an update than fit on
-    the device at once, at the same figures. 0: all at once (``vmap``)."""
+    the device at once, at the same figures. 0: all at once (``vmap``).
+
+    ``group`` > 1 rolls each run (a scene and its start) out ``group`` times. The episodes of a group share frames
+    and start, and perception is deterministic given the views, so their returns differ only by the actor's
+    samples. A decision's advantage is then its return-to-go less the mean of the group's other episodes' at the
+    same decision (a leave-one-out baseline, ``group_advantages``), not GAE over the critic's values: the baseline
+    knows the scene's and start's difficulty, which the critic must learn from the features. (The critic is still
+    fitted, and unused.) An update rolls out train_scenes x runs x group episodes."""
 
     updates: int = bounded(0, ge=0)
     new_scenes: int = bounded(0, ge=0)  # training scenes replaced before each update (at most train_scenes)
@@ -55,6 +64,7 @@ class PPOConfig:
     max_grad_norm: float = bounded(0.5, gt=0.0)
     eval_every: int = bounded(10, ge=1)  # updates between held-out evaluations (and the last)
     rollout_batch: int = bounded(0, ge=0)  # episodes rolled out at once (0: all; else groups of it under lax.map)
+    group: int = bounded(1, ge=1)  # episodes of each run (scene and start); > 1: the group's leave-one-out baseline
 
     def __post_init__(self) -> None:
         check_bounds(self, "ppo.")
@@ -143,6 +153,20 @@ def advantages(reward: jax.Array, value: jax.Array, gamma: float, lam: float) ->
     return adv, adv + value
 
 
+def group_advantages(reward: jax.Array, group: int, gamma: float) -> tuple[jax.Array, jax.Array]:
+    """(advantages, returns) [E, D] of E episodes' D decisions, the episodes in consecutive groups of ``group`` that
+    share a scene and start: a decision's return-to-go (discounted by ``gamma``) less the mean of the return-to-go
+    of the group's other ``group - 1`` episodes at the same decision. The baseline does not depend on the episode's
+    own choices, so the advantage is unbiased; a group's advantages at a decision sum to 0."""
+    E, D = reward.shape
+    if group < 2 or E % group:
+        raise ValueError(f"ppo.group: {E} episodes do not make groups of {group} (at least 2 episodes a group)")
+    to_go, _ = advantages(reward, jnp.zeros_like(reward), gamma, 1.0)  # (GAE with lambda 1 and no critic)
+    per = to_go.reshape(E // group, group, D)
+    others = (per.sum(axis=1, keepdims=True) - per) / (group - 1)
+    return (per - others).reshape(E, D), to_go
+
+
 def loss(params: dict, batch: Decided, adv: jax.Array, returns: jax.Array, config: PPOConfig
          ) -> tuple[jax.Array, dict[str, jax.Array]]:
     """PPO's loss of a minibatch ([B] leading axes): the clipped surrogate, the value's squared error, the entropy."""
@@ -165,13 +189,18 @@ def optimizer(config: PPOConfig) -> optax.GradientTransformation:
 def update(params: dict, opt_state: Any, episode: active.Episode, depth: jax.Array, T_wc: jax.Array,
            scene: jax.Array, start: jax.Array, truths: scoring.TruthArrays, key: jax.Array, config: PPOConfig
            ) -> tuple[dict, Any, dict[str, jax.Array]]:
-    """One PPO update in one program: the rollout of E episodes (scene, start [E]; ``truths`` [E] leaves), GAE,
+    """One PPO update in one program: the rollout of E episodes (scene, start [E]; ``truths`` [E] leaves; with
+    ``config.group`` > 1 in consecutive groups of that many of one scene and start), the advantages,
     ``epochs`` passes of ``minibatches`` shuffled minibatches. Returns the new parameters (``{"actor", "critic"}``)
-    and optimiser state and the update's figures (the rollout's mean last F1 and return, the last pass's losses)."""
+    and optimiser state and the update's figures (the rollout's mean last F1 and return, the mean absolute advantage
+    before a minibatch normalises it, the last pass's losses)."""
     roll_key, shuffle_key = jax.random.split(key)
     decided, last = rollout(params, episode, depth, T_wc, scene, start, jax.random.split(roll_key, start.shape[0]),
                             truths, temperature=config.temperature, batch=config.rollout_batch)
-    adv, returns = advantages(decided.reward, decided.value, config.gamma, config.gae_lambda)
+    if config.group > 1:
+        adv, returns = group_advantages(decided.reward, config.group, config.gamma)
+    else:
+        adv, returns = advantages(decided.reward, decided.value, config.gamma, config.gae_lambda)
     flat = jax.tree.map(lambda a: a.reshape(-1, *a.shape[2:]), (decided, adv, returns))
     size = flat[1].shape[0]
     per = size // config.minibatches
@@ -196,7 +225,8 @@ def update(params: dict, opt_state: Any, episode: active.Episode, depth: jax.Arr
     (params, opt_state), figures = jax.lax.scan(epoch, (params, opt_state),
                                                 jax.random.split(shuffle_key, config.epochs))
     out = {k: v[-1].mean() for k, v in figures.items()}
-    return params, opt_state, {"f1_last": last.mean(), "reward": decided.reward.sum(axis=1).mean(), **out}
+    return params, opt_state, {"f1_last": last.mean(), "reward": decided.reward.sum(axis=1).mean(),
+                               "advantage": jnp.abs(adv).mean(), **out}
 
 
-__all__ = ["Decided", "PPOConfig", "advantages", "logits", "loss", "optimizer", "rollout", "update"]
+__all__ = ["Decided", "PPOConfig", "advantages", "group_advantages", "logits", "loss", "optimizer", "rollout", "update"]

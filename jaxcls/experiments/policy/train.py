@@ -367,11 +367,11 @@ def publish(out: Path, config: PolicyConfig, name: str, max_candidates: int, wei
 def _reinforce(config: PolicyConfig, out: Path, manager: ocp.CheckpointManager, params: dict, rl_state: Any,
                oracle: active.Episode, switched: active.Episode, training: _Scenes, held_out: _Scenes,
                held_out_config: Table1Config, done: int, history: list[dict], name: str, show_progress: bool) -> dict:
-    """PPO updates ``done``..``ppo.updates`` on ``runs`` episodes of each training scene in memory (new starts each
-    update; the scenes a ``_Window`` of the training draw: ``ppo.new_scenes`` new ones each update), each
-    checkpointed as step ``rounds + update``, evaluated on the held-out scenes every ``ppo.eval_every`` updates and
-    after the last (and before the first where there were no imitation rounds: ``update`` 0). Returns the actor's
-    weights."""
+    """PPO updates ``done``..``ppo.updates`` on ``runs`` x ``ppo.group`` episodes of each training scene in memory
+    (new starts each update, each start's ``ppo.group`` episodes together; the scenes a ``_Window`` of the training
+    draw: ``ppo.new_scenes`` new ones each update), each checkpointed as step ``rounds + update``, evaluated on the
+    held-out scenes every ``ppo.eval_every`` updates and after the last (and before the first where there were no
+    imitation rounds: ``update`` 0). Returns the actor's weights."""
     if oracle.config.moves < 2:
         raise ValueError(f"train-policy: PPO needs episodes of at least 2 moves (decisions after the first); "
                          f"{config.table1} has moves = {oracle.config.moves}")
@@ -391,6 +391,7 @@ def _reinforce(config: PolicyConfig, out: Path, manager: ocp.CheckpointManager, 
         scenes_in = {"scenes": [min(window.scene), max(window.scene)]}  # (the window's first and last scene)
         began = time.perf_counter()
         at, starts, _ = _runs(config.seed + 104729 * (u + 1), window.scene, config.runs, window.T_wc.shape[1])
+        at, starts = np.repeat(at, config.ppo.group), np.repeat(starts, config.ppo.group)  # (ppo.group's episodes)
         episode_truths = jax.tree.map(lambda *xs: np.stack(xs), *[window.truths[a] for a in at])
         # (committed where the frames are, as the update's outputs are: the first update's inputs then place like
         # every later one's, and ``ppo.update`` compiles once, not twice; BENCHMARKS.md, "the slow second update")
