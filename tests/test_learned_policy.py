@@ -58,7 +58,7 @@ def test_features_are_finite_and_carry_the_hand_made_utilities():
     config = nbv.NBVConfig()
     index, ok = nbv.candidates(views, config)
     x = learned.features(views, belief, index, ok, world.intrinsics, config)
-    assert x.pair.shape == (len(index), 3, learned.PAIR_FEATURES)
+    assert x.pair.shape == (len(index), 3, learned.Layout.v2.pair_features)
     assert x.candidate.shape == (len(index), learned.CANDIDATE_FEATURES)
     assert np.all(np.isfinite(np.asarray(x.pair))) and np.all(np.isfinite(np.asarray(x.candidate)))
     want = nbv.VisOcclHist().utilities(views, belief, index, world.intrinsics, config)
@@ -84,6 +84,65 @@ def test_features_are_finite_and_carry_the_hand_made_utilities():
     np.testing.assert_allclose(np.asarray(learned.apply(weights, turned)), base[::-1], rtol=1e-5, atol=1e-6)
     batch = jax.tree.map(lambda a: jnp.stack([a, a]), x)
     np.testing.assert_allclose(np.asarray(learned.apply(weights, batch)), np.stack([base, base]), rtol=1e-6)
+
+
+def test_layout_3_adds_where_a_view_sees_each_segment_from_in_its_models_frame(tmp_path):
+    """Layout 3: layout 2's pair features, then the unit vector from the segment's cuboid centre to the camera in
+    the aligned model's frame (analytic here; unchanged when the whole scene moves rigidly), the cuboid's size in
+    dm and rho's best two; 0 for a dead segment. A fresh layout-3 network still scores InfoGain exactly, and its
+    weights file says layout 3 and loads as such."""
+    from jaxcls.perception import tsdf
+
+    world = make_world(WORLD, seed=1)
+    views = nbv.Views.start(world.viewpoints, 0)
+    corners = np.array([[x, y, z] for x in (-0.03, 0.03) for y in (-0.02, 0.02) for z in (0, 0.08)], np.float32)
+    turn = np.array([[0, -1, 0], [1, 0, 0], [0, 0, 1]], np.float32)  # (a quarter turn about z)
+    poses = np.tile(np.eye(4, dtype=np.float32), (3, 1, 1))
+    poses[1, :3, :3] = turn
+    poses[:2, :3, 3] = [[0.0, 0.0, world.table_height], [0.1, 0.05, world.table_height]]
+    belief = nbv.Belief(corners=jnp.asarray(np.tile(corners, (3, 1, 1))), poses=jnp.asarray(poses),
+                        live=jnp.array([True, True, False]), uncertainty=jnp.array([0.2, 0.9, 0.5]),
+                        volume=tsdf.create_volume(np.array([0.0, 0.0, world.table_height]), 0.4, 32),
+                        rho=jnp.array([[0.5, 0.9, 0.1], [0.3, 0.0, 0.0], [0.7, 0.6, 0.0]]))
+    config = nbv.NBVConfig()
+    index, ok = nbv.candidates(views, config)
+    old = learned.features(views, belief, index, ok, world.intrinsics, config)
+    x = learned.features(views, belief, index, ok, world.intrinsics, config, learned.Layout.v3)
+    assert x.pair.shape == (len(index), 3, learned.Layout.v3.pair_features)
+    np.testing.assert_array_equal(np.asarray(x.pair[..., :4]), np.asarray(old.pair))
+    np.testing.assert_array_equal(np.asarray(x.candidate), np.asarray(old.candidate))
+    camera = np.asarray(views.T_wc)[np.asarray(index), :3, 3]
+    centre = np.array([0.0, 0.0, 0.04])
+    for n in range(2):
+        local = (camera - poses[n, :3, 3]) @ poses[n, :3, :3] - centre  # R^T (p - t) - c, row by row
+        np.testing.assert_allclose(np.asarray(x.pair[:, n, 4:7]), local / np.linalg.norm(local, axis=1)[:, None],
+                                   atol=1e-5)
+        np.testing.assert_allclose(np.asarray(x.pair[:, n, 7:10]), np.broadcast_to([0.6, 0.4, 0.8], (len(index), 3)),
+                                   atol=1e-5)
+    np.testing.assert_allclose(np.asarray(x.pair[:, 0, 10:]), np.broadcast_to([0.9, 0.5], (len(index), 2)))
+    np.testing.assert_allclose(np.asarray(x.pair[:, 1, 10:]), np.broadcast_to([0.3, 0.0], (len(index), 2)))
+    assert np.all(np.asarray(x.pair[:, 2, :]) == 0), "a dead segment carries nothing"
+    # The whole scene moved rigidly (the cameras and the models' poses): where each view sees each model from is
+    # the same.
+    moved = np.eye(4, dtype=np.float32)
+    moved[:3, :3] = np.array([[0.6, -0.8, 0], [0.8, 0.6, 0], [0, 0, 1]], np.float32)
+    moved[:3, 3] = [0.3, -0.2, 0.1]
+    there = learned._seen_from(jnp.asarray(moved) @ views.T_wc[index],
+                               belief.replace(poses=jnp.asarray(moved) @ belief.poses))
+    np.testing.assert_allclose(np.asarray(there), np.asarray(x.pair[..., 4:]), atol=1e-5)
+    with pytest.raises(ValueError, match=r"layout 3 needs Belief\.rho"):
+        learned.features(views, belief.replace(rho=None), index, ok, world.intrinsics, config, learned.Layout.v3)
+    weights = learned.init(jax.random.key(4), 16, "info_gain", learned.Layout.v3)
+    assert learned.Layout.of(weights) is learned.Layout.v3 and learned.Layout.of(learned.init(
+        jax.random.key(4), 16)) is learned.Layout.v2
+    np.testing.assert_array_equal(np.asarray(learned.apply(weights, x)), np.asarray(x.candidate[:, learned.INFO_GAIN]))
+    np.testing.assert_array_equal(
+        np.asarray(learned.scores(weights, views, belief, index, ok, world.intrinsics, config)),
+        np.asarray(learned.apply(weights, x)))  # (the weights' own layout)
+    path = learned.save(tmp_path / "v3.msgpack", weights, 32)
+    assert json.loads(path.with_suffix(".json").read_text())["features"] == 3
+    loaded, info = learned.load(path, 32)
+    assert info.features == 3 and learned.Layout.of(loaded) is learned.Layout.v3
 
 
 def test_the_learned_policy_runs_in_the_switched_program_and_passes_the_papers_utility_through(tmp_path):
@@ -246,7 +305,7 @@ def test_the_shipped_policies_load_for_the_moves_planner_and_start_from_infogain
                                             "synthetic_paper_ppo", "real_like_paper_ppo_scenes256"}
     for name in learned.SHIPPED_WEIGHTS:
         weights, info = learned.load(name, setup.episode_nbv().max_candidates)
-        assert info.features == learned.FEATURES_VERSION and info.metadata["base"] == "info_gain"
+        assert info.features == learned.Layout.v2.value and info.metadata["base"] == "info_gain"
         config = load_config(PolicyConfig, resolve_config(f"policy_{name}"))
         assert info.metadata["table1"] == config.table1 and info.metadata["rounds"] == config.rounds
         assert info.metadata["ppo_updates"] == config.ppo.updates and config.rounds + config.ppo.updates >= 1

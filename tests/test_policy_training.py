@@ -39,9 +39,11 @@ def _table1(tmp: Path) -> Path:
     return config
 
 
-def _config(tmp: Path, out: str, rounds: int, updates: int = 0, init: str = "") -> PolicyConfig:
+def _config(tmp: Path, out: str, rounds: int, updates: int = 0, init: str = "",
+            layout: learned.Layout = learned.Layout.v3) -> PolicyConfig:
+    """(Layout 3 unless said: the first test trains it through imitation and PPO, the window test layout 2.)"""
     return PolicyConfig(out_dir=str(tmp / out), table1=str(_table1(tmp)), train_scenes=2, eval_scenes=1, runs=1,
-                        eval_runs=1, rounds=rounds, epochs=4, batch=2, hidden=8, seed=0, init=init,
+                        eval_runs=1, rounds=rounds, epochs=4, batch=2, hidden=8, seed=0, init=init, layout=layout,
                         ppo=PPOConfig(updates=updates, epochs=2, minibatches=2, eval_every=1))
 
 
@@ -82,7 +84,7 @@ def test_the_actors_logits_are_its_scores_over_the_temperature_where_allowed():
     from jaxcls.experiments.policy import ppo
 
     actor = learned.init(jax.random.key(0), 4, "info_gain")
-    x = learned.Features(pair=jnp.ones((1, 3, 2, learned.PAIR_FEATURES)), live=jnp.ones((1, 2), bool),
+    x = learned.Features(pair=jnp.ones((1, 3, 2, learned.Layout.v2.pair_features)), live=jnp.ones((1, 2), bool),
                          candidate=jax.random.uniform(jax.random.key(1), (1, 3, learned.CANDIDATE_FEATURES)))
     allowed = jnp.array([[True, False, True]])
     scores = learned.apply(actor, x)
@@ -94,7 +96,7 @@ def test_the_actors_logits_are_its_scores_over_the_temperature_where_allowed():
 
 def test_the_loss_is_minus_the_log_probability_of_the_oracles_best_and_scores_regret():
     weights = jax.tree.map(np.zeros_like, jax.device_get(learned.init(jax.random.key(0), 4)))
-    x = learned.Features(pair=jnp.zeros((1, 4, 2, learned.PAIR_FEATURES)), live=jnp.ones((1, 2), bool),
+    x = learned.Features(pair=jnp.zeros((1, 4, 2, learned.Layout.v2.pair_features)), live=jnp.ones((1, 2), bool),
                          candidate=jnp.zeros((1, 4, learned.CANDIDATE_FEATURES)))  # every score 0: uniform
     f1 = jnp.array([[0.5, 0.9, -1.0, 0.2]])
     allowed = jnp.array([[True, True, False, True]])
@@ -135,6 +137,8 @@ def test_training_runs_resumes_bit_for_bit_and_writes_a_policy_the_episode_loads
         assert 0 <= h["f1_info_gain"] <= 1
     weights, info = learned.load(whole / "policy.msgpack", 4)
     assert info.hidden == 8 and info.metadata["rounds"] == 2 and info.metadata["ppo_updates"] == 1
+    assert info.features == 3 and all(d.features.pair.shape[-1] == learned.Layout.v3.pair_features
+                                       for d in decisions)
     assert info.metadata["labels"] == "greedy" and info.metadata["base"] == "info_gain"
     assert info.metadata["held_out"]["update"] == 1  # (where its held-out figures were measured)
     assert (whole / "curve.png").is_file()
@@ -204,6 +208,9 @@ def test_training_runs_resumes_bit_for_bit_and_writes_a_policy_the_episode_loads
         policy_train.train(PolicyConfig(**{**_config(tmp_path, "wide", 0, 1, str(tmp_path / "round2.msgpack"))
                                            .__dict__, "hidden": 4}), show_progress=False)
     assert not (tmp_path / "wide" / "config.yaml").exists()
+    with pytest.raises(ValueError, match=r"reads feature layout 3; layout is 2 \(set layout=v3\)"):
+        policy_train.train(_config(tmp_path, "older", 0, 1, str(tmp_path / "round2.msgpack"), learned.Layout.v2),
+                           show_progress=False)
     with pytest.raises(ValueError, match=r"rounds: 0 and ppo\.updates: 0 train nothing"):
         _config(tmp_path, "x", 0)
     with pytest.raises(ValueError, match="other settings \\(epochs differ"):
@@ -218,7 +225,7 @@ def test_ppo_slides_its_window_over_the_training_scenes_and_resumes_it_bit_for_b
     truth in slot i % train_scenes, the very frames the scene set renders for it; a run grown from 1 update to 2
     (the window made anew at update 2) ends with the weights and figures of a run of 2."""
     def sliding(out: str, updates: int) -> PolicyConfig:
-        config = _config(tmp_path, out, 0, updates=updates)
+        config = _config(tmp_path, out, 0, updates=updates, layout=learned.Layout.v2)
         return dataclasses.replace(config, ppo=dataclasses.replace(config.ppo, new_scenes=1))
 
     config = sliding("whole", 2)

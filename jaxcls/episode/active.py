@@ -390,13 +390,13 @@ def refinement(episode: Episode, state: EpisodeState, depth: jax.Array | None = 
 
 
 def belief(episode: Episode, state: EpisodeState) -> nbv.Belief:
-    """What the planner is told: each live segment's refined model cuboid and pose, its uncertainty, the TSDF, the
-    learned policy's weights."""
+    """What the planner is told: each live segment's refined model cuboid and pose, its uncertainty and rho, the
+    TSDF, the learned policy's weights."""
     r = state.refinement
     return nbv.Belief(corners=episode.corners[jnp.maximum(r.model, 0)], poses=r.pose, live=r.valid,
                       uncertainty=nbv.uncertainty(r.rho, state.observation.probs,
                                                   episode.nbv_config.vis_occl_hist_unc.uncertainty),
-                      volume=state.observation.volume, weights=episode.policy_weights)
+                      volume=state.observation.volume, weights=episode.policy_weights, rho=r.rho)
 
 
 def planned_views(state: EpisodeState) -> nbv.Views:

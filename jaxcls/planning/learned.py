@@ -4,10 +4,14 @@ hand-made policies read (beyond the paper; issue 37).
 Its input is the state the episode already has, as features of the move's K candidates (``nbv.candidates``) and
 N segments (``features``):
 
-- per (candidate, segment) pair [K, N, PAIR_FEATURES]: the pixels of the segment's aligned model cuboid the
-  candidate would see through the z-buffer (Eq. 5, ``visibility`` "paper" mode), over the most any pair sees and
-  over the most that segment shows at any candidate; the segment's uncertainty (``nbv.uncertainty``: 1 - the
-  margin of its best rho over the second) and that uncertainty times the second count;
+- per (candidate, segment) pair [K, N, P] (P: ``Layout.pair_features``): the pixels of the segment's aligned model
+  cuboid the candidate would see through the z-buffer (Eq. 5, ``visibility`` "paper" mode), over the most any
+  pair sees and over the most that segment shows at any candidate; the segment's uncertainty
+  (``nbv.uncertainty``: 1 - the margin of its best rho over the second) and that uncertainty times the second
+  count. Layout 3 adds where the candidate camera is seen from the segment, as a unit vector in its aligned
+  model's frame (from the cuboid's centre: which side of the model the view would show), the model cuboid's size
+  (dm) and the segment's best and second-best rho (Eq. 2): what tells which view can settle a class, for any
+  object set (no class count in the layout);
 - per candidate [K, CANDIDATE_FEATURES]: the history weight (Eq. 6), the distance from the current view over the
   radius, within the radius, visited, the cosine between its optical axis and the current one's, how far down
   it looks (minus its axis' z), the paper's VisOcclHist utility (Eq. 7, ``VIS_OCCL_HIST``), the views fused so far
@@ -22,9 +26,10 @@ so training (``experiments/policy``) corrects the best hand-made policy where th
 instead of learning it again. ``scores`` is the policy's utility; ``nbv.Learned`` takes its best candidate
 within the radius (Eq. 8).
 
-Weights are a ``.msgpack`` and a ``.json`` beside it (``save``, ``load``): the width, the feature layout's
-version and the candidate count the policy was trained with; ``load`` refuses weights of other shapes, another
-feature layout or another candidate count, naming the file and what differs.
+Weights are a ``.msgpack`` and a ``.json`` beside it (``save``, ``load``): the width, the feature layout
+(``Layout``) and the candidate count the policy was trained with; ``load`` refuses weights of other shapes, a
+layout it does not read or another candidate count, naming the file and what differs. A network's layout is
+its first layer's input size (``Layout.of``), so weights of either layout run in the same episode code.
 """
 
 from __future__ import annotations
@@ -45,11 +50,9 @@ from jaxcls.geometry import Intrinsics
 from jaxcls.math import safe_div
 from jaxcls.planning import nbv, visibility
 
-PAIR_FEATURES = 4
 CANDIDATE_FEATURES = 9
 VIS_OCCL_HIST = 6  # the candidate feature that is the paper's VisOcclHist utility (Eq. 7)
 INFO_GAIN = 8  # the candidate feature that is InfoGain's utility
-FEATURES_VERSION = 2  # the layout above (1: no InfoGain feature, no skip term); weights of another are refused
 KIND = "jaxcls view policy"
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 # name -> shipped .msgpack (RESULTS.md, "The learned view policy"): ``jaxcls train-policy --config policy_NAME``;
@@ -60,6 +63,29 @@ SHIPPED_WEIGHTS: dict[str, Path] = {name: WEIGHTS_DIR / f"learned_{name}.msgpack
                                     for name in ("real_like", "real_like_paper", "synthetic_paper",
                                                  "real_like_paper_ppo", "synthetic_paper_ppo",
                                                  "real_like_paper_ppo_scenes256")}
+
+
+class Layout(enum.Enum):
+    """The network's input (``features``; the module docstring). Layout 1 (no InfoGain feature, no skip term) is
+    no longer read; 2 and 3 are, each policy by its own."""
+
+    v2 = 2  # the pair's 4: the cuboid's visible pixels (two normalisations), the uncertainty, their product
+    v3 = 3  # v2's, where the candidate is seen from in the segment's model frame (3), the model's size (3), rho's top 2
+
+    @property
+    def pair_features(self) -> int:
+        """P, the features of a (candidate, segment) pair."""
+        return {Layout.v2: 4, Layout.v3: 12}[self]
+
+    @classmethod
+    def of(cls, weights: dict) -> Layout:
+        """The layout a network's weights read: its first layer's input size (static under jit)."""
+        size = int(weights["params"]["pair_0"]["kernel"].shape[0])
+        for layout in cls:
+            if layout.pair_features == size:
+                return layout
+        raise ValueError(f"learned: a network whose first layer takes {size} pair features is of no layout "
+                         f"({ {layout.value: layout.pair_features for layout in cls} })")
 
 
 class Base(enum.Enum):
@@ -76,7 +102,7 @@ class Base(enum.Enum):
 
 
 class Features(struct.PyTreeNode):
-    """A move's input to the network: pair [K, N, PAIR_FEATURES], live [N] bool, candidate [K,
+    """A move's input to the network: pair [K, N, P] (``Layout.pair_features``), live [N] bool, candidate [K,
     CANDIDATE_FEATURES] (see the module docstring)."""
 
     pair: jax.Array
@@ -85,13 +111,17 @@ class Features(struct.PyTreeNode):
 
 
 def features(views: nbv.Views, belief: nbv.Belief, index: jax.Array, ok: jax.Array, intrinsics: Intrinsics,
-             config: nbv.NBVConfig) -> Features:
-    """The network's input for the candidates ``index`` [K] (``ok`` [K]: within the radius) of a move whose
-    planner sees ``views`` and ``belief`` (its ``volume``, the fused TSDF, is needed: InfoGain's feature). Pure;
-    finite for any state (no live segment, nothing visible, nothing left unobserved)."""
+             config: nbv.NBVConfig, layout: Layout = Layout.v2) -> Features:
+    """The network's input in ``layout`` for the candidates ``index`` [K] (``ok`` [K]: within the radius) of a move
+    whose planner sees ``views`` and ``belief`` (its ``volume``, the fused TSDF, is needed: InfoGain's feature;
+    layout 3 needs its ``rho``). Pure; finite for any state (no live segment, nothing visible, nothing left
+    unobserved); a dead segment's pair features are 0."""
+    layout = Layout(layout)
     if belief.volume is None:
         raise ValueError("learned.features: the learned policy needs Belief.volume (the fused TSDF) for InfoGain's "
                          "feature")
+    if layout is Layout.v3 and belief.rho is None:
+        raise ValueError("learned.features: layout 3 needs Belief.rho (each segment's rho per candidate class)")
     paper = dataclasses.replace(config.visibility, mode=visibility.Mode.paper)
     counts = visibility.counts(belief.corners, belief.poses, belief.live, views.T_wc[index], intrinsics, paper)
     counts = jnp.where(belief.live[None, :], counts, 0.0)  # [K, N]
@@ -101,6 +131,8 @@ def features(views: nbv.Views, belief: nbv.Belief, index: jax.Array, ok: jax.Arr
               else jnp.where(belief.live, belief.uncertainty, 0.0))
     unsure = jnp.broadcast_to(unsure[None, :], counts.shape)
     pair = jnp.stack([by_all, by_segment, unsure, unsure * by_segment], axis=-1)
+    if layout is Layout.v3:
+        pair = jnp.concatenate([pair, _seen_from(views.T_wc[index], belief)], axis=-1)
 
     weight = nbv.history_weight(views, index, config)
     total = jnp.sum(counts, axis=1)
@@ -113,6 +145,25 @@ def features(views: nbv.Views, belief: nbv.Belief, index: jax.Array, ok: jax.Arr
     candidate = jnp.stack([weight, distance, ok.astype(jnp.float32), views.visited[index].astype(jnp.float32),
                            facing, -axis[index, 2], utility, fused, gain], axis=-1)
     return Features(pair=pair.astype(jnp.float32), live=belief.live, candidate=candidate.astype(jnp.float32))
+
+
+def _seen_from(T_wc: jax.Array, belief: nbv.Belief) -> jax.Array:
+    """Layout 3's pair features [K, N, 8] of cameras T_wc [K, 4, 4] and the belief's N segments: the unit vector
+    from the segment's cuboid centre to the camera in its aligned model's frame (3; invariant to moving the whole
+    scene rigidly), the cuboid's size along the model's axes in dm (3), its best and second rho (2); 0 for a dead
+    segment."""
+    rotation, translation = belief.poses[:, :3, :3], belief.poses[:, :3, 3]  # [N, 3, 3], [N, 3]
+    centre = jnp.mean(belief.corners, axis=1)  # [N, 3] (model frame)
+    offset = T_wc[:, None, :3, 3] - translation[None]  # [K, N, 3] world
+    local = jnp.einsum("nji,knj->kni", rotation, offset) - centre[None]  # R^T (p - t) - c
+    length = jnp.linalg.norm(local, axis=-1, keepdims=True)
+    direction = jnp.where(length > 1e-9, local / jnp.maximum(length, 1e-9), 0.0)
+    size = (jnp.max(belief.corners, axis=1) - jnp.min(belief.corners, axis=1)) / 0.1  # [N, 3] dm
+    top = jax.lax.top_k(belief.rho, min(2, belief.rho.shape[1]))[0]
+    top = jnp.pad(top, ((0, 0), (0, 2 - top.shape[1])))  # [N, 2] (a single candidate class: second 0)
+    segment = jnp.broadcast_to(jnp.concatenate([size, top], axis=-1)[None], (*direction.shape[:2], 5))
+    out = jnp.concatenate([direction, segment], axis=-1)
+    return jnp.where(belief.live[None, :, None], out, 0.0)
 
 
 class ViewScorer(nn.Module):
@@ -134,15 +185,15 @@ class ViewScorer(nn.Module):
         return (nn.Dense(1, name="score")(c) + nn.Dense(1, use_bias=False, name="skip")(x.candidate))[..., 0]
 
 
-def init(key: jax.Array, hidden: int, base: Base | str = Base.none) -> dict:
-    """Fresh weights of a ``ViewScorer`` of width ``hidden`` (any K, N). ``base`` (``Base``): none, random
-    throughout; else the network scores exactly that hand-made utility (``skip`` one-hot on it, the MLP's
-    ``score`` layer zero: its hidden layers random, so their gradients are not)."""
+def init(key: jax.Array, hidden: int, base: Base | str = Base.none, layout: Layout | int = Layout.v2) -> dict:
+    """Fresh weights of a ``ViewScorer`` of width ``hidden`` (any K, N) reading features of ``layout``. ``base``
+    (``Base``): none, random throughout; else the network scores exactly that hand-made utility (``skip`` one-hot
+    on it, the MLP's ``score`` layer zero: its hidden layers random, so their gradients are not)."""
     try:
         base = Base(base)
     except ValueError:
         raise ValueError(f"learned.init: base {base!r} is not one of {[b.value for b in Base]}") from None
-    example = Features(pair=jnp.zeros((2, 3, PAIR_FEATURES)), live=jnp.ones(3, bool),
+    example = Features(pair=jnp.zeros((2, 3, Layout(layout).pair_features)), live=jnp.ones(3, bool),
                        candidate=jnp.zeros((2, CANDIDATE_FEATURES)))
     weights = ViewScorer(hidden).init(key, example)
     if base.feature is None:
@@ -162,8 +213,9 @@ def apply(weights: dict, x: Features) -> jax.Array:
 
 def scores(weights: dict, views: nbv.Views, belief: nbv.Belief, index: jax.Array, ok: jax.Array,
            intrinsics: Intrinsics, config: nbv.NBVConfig) -> jax.Array:
-    """[K] the learned policy's utility of the candidates ``index`` (``features`` then ``ViewScorer``)."""
-    return apply(weights, features(views, belief, index, ok, intrinsics, config))
+    """[K] the learned policy's utility of the candidates ``index`` (``features`` in the weights' layout, then
+    ``ViewScorer``)."""
+    return apply(weights, features(views, belief, index, ok, intrinsics, config, Layout.of(weights)))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -173,7 +225,7 @@ class Info:
 
     hidden: int
     max_candidates: int
-    features: int = FEATURES_VERSION
+    features: int = Layout.v2.value  # its ``Layout``
     metadata: dict = dataclasses.field(default_factory=dict)
 
 
@@ -184,8 +236,9 @@ def save(path: str | Path, weights: dict, max_candidates: int, metadata: dict | 
     if not all(np.all(np.isfinite(a)) for a in jax.tree.leaves(stored)):
         raise ValueError("learned policy: the weights are not finite; nothing written")
     hidden = int(stored["params"]["pair_0"]["kernel"].shape[-1])
+    layout = Layout.of(stored)
     io.write_bytes(path, serialization.msgpack_serialize(serialization.to_state_dict(stored)))
-    io.write_json(path.with_suffix(".json"), {"kind": KIND, "hidden": hidden, "features": FEATURES_VERSION,
+    io.write_json(path.with_suffix(".json"), {"kind": KIND, "hidden": hidden, "features": layout.value,
                                               "max_candidates": int(max_candidates), **(metadata or {})}, indent=2)
     return path
 
@@ -214,13 +267,13 @@ def load(path: str | Path, max_candidates: int) -> tuple[dict, Info]:
     for key in ("hidden", "features", "max_candidates"):
         if isinstance(info.get(key), bool) or not isinstance(info.get(key), int) or info[key] < 1:
             raise ValueError(f"{info_path}: {key!r} must be a positive integer, got {info.get(key)!r}")
-    if info["features"] != FEATURES_VERSION:
-        raise ValueError(f"{info_path}: weights of feature layout {info['features']}, this jaxcls reads layout "
-                         f"{FEATURES_VERSION}: train them again (jaxcls train-policy)")
+    if info["features"] not in {layout.value for layout in Layout}:
+        raise ValueError(f"{info_path}: weights of feature layout {info['features']}, this jaxcls reads layouts "
+                         f"{[layout.value for layout in Layout]}: train them again (jaxcls train-policy)")
     if info["max_candidates"] != max_candidates:
         raise ValueError(f"{info_path}: weights trained with {info['max_candidates']} candidates a move, the planner "
                          f"has nbv.max_candidates = {max_candidates}")
-    template = jax.eval_shape(lambda: init(jax.random.key(0), info["hidden"]))
+    template = jax.eval_shape(lambda: init(jax.random.key(0), info["hidden"], layout=info["features"]))
     weights = io.read_weights(path, template, "learned policy",
                               f"a view policy of width {info['hidden']} ({info_path.name})")
     metadata = {k: v for k, v in info.items() if k not in ("kind", "hidden", "features", "max_candidates")}
@@ -228,5 +281,5 @@ def load(path: str | Path, max_candidates: int) -> tuple[dict, Info]:
             Info(info["hidden"], info["max_candidates"], info["features"], metadata))
 
 
-__all__ = ["CANDIDATE_FEATURES", "FEATURES_VERSION", "PAIR_FEATURES", "Features", "Info", "ViewScorer", "apply",
-           "features", "init", "load", "save", "scores"]
+__all__ = ["CANDIDATE_FEATURES", "Base", "Features", "Info", "Layout", "ViewScorer", "apply", "features", "init",
+           "load", "save", "scores"]

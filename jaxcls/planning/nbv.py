@@ -330,7 +330,8 @@ class Belief(struct.PyTreeNode):
 
     corners: [N, 8, 3] model frame (m); poses: [N, 4, 4] model-to-world (refinement's Eq. 4); live: [N] bool;
     uncertainty: [N] in [0, 1] (``uncertainty``; only ``vis_occl_hist_unc`` reads it); volume: the fused
-    TSDF (only ``info_gain`` reads it); weights: the learned policy's network (only ``learned`` reads them).
+    TSDF (only ``info_gain`` reads it); weights: the learned policy's network (only ``learned`` reads them); rho:
+    [N, k] refinement's rho of each candidate class (Eq. 2; only the learned policy's layout 3 reads it).
     """
 
     corners: jax.Array
@@ -339,6 +340,7 @@ class Belief(struct.PyTreeNode):
     uncertainty: jax.Array | None = None
     volume: TSDFVolume | None = None
     weights: Any = None
+    rho: jax.Array | None = None
 
 
 def uncertainty(rho: jax.Array, probs: jax.Array, kind: Uncertainty = Uncertainty.rho_margin) -> jax.Array:

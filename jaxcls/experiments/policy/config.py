@@ -9,7 +9,7 @@ from jaxcls.config import bounded, check_bounds, load_config, resolve_config
 from jaxcls.episode.protocol import Label
 from jaxcls.experiments.policy.ppo import PPOConfig
 from jaxcls.experiments.table1.config import SceneSource, Table1Config
-from jaxcls.planning.learned import Base
+from jaxcls.planning.learned import Base, Layout
 
 
 @dataclasses.dataclass(frozen=True)
@@ -40,6 +40,7 @@ class PolicyConfig:
     batch: int = bounded(64, ge=1)
     learning_rate: float = bounded(1e-3, gt=0.0)
     hidden: int = bounded(64, ge=1)  # the network's width (``learned.ViewScorer``)
+    layout: Layout = Layout.v2  # the network's input (``learned.Layout``; v3: v2 and where a view sees a segment from)
     base: Base = Base.info_gain  # the hand-made policy the network starts as exactly (none: a random network)
     # Or a trained policy's weights (a shipped name of ``learned.SHIPPED_WEIGHTS`` or a .msgpack with its .json, of
     # width ``hidden``) it starts from instead: to go on from a shipped policy, e.g. PPO alone with ``rounds: 0``.

@@ -4,6 +4,7 @@ input (``learned.features``) and each candidate's true F1 after the move (``prot
 from __future__ import annotations
 
 import dataclasses
+import functools
 from pathlib import Path
 
 import jax
@@ -55,13 +56,14 @@ class Decisions:
 jax.tree_util.register_dataclass(Decisions, data_fields=["features", "f1", "allowed"], meta_fields=[])
 
 
-@jax.jit
-def _features_of_runs(episode: active.Episode, states: active.EpisodeState, index: jax.Array, ok: jax.Array
-                      ) -> learned.Features:
-    """[R] runs' network input at their candidates ``index``, ``ok`` [R, C] (the planner's views and belief)."""
+@functools.partial(jax.jit, static_argnames=("layout",))
+def _features_of_runs(episode: active.Episode, states: active.EpisodeState, index: jax.Array, ok: jax.Array,
+                      layout: learned.Layout) -> learned.Features:
+    """[R] runs' network input in ``layout`` at their candidates ``index``, ``ok`` [R, C] (the planner's views and
+    belief)."""
     def one(state, i, o):
         return learned.features(active.planned_views(state), active.belief(episode, state), i, o,
-                                episode.spec.intrinsics, episode.nbv_config)
+                                episode.spec.intrinsics, episode.nbv_config, layout)
 
     return jax.vmap(one)(states, index, ok)
 
@@ -75,14 +77,16 @@ def _picks(weights: dict, x: learned.Features, allowed: jax.Array) -> jax.Array:
 def collect(episode: active.Episode, depth: np.ndarray, T_wc: np.ndarray, scene: np.ndarray, starts: np.ndarray,
             keys: jax.Array, truths: list[scoring.Truth], weights: dict | None = None, follow_oracle: float = 1.0,
             rng: np.random.Generator | None = None, runs_per_call: int = 0,
-            label: protocol.Label = protocol.Label.greedy) -> Decisions:
+            label: protocol.Label = protocol.Label.greedy, layout: learned.Layout = learned.Layout.v2) -> Decisions:
     """The oracle's rollouts of runs ``starts`` [R] (keys [R]) of the scenes ``scene`` [R] (frames depth [S, V, H, W],
     T_wc [S, V, 4, 4]; ``truths`` a ``Truth`` per run), labelled at every decision after the first move, in calls of
     ``runs_per_call`` runs (0: all at once; the last call padded with copies of its last run, dropped: one compiled
     shape). Each run goes where the oracle goes with probability ``follow_oracle`` (drawn by ``rng`` per run and
     decision), else to the best allowed candidate by the network ``weights`` (DAgger's mixture; without weights,
     the oracle). ``label``: what a candidate's F1 is (``protocol.Label``: after its move, or at T with the
-    episode's own policy taking the moves after it)."""
+    episode's own policy taking the moves after it). The decisions' features are in ``layout`` (``weights``' own
+    where given)."""
+    layout = learned.Layout.of(weights) if weights is not None else learned.Layout(layout)
     rng = rng or np.random.default_rng(0)
     R = len(starts)
     size = runs_per_call or R
@@ -92,7 +96,8 @@ def collect(episode: active.Episode, depth: np.ndarray, T_wc: np.ndarray, scene:
         rows = np.concatenate([np.arange(first, first + real), np.full(size - real, first + real - 1)])
 
         def tap(states, index, ok, allowed, f1, pick, real=real) -> np.ndarray:
-            x = jax.device_get(_features_of_runs(episode, states, jnp.asarray(index, jnp.int32), jnp.asarray(ok)))
+            x = jax.device_get(_features_of_runs(episode, states, jnp.asarray(index, jnp.int32), jnp.asarray(ok),
+                                                 layout))
             kept.append(jax.tree.map(lambda a: a[:real], Decisions(x, np.asarray(f1, np.float32), np.asarray(allowed))))
             if weights is None:
                 return pick

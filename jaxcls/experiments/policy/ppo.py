@@ -106,6 +106,7 @@ def rollout(params: dict, episode: active.Episode, depth: jax.Array, T_wc: jax.A
     in groups of ``batch`` (``lax.map``; the last group the remainder), else all at once."""
     classes = len(episode.spec.classifier.classes)
     config = episode.nbv_config
+    layout = learned.Layout.of(params["actor"])  # (the critic reads the same features)
 
     def one(s, first, key, truth):
         key, reset_key = jax.random.split(key)
@@ -117,7 +118,8 @@ def rollout(params: dict, episode: active.Episode, depth: jax.Array, T_wc: jax.A
             views = active.planned_views(state)
             index, ok = nbv.candidates(views, config)
             allowed = nbv.unvisited_first(state.views, index, ok)
-            x = learned.features(views, active.belief(episode, state), index, ok, episode.spec.intrinsics, config)
+            x = learned.features(views, active.belief(episode, state), index, ok, episode.spec.intrinsics, config,
+                                 layout)
             scores = logits(params["actor"], x, allowed, temperature)
             action = jax.random.categorical(key, scores) if sample else jnp.argmax(scores)
             view = index[action]

@@ -223,11 +223,14 @@ def initial_weights(config: PolicyConfig, max_candidates: int, classifier: str =
     and ``max_candidates`` candidates, else a ValueError naming both; a warning where the file was trained for
     another ``classifier``), else ``base``'s exactly (``learned.init``)."""
     if not config.init:
-        return learned.init(jax.random.key(config.seed), config.hidden, config.base)
+        return learned.init(jax.random.key(config.seed), config.hidden, config.base, config.layout)
     weights, info = learned.load(config.init, max_candidates)
     if info.hidden != config.hidden:
         raise ValueError(f"init: {config.init} is a network of width {info.hidden}; hidden is {config.hidden} "
                          f"(set hidden={info.hidden})")
+    if info.features != config.layout.value:
+        raise ValueError(f"init: {config.init} reads feature layout {info.features}; layout is "
+                         f"{config.layout.value} (set layout=v{info.features})")
     trained_for = info.metadata.get("classifier")
     if classifier and trained_for and trained_for != classifier:
         warnings.warn(f"init: {config.init} was trained for classifier {trained_for!r}; this run trains it for "
@@ -287,7 +290,8 @@ def train(config: PolicyConfig, show_progress: bool = True) -> Path:
 
     optimizer = optax.adam(config.learning_rate)
     opt_state = optimizer.init(weights)
-    params = {"actor": weights, "critic": learned.init(jax.random.key(config.seed + 2), config.hidden)}
+    params = {"actor": weights, "critic": learned.init(jax.random.key(config.seed + 2), config.hidden,
+                                                       layout=config.layout)}
     rl_state = ppo.optimizer(config.ppo).init(params)
     history: list[dict] = []
     if start:
@@ -317,7 +321,7 @@ def train(config: PolicyConfig, show_progress: bool = True) -> Path:
                 at, starts, keys = _runs(config.seed + 7919 * (r + 1), scenes, config.runs, chunk.T_wc.shape[1])
                 parts.append(collect(oracle, chunk.depth, chunk.T_wc, at, starts, keys, [truths[a] for a in at],
                                      weights if r else None, follow, rng, runner.oracle_call_size(training_config),
-                                     config.labels))
+                                     config.labels, config.layout))
             collected = Decisions.concatenate(parts)
             collected.save(kept)
             seconds["collect"] = time.perf_counter() - began
