@@ -65,9 +65,9 @@ SHIPPED_WEIGHTS: dict[str, Path] = {name: WEIGHTS_DIR / f"learned_{name}.msgpack
                                                  "real_like_paper_ppo_scenes256")}
 
 
-class Layout(enum.Enum):
-    """The network's input (``features``; the module docstring). Layout 1 (no InfoGain feature, no skip term) is
-    no longer read; 2 and 3 are, each policy by its own."""
+class Layout(enum.IntEnum):
+    """The network's input (``features``; the module docstring), by its number in a weights file's ``.json``.
+    Layout 1 (no InfoGain feature, no skip term) is no longer read; 2 and 3 are, each policy by its own."""
 
     v2 = 2  # the pair's 4: the cuboid's visible pixels (two normalisations), the uncertainty, their product
     v3 = 3  # v2's, where the candidate is seen from in the segment's model frame (3), the model's size (3), rho's top 2
@@ -225,7 +225,7 @@ class Info:
 
     hidden: int
     max_candidates: int
-    features: int = Layout.v2.value  # its ``Layout``
+    features: Layout = Layout.v2
     metadata: dict = dataclasses.field(default_factory=dict)
 
 
@@ -278,7 +278,7 @@ def load(path: str | Path, max_candidates: int) -> tuple[dict, Info]:
                               f"a view policy of width {info['hidden']} ({info_path.name})")
     metadata = {k: v for k, v in info.items() if k not in ("kind", "hidden", "features", "max_candidates")}
     return (jax.device_put(jax.tree.map(lambda a: np.asarray(a, np.float32), weights)),
-            Info(info["hidden"], info["max_candidates"], info["features"], metadata))
+            Info(info["hidden"], info["max_candidates"], Layout(info["features"]), metadata))
 
 
 __all__ = ["CANDIDATE_FEATURES", "Base", "Features", "Info", "Layout", "ViewScorer", "apply", "features", "init",

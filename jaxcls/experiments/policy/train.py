@@ -228,9 +228,9 @@ def initial_weights(config: PolicyConfig, max_candidates: int, classifier: str =
     if info.hidden != config.hidden:
         raise ValueError(f"init: {config.init} is a network of width {info.hidden}; hidden is {config.hidden} "
                          f"(set hidden={info.hidden})")
-    if info.features != config.layout.value:
-        raise ValueError(f"init: {config.init} reads feature layout {info.features}; layout is "
-                         f"{config.layout.value} (set layout=v{info.features})")
+    if info.features is not config.layout:
+        raise ValueError(f"init: {config.init} reads feature layout {info.features.value}; layout is "
+                         f"{config.layout.value} (set layout={info.features.name})")
     trained_for = info.metadata.get("classifier")
     if classifier and trained_for and trained_for != classifier:
         warnings.warn(f"init: {config.init} was trained for classifier {trained_for!r}; this run trains it for "
