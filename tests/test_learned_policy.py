@@ -1,13 +1,15 @@
 """The learned view policy (``planning.learned``, ``nbv.Learned``): a drop-in policy of the episode under vmap and
 in the switched program; weights whose network passes the paper's utility through choose what VisOcclHist
 chooses, in the episode and in PPO's rollouts; a weights file of other shapes, another layout or another candidate
-count is refused by name."""
+count is refused by name; a weight soup (``experiments/policy_soup.py``) is its members' mean."""
 
 from __future__ import annotations
 
 import dataclasses
 import hashlib
+import importlib.util
 import json
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -346,3 +348,31 @@ def test_a_table1_row_of_the_learned_policy_needs_its_weights_named_per_classifi
                                  world.table_height, "test", name=c)
         want = learned.load(name, config.nbv.max_candidates)[0]
         assert jax.tree.all(jax.tree.map(lambda a, b: bool(np.array_equal(a, b)), episode.policy_weights, want))
+
+
+def test_a_policy_soup_is_the_leafwise_mean_and_refuses_members_of_another_layout_or_candidate_count(tmp_path):
+    spec = importlib.util.spec_from_file_location("policy_soup", Path(__file__).parents[1] / "experiments"
+                                                  / "policy_soup.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    a, b = learned.init(jax.random.key(1), 8), learned.init(jax.random.key(2), 8)
+    pa, pb = (learned.save(tmp_path / f"{n}.msgpack", w, 16) for n, w in (("a", a), ("b", b)))
+    out = script.main(["--out", str(tmp_path / "soup" / "p.msgpack"), str(pa), str(pb)])
+    weights, info = learned.load(out, 16)
+    for x, y, z in zip(jax.tree.leaves(a), jax.tree.leaves(b), jax.tree.leaves(weights), strict=True):
+        np.testing.assert_allclose(np.asarray(z), (np.asarray(x) + np.asarray(y)) / 2, rtol=1e-6, atol=1e-7)
+    members = info.metadata["soup"]
+    assert [m["sha256"] for m in members] == [hashlib.sha256(p.read_bytes()).hexdigest() for p in (pa, pb)]
+    # A soup of one network with itself is that network, to the bit.
+    same = script.main(["--out", str(tmp_path / "same.msgpack"), str(pa), str(pa)])
+    for x, z in zip(jax.tree.leaves(a), jax.tree.leaves(learned.load(same, 16)[0]), strict=True):
+        np.testing.assert_array_equal(np.asarray(z), np.asarray(x))
+    v3 = learned.save(tmp_path / "v3.msgpack", learned.init(jax.random.key(3), 8, layout=learned.Layout.v3), 16)
+    with pytest.raises(ValueError, match="feature layouts"):
+        script.main(["--out", str(tmp_path / "x.msgpack"), str(pa), str(v3)])
+    wide = learned.save(tmp_path / "wide.msgpack", learned.init(jax.random.key(4), 16), 16)
+    with pytest.raises(ValueError, match="member 1 has other layers or shapes"):
+        script.main(["--out", str(tmp_path / "x.msgpack"), str(pa), str(wide)])
+    other = learned.save(tmp_path / "k20.msgpack", a, 20)
+    with pytest.raises(ValueError, match=r"k20\.json: weights trained with 20 candidates"):
+        script.main(["--out", str(tmp_path / "x.msgpack"), str(pa), str(other)])
