@@ -123,9 +123,10 @@ def _held_out_f1(ax, step: str, entries: list[dict], suffix: str) -> None:
 
 def policy_curve(history: list[dict]) -> Figure:
     """A learned view policy's training (``jaxcls train-policy``'s ``metrics.json`` history): against the imitation
-    round, the loss and the regret (true F1 given up at a decision) and the held-out macro F1 of the learned policy and
-    of the hand-made ones evaluated beside it; against the PPO update (where there are any), the rollouts' mean F1
-    after the last move and the held-out F1 where it was evaluated."""
+    round, the loss and the regret (true F1 given up at a decision; on the validation scenes too, where the fit left
+    some out) and the held-out macro F1 of the learned policy and of the hand-made ones evaluated beside it; against
+    the PPO update (where there are any), the rollouts' mean F1 after the last move and the held-out F1 where it
+    was evaluated."""
     rounds = [h for h in history if "round" in h]
     updates = [h for h in history if "update" in h]
     imitation = bool(rounds) or not updates  # (PPO alone, from a trained policy: its panel only)
@@ -138,7 +139,10 @@ def policy_curve(history: list[dict]) -> Figure:
         ax.set_title("on every decision so far (the round's training data)", fontsize=9)
         regret = ax.twinx()
         regret.plot([h["round"] for h in rounds], [h["regret"] for h in rounds], color="C3", lw=1, marker="s")
-        regret.set(ylabel="regret: F1 given up a decision (red)")
+        validated = [h for h in rounds if "val_regret" in h]  # (validation: the fit's left-out scenes, dashed)
+        regret.plot([h["round"] for h in validated], [h["val_regret"] for h in validated], color="C3", lw=1,
+                    ls="--", marker="s", mfc="none")
+        regret.set(ylabel="regret: F1 given up (red; dashed: validation)")
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax = figure.add_subplot(1, panels, 2)
         _held_out_f1(ax, "round", rounds, "")

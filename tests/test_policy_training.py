@@ -116,6 +116,53 @@ def test_the_loss_is_minus_the_log_probability_of_the_oracles_best_and_scores_re
     np.testing.assert_allclose(float(policy_train.loss(weights, x, f1, allowed, 0.5)[0]), want, rtol=1e-5)
 
 
+def _decisions(seed: int, count: int, scenes: int) -> Decisions:
+    """``count`` random decisions of 6 candidates (5 allowed) and 3 segments, in layout 2, of ``scenes`` scenes."""
+    rng = np.random.default_rng(seed)
+    allowed = np.ones((count, 6), bool)
+    allowed[:, -1] = False
+    f1 = np.where(allowed, rng.random((count, 6)), -1.0).astype(np.float32)
+    x = learned.Features(pair=rng.normal(size=(count, 6, 3, learned.Layout.v2.pair_features)).astype(np.float32),
+                         live=np.ones((count, 3), bool),
+                         candidate=rng.normal(size=(count, 6, learned.CANDIDATE_FEATURES)).astype(np.float32))
+    return Decisions(x, f1, allowed, (np.arange(count) % scenes).astype(np.int32))
+
+
+def test_the_fit_measures_left_out_scenes_each_epoch_and_early_stopping_keeps_the_least_validation_loss():
+    """Random labels: what the fit learns of the training scenes' does not carry to the left-out scenes', so
+    their loss rises as the fit goes on (overfitting, measured), and early stopping keeps an early epoch of the
+    same trajectory, with the figures of the weights it returns."""
+    data = _decisions(0, 64, 8)
+    train, validation = data.split(np.array([6, 7]))
+    assert len(train) == 48 and len(validation) == 16  # (by scene: 8 decisions each)
+    assert set(train.scene.tolist()) == set(range(6)) and set(validation.scene.tolist()) == {6, 7}
+    weights = learned.init(jax.random.key(0), 16)
+    optimizer = policy_train.optax.adam(3e-2)
+    key = jax.random.key(1)
+    args = (optimizer, train, 12, 8, 0.05, key)
+    plain_w, _, plain = policy_train.fit(weights, optimizer.init(weights), *args, validation=validation)
+    stop_w, _, stop = policy_train.fit(weights, optimizer.init(weights), *args, validation=validation,
+                                       early_stop=True)
+    assert plain["val_losses"] == stop["val_losses"] and len(plain["val_losses"]) == 12  # (one trajectory)
+    assert plain["epoch"] == 12 and stop["epoch"] == int(np.argmin(stop["val_losses"])) + 1
+    assert stop["epoch"] < 12 and stop["val_loss"] == min(stop["val_losses"]) < plain["val_loss"]
+    for w, fitted in ((plain_w, plain), (stop_w, stop)):  # (each the loss of the weights it returns)
+        value, (regret, agree) = policy_train.loss(w, validation.features, validation.f1, validation.allowed, 0.05)
+        assert float(value) == pytest.approx(fitted["val_loss"], rel=1e-5)
+        assert float(regret) == pytest.approx(fitted["val_regret"], abs=1e-6)
+        assert float(agree) == pytest.approx(fitted["val_agreement"], abs=1e-6)
+    # Without validation: the same weights as with it, early stopping off (the validation only measures).
+    alone_w, _, alone = policy_train.fit(weights, optimizer.init(weights), *args)
+    assert "val_loss" not in alone and alone["loss"] == plain["loss"]
+    for a, b in zip(jax.tree.leaves(alone_w), jax.tree.leaves(plain_w), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    with pytest.raises(ValueError, match="early_stop needs validation"):
+        policy_train.fit(weights, optimizer.init(weights), *args, early_stop=True)
+    unknown = dataclasses.replace(data, scene=np.full(64, -1, np.int32))
+    with pytest.raises(ValueError, match="do not say their scene"):
+        unknown.split(np.array([7]))
+
+
 def test_training_runs_resumes_bit_for_bit_and_writes_a_policy_the_episode_loads(tmp_path, monkeypatch):
     whole = policy_train.train(_config(tmp_path, "whole", 2, updates=1), show_progress=False)
     history = json.loads((whole / "metrics.json").read_text())["history"]
@@ -128,6 +175,7 @@ def test_training_runs_resumes_bit_for_bit_and_writes_a_policy_the_episode_loads
     decisions = [Decisions.load(whole / f"decisions_{r}.npz") for r in range(2)]
     assert [len(d) for d in decisions] == [2 * 1 * 1] * 2  # scenes x runs x the decisions after move 1
     for d in decisions:
+        assert sorted(d.scene.tolist()) == [0, 1]  # (each decision's scene of the training draw)
         assert np.all(d.f1[~d.allowed] == -1) and np.all((d.f1[d.allowed] >= 0) & (d.f1[d.allowed] <= 1))
         assert np.all(np.isfinite(d.features.pair)) and np.all(np.isfinite(d.features.candidate))
     for h in history[:2]:
@@ -213,6 +261,19 @@ def test_training_runs_resumes_bit_for_bit_and_writes_a_policy_the_episode_loads
                            show_progress=False)
     with pytest.raises(ValueError, match=r"rounds: 0 and ppo\.updates: 0 train nothing"):
         _config(tmp_path, "x", 0)
+    # validation: round 1 from the same decisions (kept in the new run's folder), scene 1's left out of the fit.
+    held = tmp_path / "held"
+    held.mkdir()
+    shutil.copy(whole / "decisions_0.npz", held / "decisions_0.npz")
+    config = dataclasses.replace(_config(tmp_path, "held", 1), validation=0.5, early_stop=True)
+    assert config.validation_scenes() == 1
+    (first,) = json.loads((policy_train.train(config, show_progress=False) / "metrics.json").read_text())["history"]
+    assert first["decisions"] == 1 and first["val_decisions"] == 1 and 1 <= first["epoch"] <= 4
+    assert first["val_loss"] == min(first["val_losses"]) and 0 <= first["val_regret"] <= 1
+    with pytest.raises(ValueError, match="early_stop: true picks each round's epoch by the validation loss"):
+        dataclasses.replace(_config(tmp_path, "x", 1), early_stop=True)
+    with pytest.raises(ValueError, match="leaves no scene to fit on"):
+        dataclasses.replace(_config(tmp_path, "x", 1), validation=0.9)
     with pytest.raises(ValueError, match="other settings \\(epochs differ"):
         policy_train.train(PolicyConfig(**{**_config(tmp_path, "parts", 2, 1).__dict__, "epochs": 5}),
                            show_progress=False)

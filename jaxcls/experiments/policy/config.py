@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 
 from jaxcls.config import bounded, check_bounds, load_config, resolve_config
@@ -37,6 +38,11 @@ class PolicyConfig:
     rounds: int = bounded(3, ge=0)  # DAgger rounds (may grow when a run resumes; 0: PPO straight from the start)
     beta: float = bounded(0.5, ge=0.0, le=1.0)  # round r follows the oracle with probability beta ** r
     epochs: int = bounded(30, ge=1)  # passes over every decision so far, each round
+    # The share of the training scenes whose decisions the fit leaves out (the draw's last ceil(share x
+    # train_scenes)): its loss, regret and agreement on them each round (``val_*`` in metrics.json), the
+    # imitation's overfitting measured on states of its own rounds. PPO still trains on every training scene.
+    validation: float = bounded(0.0, ge=0.0, lt=1.0)
+    early_stop: bool = False  # each round keeps the epoch of least validation loss (needs validation > 0)
     batch: int = bounded(64, ge=1)
     learning_rate: float = bounded(1e-3, gt=0.0)
     hidden: int = bounded(64, ge=1)  # the network's width (``learned.ViewScorer``)
@@ -60,6 +66,12 @@ class PolicyConfig:
         if self.ppo.new_scenes > self.train_scenes:
             raise ValueError(f"ppo.new_scenes: {self.ppo.new_scenes} scenes replaced an update, more than the "
                              f"train_scenes = {self.train_scenes} in memory; give at most {self.train_scenes}")
+        if self.early_stop and not self.validation:
+            raise ValueError("early_stop: true picks each round's epoch by the validation loss; validation is 0 "
+                             "(hold out a share of the training scenes, e.g. validation=0.25)")
+        if self.rounds and self.validation and self.validation_scenes() >= self.train_scenes:
+            raise ValueError(f"validation: {self.validation} of train_scenes = {self.train_scenes} leaves no scene "
+                             "to fit on; give a smaller share or more scenes")
         if self.labels is Label.rollout and self.base is Base.none:
             raise ValueError("labels: rollout continues each candidate with the base policy; base is none "
                              f"(choose one of {[b.value for b in Base if b is not Base.none]})")
@@ -83,6 +95,11 @@ class PolicyConfig:
         return dataclasses.replace(held_out, scene_source=SceneSource.device, scenes=self.train_scenes,
                                    dataset_overrides=(*held_out.dataset_overrides, f"seed={self.train_seed}",
                                                       f"num_scenes={self.stream_scenes()}"))
+
+    def validation_scenes(self) -> int:
+        """How many training scenes the imitation's fit leaves out (the draw's last: ceil(validation x
+        train_scenes); 0 for none)."""
+        return math.ceil(self.validation * self.train_scenes - 1e-9)  # (0.1 x 30 is 3.0000000000000004)
 
     def stream_scenes(self) -> int:
         """The training scenes the run draws: ``train_scenes``, and ``ppo.new_scenes`` more for each PPO update

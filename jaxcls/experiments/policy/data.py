@@ -20,11 +20,14 @@ from jaxcls.planning import learned
 class Decisions:
     """D decisions: the network's input (``learned.Features`` with [D, ...] leaves: pair [D, C, N, P], live [D, N],
     candidate [D, C, F]), f1 [D, C] each candidate's true F1 after the move (-1 where not allowed), allowed [D, C]
-    bool the candidates the oracle ranks (unvisited within the radius first)."""
+    bool the candidates the oracle ranks (unvisited within the radius first), scene [D] int32 the scene each
+    decision is of (``collect``: the index into its frames; ``jaxcls train-policy``: into the training draw; -1
+    where unknown: a file written before decisions carried it)."""
 
     features: learned.Features
     f1: np.ndarray
     allowed: np.ndarray
+    scene: np.ndarray
 
     def __len__(self) -> int:
         return len(self.f1)
@@ -42,18 +45,28 @@ class Decisions:
 
         buffer = bytes_io.BytesIO()
         np.savez(buffer, pair=self.features.pair, live=self.features.live, candidate=self.features.candidate,
-                 f1=self.f1, allowed=self.allowed)
+                 f1=self.f1, allowed=self.allowed, scene=self.scene)
         return io.write_bytes(path, buffer.getvalue())
 
     @classmethod
     def load(cls, path: str | Path) -> Decisions:
-        """The decisions ``save`` wrote."""
+        """The decisions ``save`` wrote (``scene`` -1 where the file has none)."""
         with np.load(path) as f:
+            scene = f["scene"] if "scene" in f.files else np.full(len(f["f1"]), -1, np.int32)
             return cls(learned.Features(pair=f["pair"], live=f["live"], candidate=f["candidate"]), f["f1"],
-                       f["allowed"])
+                       f["allowed"], scene)
+
+    def split(self, held_out: np.ndarray) -> tuple[Decisions, Decisions]:
+        """(the decisions of scenes not in ``held_out``, those of scenes in it): a split by scene, so that no scene
+        gives decisions to both. ValueError where a decision's scene is unknown (-1)."""
+        if np.any(self.scene < 0):
+            raise ValueError("Decisions.split: some decisions do not say their scene (collected by an older jaxcls); "
+                             "collect them again (a new out_dir)")
+        out = np.isin(self.scene, held_out)
+        return jax.tree.map(lambda a: a[~out], self), jax.tree.map(lambda a: a[out], self)
 
 
-jax.tree_util.register_dataclass(Decisions, data_fields=["features", "f1", "allowed"], meta_fields=[])
+jax.tree_util.register_dataclass(Decisions, data_fields=["features", "f1", "allowed", "scene"], meta_fields=[])
 
 
 @functools.partial(jax.jit, static_argnames=("layout",))
@@ -94,11 +107,13 @@ def collect(episode: active.Episode, depth: np.ndarray, T_wc: np.ndarray, scene:
     for first in range(0, R, size):
         real = min(size, R - first)
         rows = np.concatenate([np.arange(first, first + real), np.full(size - real, first + real - 1)])
+        frames = np.asarray(scene, np.int32)[rows]
 
-        def tap(states, index, ok, allowed, f1, pick, real=real) -> np.ndarray:
+        def tap(states, index, ok, allowed, f1, pick, real=real, frames=frames) -> np.ndarray:
             x = jax.device_get(_features_of_runs(episode, states, jnp.asarray(index, jnp.int32), jnp.asarray(ok),
                                                  layout))
-            kept.append(jax.tree.map(lambda a: a[:real], Decisions(x, np.asarray(f1, np.float32), np.asarray(allowed))))
+            labelled = Decisions(x, np.asarray(f1, np.float32), np.asarray(allowed), frames)
+            kept.append(jax.tree.map(lambda a: a[:real], labelled))
             if weights is None:
                 return pick
             ours = np.asarray(_picks(weights, x, jnp.asarray(allowed)))

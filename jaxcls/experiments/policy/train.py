@@ -12,7 +12,9 @@ decisions kept on disk (``decisions_<r>.npz``) so that an interrupted round does
 round's ``seconds`` in ``metrics.json``: collecting (with ``states_per_second``, the states the oracle stepped to
 and labelled: every candidate of every decision), fitting, evaluating (wall time, compilation included). The run
 ends with ``policy.msgpack`` (+ ``.json``, ``learned.save``) and ``curve.png``. ``init`` starts the network from a
-trained policy's weights instead of ``base``'s (with ``rounds: 0``, PPO alone from a shipped policy).
+trained policy's weights instead of ``base``'s (with ``rounds: 0``, PPO alone from a shipped policy). With
+``validation``, the decisions of the training draw's last scenes stay out of the fit and measure it (``val_*`` in
+``metrics.json``); with ``early_stop`` each round keeps its epoch of least validation loss.
 """
 
 from __future__ import annotations
@@ -88,20 +90,47 @@ def _epoch(weights: dict, opt_state: Any, data: Decisions, key: jax.Array, optim
     return weights, opt_state, per_step
 
 
+@functools.partial(jax.jit, static_argnames=("temperature",))
+def _measure(weights: dict, data: Decisions, temperature: float) -> jax.Array:
+    """[3] the loss, regret and agreement of ``weights`` on all of ``data`` (``loss``)."""
+    value, (regret, agree) = loss(weights, data.features, data.f1, data.allowed, temperature)
+    return jnp.stack([value, regret, agree])
+
+
 def fit(weights: dict, opt_state: Any, optimizer: optax.GradientTransformation, data: Decisions, epochs: int,
-        batch: int, temperature: float, key: jax.Array) -> tuple[dict, Any, dict[str, float]]:
+        batch: int, temperature: float, key: jax.Array, validation: Decisions | None = None,
+        early_stop: bool = False) -> tuple[dict, Any, dict[str, Any]]:
     """``epochs`` passes over ``data`` (batches of ``min(batch, len(data))``); the last epoch's mean loss, regret
-    and agreement."""
+    and agreement. With ``validation`` (decisions of other scenes), also the loss, regret and agreement on them
+    after every epoch (``val_loss``, ``val_regret``, ``val_agreement``: the kept epoch's; ``val_losses``: every
+    epoch's), and with ``early_stop`` the weights and optimiser state of the epoch of least validation loss
+    (``epoch``: the one kept, from 1; its training figures are that epoch's)."""
+    if early_stop and validation is None:
+        raise ValueError("fit: early_stop needs validation decisions")
     batch = min(batch, len(data))
     on_device = jax.device_put(data)
-    per_step = None
+    held = None if validation is None else jax.device_put(validation)
+    kept, per_epoch, val = None, [], []
     for epoch in range(epochs):
         weights, opt_state, per_step = _epoch(weights, opt_state, on_device, jax.random.fold_in(key, epoch),
                                               optimizer, batch, temperature)
-    value, regret, agree = (float(v) for v in np.asarray(per_step).mean(axis=0))
+        per_epoch.append(np.asarray(per_step).mean(axis=0))
+        if held is not None:
+            val.append(np.asarray(_measure(weights, held, temperature)))
+            if early_stop and (kept is None or val[-1][0] < val[kept[0]][0]):
+                kept = (epoch, weights, opt_state)
+    at = epochs - 1
+    if kept is not None:
+        at, weights, opt_state = kept
+    value, regret, agree = (float(v) for v in per_epoch[at])
     if not math.isfinite(value):
         raise RuntimeError(f"train-policy: the loss is {value}; the fit diverged (lower learning_rate?)")
-    return weights, opt_state, {"loss": value, "regret": regret, "agreement": agree}
+    fitted: dict[str, Any] = {"loss": value, "regret": regret, "agreement": agree}
+    if val:
+        fitted.update({"val_loss": float(val[at][0]), "val_regret": float(val[at][1]),
+                       "val_agreement": float(val[at][2]), "val_losses": [float(v[0]) for v in val],
+                       "epoch": at + 1})
+    return weights, opt_state, fitted
 
 
 @dataclasses.dataclass
@@ -319,23 +348,30 @@ def train(config: PolicyConfig, show_progress: bool = True) -> Path:
             for scenes, chunk, truths in tqdm(training.frames(), desc=f"round {r + 1}: the oracle's labels",
                                               unit="chunk", leave=False, disable=not show_progress):
                 at, starts, keys = _runs(config.seed + 7919 * (r + 1), scenes, config.runs, chunk.T_wc.shape[1])
-                parts.append(collect(oracle, chunk.depth, chunk.T_wc, at, starts, keys, [truths[a] for a in at],
-                                     weights if r else None, follow, rng, runner.oracle_call_size(training_config),
-                                     config.labels, config.layout))
+                part = collect(oracle, chunk.depth, chunk.T_wc, at, starts, keys, [truths[a] for a in at],
+                               weights if r else None, follow, rng, runner.oracle_call_size(training_config),
+                               config.labels, config.layout)
+                parts.append(dataclasses.replace(part, scene=np.asarray(scenes, np.int32)[part.scene]))  # (the draw's)
             collected = Decisions.concatenate(parts)
             collected.save(kept)
             seconds["collect"] = time.perf_counter() - began
             seconds["states_per_second"] = collected.f1.size / seconds["collect"]  # (every candidate of every decision)
         data = Decisions.concatenate([Decisions.load(out / f"decisions_{i}.npz") for i in range(r + 1)])
+        validation = None
+        if config.validation:  # (the training draw's last scenes: their decisions out of the fit)
+            data, validation = data.split(np.arange(config.train_scenes - config.validation_scenes(),
+                                                    config.train_scenes))
         began = time.perf_counter()
         weights, opt_state, fitted = fit(weights, opt_state, optimizer, data, config.epochs, config.batch,
-                                         config.temperature, jax.random.fold_in(jax.random.key(config.seed + 1), r))
+                                         config.temperature, jax.random.fold_in(jax.random.key(config.seed + 1), r),
+                                         validation, config.early_stop)
         seconds["fit"] = time.perf_counter() - began
         began = time.perf_counter()
         scores = evaluate(switched, weights, held_out, config.eval_runs, held_out_config.seed, held_out_config.moves)
         seconds["evaluate"] = time.perf_counter() - began
-        history.append({"round": r + 1, "decisions": len(data), "follow_oracle": config.beta ** r, **fitted, **scores,
-                        "seconds": seconds})
+        held = {} if validation is None else {"val_decisions": len(validation)}
+        history.append({"round": r + 1, "decisions": len(data), **held, "follow_oracle": config.beta ** r, **fitted,
+                        **scores, "seconds": seconds})
         publish(out, config, name, held_out_config.nbv.max_candidates, weights, history)
         manager.save(r + 1, args=ocp.args.StandardSave({"weights": weights, "opt_state": opt_state}))
         bar.set_postfix(loss=f"{fitted['loss']:.3f}", regret=f"{fitted['regret']:.3f}",
