@@ -43,16 +43,20 @@ def main(argv: list[str] | None = None) -> Path:
     parser.add_argument("--out", required=True, help="the soup's .msgpack (its .json is written beside it)")
     args = parser.parse_args(argv)
     paths = [learned.weights_file(p) for p in args.members]
-    info0 = json.loads(paths[0].with_suffix(".json").read_text()) if paths[0].with_suffix(".json").is_file() else {}
-    candidates = info0.get("max_candidates")
+    first = paths[0].with_suffix(".json")
+    if not first.is_file():
+        raise FileNotFoundError(f"policy soup: {first} not found (weights come as a .msgpack and a .json)")
+    candidates = json.loads(first.read_text()).get("max_candidates")
     if not isinstance(candidates, int):
-        raise ValueError(f"{paths[0].with_suffix('.json')}: no 'max_candidates' (not a view policy's weights?)")
-    loaded = [learned.load(p, candidates) for p in paths]  # refuses another layout or candidate count by file
+        raise ValueError(f"{first}: no 'max_candidates' (not a view policy's weights?)")
+    loaded = [learned.load(p, candidates) for p in paths]  # (each file checked: kind, shapes, candidate count)
     layouts = {info.features for _, info in loaded}
     if len(layouts) > 1:
         raise ValueError(f"policy soup: the members read feature layouts {sorted(int(x) for x in layouts)}")
     weights = soup([w for w, _ in loaded])
-    metadata = {"trained_by": "experiments/policy_soup.py (a uniform soup)",
+    agreed = {k: loaded[0][1].metadata[k] for k in ("table1", "classifier", "base", "labels")
+              if k in loaded[0][1].metadata and all(i.metadata.get(k) == loaded[0][1].metadata[k] for _, i in loaded)}
+    metadata = {"trained_by": "experiments/policy_soup.py (a uniform soup)", **agreed,  # (what every member says)
                 "soup": [{"file": str(p), "sha256": hashlib.sha256(p.read_bytes()).hexdigest()} for p in paths]}
     out = learned.save(args.out, weights, candidates, metadata)
     print(f"policy soup of {len(paths)} members -> {out}")

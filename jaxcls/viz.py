@@ -142,7 +142,8 @@ def policy_curve(history: list[dict]) -> Figure:
         validated = [h for h in rounds if "val_regret" in h]  # (validation: the fit's left-out scenes, dashed)
         regret.plot([h["round"] for h in validated], [h["val_regret"] for h in validated], color="C3", lw=1,
                     ls="--", marker="s", mfc="none")
-        regret.set(ylabel="regret: F1 given up (red; dashed: validation)")
+        regret.set(ylabel="regret: F1 given up (red; dashed: validation)" if validated
+                   else "regret: F1 given up a decision (red)")
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax = figure.add_subplot(1, panels, 2)
         _held_out_f1(ax, "round", rounds, "")

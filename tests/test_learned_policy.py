@@ -356,9 +356,11 @@ def test_a_policy_soup_is_the_leafwise_mean_and_refuses_members_of_another_layou
     script = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(script)
     a, b = learned.init(jax.random.key(1), 8), learned.init(jax.random.key(2), 8)
-    pa, pb = (learned.save(tmp_path / f"{n}.msgpack", w, 16) for n, w in (("a", a), ("b", b)))
+    pa, pb = (learned.save(tmp_path / f"{n}.msgpack", w, 16, {"classifier": "paper", "base": n})
+              for n, w in (("a", a), ("b", b)))
     out = script.main(["--out", str(tmp_path / "soup" / "p.msgpack"), str(pa), str(pb)])
     weights, info = learned.load(out, 16)
+    assert info.metadata["classifier"] == "paper" and "base" not in info.metadata  # (what every member says)
     for x, y, z in zip(jax.tree.leaves(a), jax.tree.leaves(b), jax.tree.leaves(weights), strict=True):
         np.testing.assert_allclose(np.asarray(z), (np.asarray(x) + np.asarray(y)) / 2, rtol=1e-6, atol=1e-7)
     members = info.metadata["soup"]
@@ -373,6 +375,8 @@ def test_a_policy_soup_is_the_leafwise_mean_and_refuses_members_of_another_layou
     wide = learned.save(tmp_path / "wide.msgpack", learned.init(jax.random.key(4), 16), 16)
     with pytest.raises(ValueError, match="member 1 has other layers or shapes"):
         script.main(["--out", str(tmp_path / "x.msgpack"), str(pa), str(wide)])
+    with pytest.raises(FileNotFoundError, match=r"missing\.json not found"):
+        script.main(["--out", str(tmp_path / "x.msgpack"), str(tmp_path / "missing.msgpack"), str(pa)])
     other = learned.save(tmp_path / "k20.msgpack", a, 20)
     with pytest.raises(ValueError, match=r"k20\.json: weights trained with 20 candidates"):
         script.main(["--out", str(tmp_path / "x.msgpack"), str(pa), str(other)])

@@ -261,15 +261,21 @@ def test_training_runs_resumes_bit_for_bit_and_writes_a_policy_the_episode_loads
                            show_progress=False)
     with pytest.raises(ValueError, match=r"rounds: 0 and ppo\.updates: 0 train nothing"):
         _config(tmp_path, "x", 0)
-    # validation: round 1 from the same decisions (kept in the new run's folder), scene 1's left out of the fit.
-    held = tmp_path / "held"
-    held.mkdir()
-    shutil.copy(whole / "decisions_0.npz", held / "decisions_0.npz")
-    config = dataclasses.replace(_config(tmp_path, "held", 1), validation=0.5, early_stop=True)
+    # validation: scene 1's decisions left out of round 1's fit. The scenes rendered a chunk each (scene_chunk: 1):
+    # each decision says its scene of the training draw, not its place in its chunk (0 in both).
+    config = dataclasses.replace(_config(tmp_path, "held", 1), validation=0.5, early_stop=True,
+                                 table1_overrides=("scene_chunk=1",))
     assert config.validation_scenes() == 1
-    (first,) = json.loads((policy_train.train(config, show_progress=False) / "metrics.json").read_text())["history"]
-    assert first["decisions"] == 1 and first["val_decisions"] == 1 and 1 <= first["epoch"] <= 4
+    held = policy_train.train(config, show_progress=False)
+    (first,) = json.loads((held / "metrics.json").read_text())["history"]
+    collected = Decisions.load(held / "decisions_0.npz")
+    assert collected.scene.tolist() == [0, 1]
+    np.testing.assert_array_equal(collected.f1, decisions[0].f1)  # (the same labels as in one chunk)
+    assert first["decisions"] == 1 and first["val_decisions"] == 1
     assert first["val_loss"] == min(first["val_losses"]) and 0 <= first["val_regret"] <= 1
+    value = policy_train.loss(learned.load(held / "policy.msgpack", 4)[0], *jax.tree.map(
+        lambda a: a[1:], (collected.features, collected.f1, collected.allowed)), config.temperature)[0]
+    assert float(value) == pytest.approx(first["val_loss"], rel=1e-5)  # (scene 1's decision: the one measured)
     with pytest.raises(ValueError, match="early_stop: true picks each round's epoch by the validation loss"):
         dataclasses.replace(_config(tmp_path, "x", 1), early_stop=True)
     with pytest.raises(ValueError, match="leaves no scene to fit on"):

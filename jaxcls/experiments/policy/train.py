@@ -103,8 +103,9 @@ def fit(weights: dict, opt_state: Any, optimizer: optax.GradientTransformation, 
     """``epochs`` passes over ``data`` (batches of ``min(batch, len(data))``); the last epoch's mean loss, regret
     and agreement. With ``validation`` (decisions of other scenes), also the loss, regret and agreement on them
     after every epoch (``val_loss``, ``val_regret``, ``val_agreement``: the kept epoch's; ``val_losses``: every
-    epoch's), and with ``early_stop`` the weights and optimiser state of the epoch of least validation loss
-    (``epoch``: the one kept, from 1; its training figures are that epoch's)."""
+    epoch's), and with ``early_stop`` the weights and optimiser state of the epoch of least (finite) validation
+    loss (``epoch``: the one kept, from 1; its training figures are that epoch's). The training figures are means
+    over the epoch's steps, the validation ones those of the weights after it."""
     if early_stop and validation is None:
         raise ValueError("fit: early_stop needs validation decisions")
     batch = min(batch, len(data))
@@ -114,15 +115,16 @@ def fit(weights: dict, opt_state: Any, optimizer: optax.GradientTransformation, 
     for epoch in range(epochs):
         weights, opt_state, per_step = _epoch(weights, opt_state, on_device, jax.random.fold_in(key, epoch),
                                               optimizer, batch, temperature)
-        per_epoch.append(np.asarray(per_step).mean(axis=0))
+        per_epoch.append(per_step)  # (on the device: read once, at the end)
         if held is not None:
             val.append(np.asarray(_measure(weights, held, temperature)))
-            if early_stop and (kept is None or val[-1][0] < val[kept[0]][0]):
-                kept = (epoch, weights, opt_state)
+            score = float(val[-1][0]) if math.isfinite(val[-1][0]) else math.inf  # (a NaN is never the least)
+            if early_stop and (kept is None or score < kept[3]):
+                kept = (epoch, weights, opt_state, score)
     at = epochs - 1
     if kept is not None:
-        at, weights, opt_state = kept
-    value, regret, agree = (float(v) for v in per_epoch[at])
+        at, weights, opt_state, _ = kept
+    value, regret, agree = (float(v) for v in np.asarray(per_epoch[at]).mean(axis=0))
     if not math.isfinite(value):
         raise RuntimeError(f"train-policy: the loss is {value}; the fit diverged (lower learning_rate?)")
     fitted: dict[str, Any] = {"loss": value, "regret": regret, "agreement": agree}
@@ -358,7 +360,7 @@ def train(config: PolicyConfig, show_progress: bool = True) -> Path:
             seconds["states_per_second"] = collected.f1.size / seconds["collect"]  # (every candidate of every decision)
         data = Decisions.concatenate([Decisions.load(out / f"decisions_{i}.npz") for i in range(r + 1)])
         validation = None
-        if config.validation:  # (the training draw's last scenes: their decisions out of the fit)
+        if config.validation_scenes():  # (the training draw's last scenes: their decisions out of the fit)
             data, validation = data.split(np.arange(config.train_scenes - config.validation_scenes(),
                                                     config.train_scenes))
         began = time.perf_counter()
