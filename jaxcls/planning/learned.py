@@ -46,7 +46,7 @@ from flax import linen as nn
 from flax import serialization, struct
 
 from jaxcls import io
-from jaxcls.geometry import Intrinsics
+from jaxcls.geometry import Intrinsics, rotate
 from jaxcls.math import safe_div
 from jaxcls.planning import nbv, visibility
 
@@ -155,7 +155,8 @@ def _seen_from(T_wc: jax.Array, belief: nbv.Belief) -> jax.Array:
     rotation, translation = belief.poses[:, :3, :3], belief.poses[:, :3, 3]  # [N, 3, 3], [N, 3]
     centre = jnp.mean(belief.corners, axis=1)  # [N, 3] (model frame)
     offset = T_wc[:, None, :3, 3] - translation[None]  # [K, N, 3] world
-    local = jnp.einsum("nji,knj->kni", rotation, offset) - centre[None]  # R^T (p - t) - c
+    to_model = jax.vmap(lambda R, x: rotate(R.T, x), in_axes=(0, 1), out_axes=1)  # (full float32)
+    local = to_model(rotation, offset) - centre[None]  # R^T (p - t) - c
     length = jnp.linalg.norm(local, axis=-1, keepdims=True)
     direction = jnp.where(length > 1e-9, local / jnp.maximum(length, 1e-9), 0.0)
     size = (jnp.max(belief.corners, axis=1) - jnp.min(belief.corners, axis=1)) / 0.1  # [N, 3] dm
