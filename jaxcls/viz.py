@@ -124,13 +124,15 @@ def _held_out_f1(ax, step: str, entries: list[dict], suffix: str) -> None:
 def policy_curve(history: list[dict]) -> Figure:
     """A learned view policy's training (``jaxcls train-policy``'s ``metrics.json`` history): against the imitation
     round, the loss and the regret (true F1 given up at a decision; on the validation scenes too, where the fit left
-    some out) and the held-out macro F1 of the learned policy and of the hand-made ones evaluated beside it; against
-    the PPO update (where there are any), the rollouts' mean F1 after the last move and the held-out F1 where it
-    was evaluated."""
+    some out) and the held-out macro F1 of the learned policy and of the hand-made ones evaluated beside it; where
+    the fit left scenes out, each round's validation loss against the epoch, the epoch kept marked; against the PPO
+    update (where there are any), the rollouts' mean F1 after the last move and the held-out F1 where it was
+    evaluated."""
     rounds = [h for h in history if "round" in h]
     updates = [h for h in history if "update" in h]
     imitation = bool(rounds) or not updates  # (PPO alone, from a trained policy: its panel only)
-    panels = 2 * imitation + bool(updates)
+    epochs = [h for h in rounds if h.get("val_losses")]  # (runs with validation)
+    panels = 2 * imitation + bool(epochs) + bool(updates)
     figure = Figure(figsize=(5 * panels, 4))
     if imitation:
         ax = figure.add_subplot(1, panels, 1)
@@ -151,6 +153,17 @@ def policy_curve(history: list[dict]) -> Figure:
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         if rounds:
             ax.legend(fontsize=8)
+    if epochs:
+        ax = figure.add_subplot(1, panels, 3)
+        for i, h in enumerate(epochs):
+            losses = h["val_losses"]
+            ax.plot(range(1, len(losses) + 1), losses, color=f"C{i % 10}", lw=1, label=f"round {h['round']}")
+            if "epoch" in h:  # (early stopping: the epoch whose weights the round kept)
+                ax.plot(h["epoch"], losses[h["epoch"] - 1], color=f"C{i % 10}", marker="o")
+        ax.set(xlabel="epoch", ylabel="validation loss (nats; dot: epoch kept)")
+        ax.set_title("the fit's left-out scenes, each round", fontsize=9)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.legend(fontsize=8)
     if updates:
         ax = figure.add_subplot(1, panels, panels)
         rolled = [h for h in updates if "f1_last" in h]  # (update 0: the starting policy, evaluated only)

@@ -304,11 +304,13 @@ def test_the_shipped_policies_load_for_the_moves_planner_and_start_from_infogain
     (``setup.episode_nbv``), trained from InfoGain for their config's Table 1, classifier and labels; loaded by
     name where a run names them."""
     assert set(learned.SHIPPED_WEIGHTS) == {"real_like", "real_like_paper", "synthetic_paper", "real_like_paper_ppo",
-                                            "synthetic_paper_ppo", "real_like_paper_ppo_scenes256"}
+                                            "synthetic_paper_ppo", "real_like_paper_ppo_scenes256",
+                                            "real_like_paper_v3", "real_like_paper_v3_scenes256"}
     for name in learned.SHIPPED_WEIGHTS:
         weights, info = learned.load(name, setup.episode_nbv().max_candidates)
-        assert info.features == learned.Layout.v2.value and info.metadata["base"] == "info_gain"
         config = load_config(PolicyConfig, resolve_config(f"policy_{name}"))
+        assert info.features == config.layout.value and info.metadata["base"] == "info_gain"
+        assert config.layout == (learned.Layout.v3 if "_v3" in name else learned.Layout.v2)
         assert info.metadata["table1"] == config.table1 and info.metadata["rounds"] == config.rounds
         assert info.metadata["ppo_updates"] == config.ppo.updates and config.rounds + config.ppo.updates >= 1
         if config.init:  # PPO from a shipped imitation policy: that very file (its digest)

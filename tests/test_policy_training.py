@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxcls import viz
 from jaxcls.episode import scoring
 from jaxcls.experiments.policy import train as policy_train
 from jaxcls.experiments.policy.config import PolicyConfig
@@ -161,6 +162,13 @@ def test_the_fit_measures_left_out_scenes_each_epoch_and_early_stopping_keeps_th
     unknown = dataclasses.replace(data, scene=np.full(64, -1, np.int32))
     with pytest.raises(ValueError, match="do not say their scene"):
         unknown.split(np.array([7]))
+    # The curve: each round's validation loss against the epoch, a dot at the epoch kept; no panel without them.
+    history = [{"round": r + 1, "f1_learned": 0.5, **f} for r, f in enumerate((plain, stop))]
+    (panel,) = [ax for ax in viz.policy_curve(history).axes if ax.get_xlabel() == "epoch"]
+    drawn = [(list(line.get_xdata()), list(line.get_ydata())) for line in panel.get_lines()]
+    assert drawn == [(list(range(1, 13)), plain["val_losses"]), ([12], [plain["val_losses"][11]]),
+                     (list(range(1, 13)), stop["val_losses"]), ([stop["epoch"]], [stop["val_loss"]])]
+    assert len(viz.policy_curve([{"round": 1, "f1_learned": 0.5, **alone}]).axes) == 3  # (loss, its twin, F1)
 
 
 def test_training_runs_resumes_bit_for_bit_and_writes_a_policy_the_episode_loads(tmp_path, monkeypatch):
