@@ -12,8 +12,10 @@ gap.
 drawn the same scenes, starts and keys: the ``--reference`` row, which both ran with the same settings, must have
 the same start, path and labels in every episode both hold, else the runs are refused. Then, per classifier:
 ``row`` of B - ``row`` of A on their paired episodes (scene bootstrap), and for each oracle row of either run both
-``row``s' share of the oracle's lead over the reference (``metrics.share_of_gap``) on the oracle's episodes. The
-settings in which the two configs differ are listed first.
+``row``s' share of the oracle's lead over the reference (``metrics.share_of_gap``) on the oracle's episodes, and
+the same share with each ``row``'s lead over the reference taken on all the paired episodes
+(``metrics.share_of_gap_all_scenes``: the oracle runs on a subset, whose draw of the lead it carries otherwise).
+The settings in which the two configs differ are listed first.
 """
 
 from __future__ import annotations
@@ -91,20 +93,26 @@ def tables(a: Records, b: Records, classifiers: list[str], row: str, reference: 
                    if protocol.ROWS[name].kind is protocol.Kind.ORACLE]
         if oracles:
             lines += [f"| oracle row (run: episodes, scenes) | oracle - {ref_label} | share A closes | share B closes "
-                      "| B - A there |", "| --- | --- | --- | --- | --- |"]
+                      f"| B - A there | share A closes, its lead on all {scenes} scenes | share B closes, likewise |",
+                      "| --- | --- | --- | --- | --- | --- | --- |"]
         for run_name, name, episodes in oracles:
             there = common & _keys(episodes)
             head = f"| {protocol.ROWS[name].label} ({run_name}: {len(there)}, {len({k[0] for k in there})}) |"
             if len({k[0] for k in there}) < 2:
-                lines.append(head + " fewer than 2 scenes in common: no interval | | | |")
+                lines.append(head + " fewer than 2 scenes in common: no interval | | | | | |")
                 continue
             oracle, base = _on(episodes, there, moves), _on(ref_a, there, moves)
             pa, pb = _on(row_a, there, moves), _on(row_b, there, moves)
             lead = metrics.paired_difference(oracle, base, classes, resamples=resamples)
             shares = [metrics.share_of_gap(p, base, oracle, classes, resamples=resamples) for p in (pa, pb)]
             there_diff = metrics.paired_difference(pb, pa, classes, resamples=resamples)
+            inside = np.isin(sorted({k[0] for k in common}), sorted({k[0] for k in there}))  # (per_scene's order)
+            everywhere = [metrics.share_of_gap_all_scenes(_on(r, common, moves), _on(ref_a, common, moves), oracle,
+                                                          base, inside, classes, resamples=resamples)
+                          for r in (row_a, row_b)]
             lines.append(f"{head} {metrics.format_difference(*lead)} | {_share(shares[0])} | {_share(shares[1])} | "
-                         f"{metrics.format_difference(*there_diff)} |")
+                         f"{metrics.format_difference(*there_diff)} | {_share(everywhere[0])} | "
+                         f"{_share(everywhere[1])} |")
         lines.append("")
     return "\n".join(lines)
 

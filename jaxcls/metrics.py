@@ -452,6 +452,54 @@ def share_of_gap(policy: Sequence[tuple[np.ndarray, np.ndarray]], base: Sequence
     return _interval(share, len(cms), confidence, resamples, seed)
 
 
+def share_of_gap_all_scenes(policy: Sequence[tuple[np.ndarray, np.ndarray]],
+                            base: Sequence[tuple[np.ndarray, np.ndarray]],
+                            oracle: Sequence[tuple[np.ndarray, np.ndarray]],
+                            oracle_base: Sequence[tuple[np.ndarray, np.ndarray]], inside: np.ndarray,
+                            num_classes: int, statistic: str = "f1", confidence: float = 0.95, resamples: int = 2000,
+                            seed: int = 0) -> tuple[float, float, float]:
+    """(estimate, low, high) of the share of the oracle's lead that the policy closes, the policy's lead measured
+    on every scene: (s(policy) - s(base)) over all N scenes / (s(oracle) - s(oracle_base)) over the K of them the
+    oracle ran. ``policy``, ``base``: N scenes; ``oracle`` and ``oracle_base`` (base's labels in the oracle's
+    episodes): the K scenes where ``inside: [N]`` is true, in their order. An oracle row is costly, so it runs on
+    a subset; ``share_of_gap`` on that subset alone carries the subset's draw of the policy's lead as well.
+    The bootstrap is stratified: each resample draws K scenes from the oracle's and N - K from the others
+    (``scipy.stats.bootstrap``'s two independent samples), the oracle's scenes the same in both terms; fewer than
+    2 others are kept as they are. All N inside: ``share_of_gap`` of the policy on the oracle's episodes, where
+    those are all the episodes. Shares are clipped and undefined as there."""
+    inside = np.asarray(inside, bool)
+    if inside.shape != (len(policy),) or len(base) != len(policy):
+        raise ValueError(f"share_of_gap_all_scenes: policy, base and inside must cover the same scenes "
+                         f"({len(policy)}, {len(base)}, {inside.shape})")
+    if not int(inside.sum()) == len(oracle) == len(oracle_base):
+        raise ValueError(f"share_of_gap_all_scenes: inside marks {int(inside.sum())} scenes, the oracle has "
+                         f"{len(oracle)} and its base {len(oracle_base)}")
+    cms = _stacked_confusions([policy, base], num_classes, "share_of_gap_all_scenes")  # [N, 2, M + 1, M + 1]
+    in_cms, out_cms = cms[inside], cms[~inside]
+    there_cms = _stacked_confusions([oracle, oracle_base], num_classes, "share_of_gap_all_scenes")  # [K, 2, ...]
+
+    def share(picks_in, picks_out, axis=-1):
+        s = confusion_scores(_resampled_sum(in_cms, picks_in) + _resampled_sum(out_cms, picks_out))[statistic]
+        there = confusion_scores(_resampled_sum(there_cms, picks_in))[statistic]
+        lead = there[..., 0] - there[..., 1]
+        ratio = (s[..., 0] - s[..., 1]) / np.where(lead > 0, lead, 1.0)
+        return np.where(lead > 0, np.clip(ratio, -SHARE_UNDEFINED, SHARE_UNDEFINED), SHARE_UNDEFINED)
+
+    from scipy.stats import bootstrap
+
+    samples = (np.arange(len(in_cms)), np.arange(len(out_cms)))
+    estimate = float(share(*samples))
+    if len(in_cms) < 2:
+        return estimate, estimate, estimate
+    if len(out_cms) < 2:  # (a stratum of 0 or 1 scene is what it is: the oracle's alone drawn, as share_of_gap does)
+        rest = np.arange(len(out_cms))
+        return _interval(lambda picks: share(picks, np.broadcast_to(rest, (*picks.shape[:-1], len(rest)))),
+                         len(in_cms), confidence, resamples, seed)
+    result = bootstrap(samples, share, vectorized=True, axis=-1, confidence_level=confidence,
+                       n_resamples=resamples, method="percentile", rng=np.random.default_rng(seed))
+    return estimate, float(result.confidence_interval.low), float(result.confidence_interval.high)
+
+
 def format_difference(estimate: float, low: float, high: float) -> str:
     """``"+0.012 [-0.004, +0.031]"``: a paired difference and its interval at three decimals; a bound that is
     not 0 but rounds to it gets two significant digits (``+2.1e-04``), so that a reader can check on which

@@ -314,6 +314,47 @@ def test_the_share_of_the_oracles_lead_is_the_ratio_of_pooled_f1s_and_undefined_
         metrics.share_of_gap(policy, base[:29], oracle, 4)
 
 
+def test_the_share_with_the_lead_on_all_scenes_is_its_ratio_with_a_bootstrap_stratified_by_the_oracles_scenes():
+    """``share_of_gap_all_scenes``: the policy's lead over the base pooled over all N scenes, over the oracle's
+    lead on its K; its interval a bootstrap that draws K of the oracle's scenes and N - K of the others (a plain
+    NumPy one of those agrees); with every scene the oracle's, ``share_of_gap`` to the last bit."""
+    rng = np.random.default_rng(5)
+    truth = [rng.integers(0, 4, 5) for _ in range(80)]
+
+    def labels(error, scenes=truth):
+        return [(t, np.where(rng.random(5) < error, rng.integers(0, 4, 5), t)) for t in scenes]
+
+    def f1(x):
+        return metrics.classification_scores(*map(np.concatenate, zip(*x, strict=True)), 4).f1
+
+    policy, base = labels(0.3), labels(0.6)
+    inside = np.zeros(80, bool)
+    inside[rng.choice(80, 30, replace=False)] = True
+    oracle = labels(0.05, [t for t, i in zip(truth, inside, strict=True) if i])
+    oracle_base = [b for b, i in zip(base, inside, strict=True) if i]
+    share, low, high = metrics.share_of_gap_all_scenes(policy, base, oracle, oracle_base, inside, 4, resamples=4000)
+    assert share == pytest.approx((f1(policy) - f1(base)) / (f1(oracle) - f1(oracle_base)), rel=1e-12)
+    draws = []  # (the stratified bootstrap by hand)
+    ins, outs = np.flatnonzero(inside), np.flatnonzero(~inside)
+    for _ in range(4000):
+        a, b = rng.integers(0, 30, 30), rng.integers(0, 50, 50)
+        scenes = [*ins[a], *outs[b]]
+        draws.append((f1([policy[i] for i in scenes]) - f1([base[i] for i in scenes]))
+                     / (f1([oracle[i] for i in a]) - f1([oracle_base[i] for i in a])))
+    assert low < share < high and (low, high) == pytest.approx(tuple(np.percentile(draws, [2.5, 97.5])),
+                                                                abs=0.05 * (high - low))
+    # Every scene the oracle's: share_of_gap itself, estimate and bounds.
+    everywhere = labels(0.1)
+    assert (metrics.share_of_gap_all_scenes(policy, base, everywhere, base, np.ones(80, bool), 4, resamples=300)
+            == metrics.share_of_gap(policy, base, everywhere, 4, resamples=300))
+    weak = labels(0.9, [t for t, i in zip(truth, inside, strict=True) if i])  # (no lead: undefined)
+    assert metrics.share_of_gap_all_scenes(policy, base, weak, oracle_base, inside, 4)[0] == metrics.SHARE_UNDEFINED
+    with pytest.raises(ValueError, match=r"inside marks 30 scenes, the oracle has 29"):
+        metrics.share_of_gap_all_scenes(policy, base, oracle[:29], oracle_base, inside, 4)
+    with pytest.raises(ValueError, match=r"the same scenes \(80, 79"):
+        metrics.share_of_gap_all_scenes(policy, base[:79], oracle, oracle_base, inside, 4)
+
+
 def test_scene_pooling_and_confusions_equal_the_plain_loops():
     """``protocol.per_scene`` pools each scene's runs (scenes ascending, runs in the records' order, an episode
     of fewer moves counted with its last) and ``_scene_confusions`` counts them in one bincount: both equal the

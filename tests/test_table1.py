@@ -729,6 +729,23 @@ def test_the_learned_row_is_paired_with_the_best_hand_made_policy_and_the_oracle
     assert "does not lead" not in markdown
     assert "Oracle against the best policy: OracleRolloutGR - LearnedGR" in markdown
     assert "Oracle against the learned policy" not in markdown
+    assert "The same share with the learned policy's lead" not in markdown  # (the oracle on every scene)
+    # The oracle on scenes 0 and 1 of 3: the share paired there, and with the learned policy's lead on all 3.
+    config = dataclasses.replace(config, oracle_scenes=2)
+    markdown = tables.tables(config, [r for r in records if r["row"] != "oracle_rollout_gr" or r["scene"] < 2], 4,
+                             None, ["x"])[0]
+
+    def f1_on(row, scenes):
+        return metrics.classification_scores(np.concatenate([truth[s] for s in scenes]),
+                                             np.concatenate([labels[row][s] for s in scenes]), 4).f1
+
+    there = ((f1_on("learned_gr", [0, 1]) - f1_on("info_gain_gr", [0, 1]))
+             / (f1_on("oracle_rollout_gr", [0, 1]) - f1_on("info_gain_gr", [0, 1])))
+    wide = ((f1("learned_gr") - f1("info_gain_gr"))
+            / (f1_on("oracle_rollout_gr", [0, 1]) - f1_on("info_gain_gr", [0, 1])))
+    assert f"InfoGainGR) on the 2 scenes of all three: {there:+.2f} [" in markdown and f"{there:+.2f}" != f"{wide:+.2f}"
+    assert ("The same share with the learned policy's lead over InfoGainGR on all 3 scenes, the oracle's on its 2 "
+            f"(metrics.share_of_gap_all_scenes): {wide:+.2f} [") in markdown
 
 
 def test_tables_only_reads_the_archived_episodes_and_refuses_a_folder_without_any(table1, tmp_path, capsys):
@@ -962,15 +979,19 @@ def test_compare_runs_pairs_a_row_of_two_runs_episode_by_episode_after_checking_
     a = base + [_record("learned_gr", s, 0, truth, [wrong]) for s in range(3)]
     a += [_record("learned_gr", 0, 1, truth, [right])]  # (a run B lacks: left out of the pairs)
     a += [_record("oracle_gr", s, 0, truth, [right]) for s in range(2)]
-    b = base + [_record("learned_gr", s, 0, truth, [half]) for s in range(3)]
+    b = base + [_record("learned_gr", s, 0, truth, [half if s < 2 else right]) for s in range(3)]
     b += [_record("oracle_gr", 0, 0, truth, [right])]  # (B's oracle on one scene: no interval)
     text = module.tables(a, b, ["c"], "learned_gr", "info_gain_gr", 4, 1, resamples=100)
     f1 = [metrics.classification_scores(np.array(truth * 3), np.array(x * 3), 4).f1 for x in (wrong, half, right)]
+    b_f1 = metrics.classification_scores(np.array(truth * 3), np.array(half * 2 + right), 4).f1
     assert "- InfoGainGR: the same start, path and labels in all 3 episodes both runs hold." in text
-    assert f"- LearnedGR: B - A on 3 episodes of 3 scenes: {f1[1] - f1[0]:+.3f} [" in text
-    share = (f1[1] - f1[0]) / (f1[2] - f1[0])
+    assert f"- LearnedGR: B - A on 3 episodes of 3 scenes: {b_f1 - f1[0]:+.3f} [" in text
+    # The shares on A's oracle's 2 scenes (B's lead there: half's), and with the leads on all 3 (scene 2: right).
+    share, everywhere = (f1[1] - f1[0]) / (f1[2] - f1[0]), (b_f1 - f1[0]) / (f1[2] - f1[0])
     assert f"| OracleGR (A: 2, 2) | {f1[2] - f1[0]:+.3f} [" in text
-    assert f"| +0.00 [+0.00, +0.00] | {share:+.2f} [" in text
+    assert f"| +0.00 [+0.00, +0.00] | {share:+.2f} [" in text and share != everywhere
+    assert f"| {f1[1] - f1[0]:+.3f} [" in text and f"| +0.00 [+0.00, +0.00] | {everywhere:+.2f} [" in text
+    assert "its lead on all 3 scenes" in text
     assert "| OracleGR (B: 1, 1) | fewer than 2 scenes in common: no interval |" in text
     other = [dict(r, path=[5]) if r["row"] == "info_gain_gr" and r["scene"] == 1 else r for r in b]
     with pytest.raises(ValueError, match=r"info_gain_gr episode \(scene 1, run 0\) has another path"):

@@ -42,7 +42,9 @@ def differences(config: Table1Config, by: dict, c: str, classes: int,
     against the best policy; the learned policy against the best hand-made one, and the oracle against it (the
     pairs of the rows ``by`` has; the oracle against the learned policy only where that is not the best policy,
     else it is the pair before); then the share of each oracle's lead over the best hand-made policy that the
-    learned one closes (``metrics.share_of_gap``, on the scenes of all three, where they are 2 or more).
+    learned one closes (``metrics.share_of_gap``, on the scenes of all three, where they are 2 or more), and where
+    the oracle ran on fewer scenes than the two policies, the share with the learned policy's lead on all of theirs
+    (``metrics.share_of_gap_all_scenes``).
     ``by``: (classifier, row) -> that row's records; ``labels``: row -> its ``protocol.scene_labels`` where the
     caller has them. ``made``: the differences made before of the same records (e.g. while the oracle still ran,
     ``tables.EarlyRows``), keyed by (classifier, row a, row b, a's move, b's move, the scenes paired): used where
@@ -120,6 +122,16 @@ def differences(config: Table1Config, by: dict, c: str, classes: int,
         why = f" (+inf: the oracle does not lead {a} there)" if "inf" in estimate + low + high else ""
         notes.append(f"The share of the oracle's lead the learned policy closes: ({ours} - {a}) / ({b} - {a}) on the "
                      f"{len(scenes)} scenes of all three: {estimate} [{low}, {high}]{why}")
+        wide = {r["scene"] for r in by[c, "learned_gr"]} & {r["scene"] for r in by[c, best_hand_made]}
+        if wide > scenes:  # (the oracle on fewer scenes: the learned policy's lead on all of them, too)
+            inside = np.isin(sorted(wide), sorted(scenes))  # (scene_labels' order: by scene)
+            share = metrics.share_of_gap_all_scenes(
+                scenes_of("learned_gr", T, wide), scenes_of(best_hand_made, T, wide), scenes_of(o, T, scenes),
+                scenes_of(best_hand_made, T, scenes), inside, classes, resamples=config.resamples)
+            estimate, low, high = map(format_share, share)
+            notes.append(f"The same share with the learned policy's lead over {a} on all {len(wide)} scenes, the "
+                         f"oracle's on its {len(scenes)} (metrics.share_of_gap_all_scenes): {estimate} [{low}, "
+                         f"{high}]{why}")
     return notes
 
 
