@@ -59,8 +59,8 @@ WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 # real_like for the shipped classifier; for the paper-recipe one real_like_paper and synthetic_paper (imitation of
 # rollout labels), real_like_paper_ppo and synthetic_paper_ppo (PPO from those two), real_like_paper_ppo_scenes256
 # (PPO from real_like_paper_ppo on 4x the training scenes), all on layout 2; on layout 3 real_like_paper_v3
-# (imitation with early stopping, then PPO) and real_like_paper_v3_scenes256 (PPO from it on 256 scenes: the best
-# on the real-like set).
+# (imitation with early stopping, then PPO) and real_like_paper_v3_scenes256 (PPO from it on 256 scenes: the highest
+# F1 on the real-like set, a tie with real_like_paper_ppo_scenes256).
 SHIPPED_WEIGHTS: dict[str, Path] = {name: WEIGHTS_DIR / f"learned_{name}.msgpack"
                                     for name in ("real_like", "real_like_paper", "synthetic_paper",
                                                  "real_like_paper_ppo", "synthetic_paper_ppo",
