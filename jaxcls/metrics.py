@@ -332,16 +332,28 @@ def _resampled_sum(cms: np.ndarray, picks: np.ndarray) -> np.ndarray:
     return sums.astype(np.float64).reshape(*lead, *cms.shape[1:])
 
 
-def _interval(statistic_of, n: int, confidence: float, resamples: int, seed: int) -> tuple[float, float, float]:
+def _interval(statistic_of, n: int | tuple[int, ...], confidence: float, resamples: int, seed: int
+              ) -> tuple[float, float, float]:
     """(estimate, low, high): the percentile bootstrap (``scipy.stats.bootstrap``) of ``statistic_of(picks
-    [..., S]) -> [...]`` over ``n`` scenes drawn with replacement."""
+    [..., S]) -> [...]`` over ``n`` scenes drawn with replacement. With ``n`` a tuple of strata sizes,
+    ``statistic_of(picks_1, picks_2, ...)`` and each stratum drawn apart (a stratified bootstrap: scipy's
+    independent samples); a stratum of fewer than 2 scenes is kept as it is."""
     from scipy.stats import bootstrap
 
-    index = np.arange(n)
-    estimate = float(statistic_of(index))
-    if n < 2:
+    sizes = (n,) if isinstance(n, int) else tuple(n)
+    samples = [np.arange(k) for k in sizes]
+    estimate = float(statistic_of(*samples))
+    drawn = [i for i, k in enumerate(sizes) if k >= 2]
+    if not drawn:
         return estimate, estimate, estimate
-    result = bootstrap((index,), lambda picks, axis: statistic_of(picks), vectorized=True, axis=-1,
+
+    def resampled(*picks, axis=-1):
+        every = [np.broadcast_to(s, (*picks[0].shape[:-1], len(s))) for s in samples]
+        for i, p in zip(drawn, picks, strict=True):
+            every[i] = p
+        return statistic_of(*every)
+
+    result = bootstrap(tuple(samples[i] for i in drawn), resampled, vectorized=True, axis=-1,
                        confidence_level=confidence, n_resamples=resamples, method="percentile",
                        rng=np.random.default_rng(seed))
     return estimate, float(result.confidence_interval.low), float(result.confidence_interval.high)
@@ -445,11 +457,15 @@ def share_of_gap(policy: Sequence[tuple[np.ndarray, np.ndarray]], base: Sequence
 
     def share(picks):
         s = confusion_scores(_resampled_sum(cms, picks))[statistic]  # [..., 3]: policy, base, oracle
-        lead = s[..., 2] - s[..., 1]
-        ratio = (s[..., 0] - s[..., 1]) / np.where(lead > 0, lead, 1.0)
-        return np.where(lead > 0, np.clip(ratio, -SHARE_UNDEFINED, SHARE_UNDEFINED), SHARE_UNDEFINED)
+        return _share_ratio(s[..., 0] - s[..., 1], s[..., 2] - s[..., 1])
 
     return _interval(share, len(cms), confidence, resamples, seed)
+
+
+def _share_ratio(gain: np.ndarray, lead: np.ndarray) -> np.ndarray:
+    """gain / lead clipped to +-``SHARE_UNDEFINED``, and ``SHARE_UNDEFINED`` where there is no lead (<= 0)."""
+    ratio = gain / np.where(lead > 0, lead, 1.0)
+    return np.where(lead > 0, np.clip(ratio, -SHARE_UNDEFINED, SHARE_UNDEFINED), SHARE_UNDEFINED)
 
 
 def share_of_gap_all_scenes(policy: Sequence[tuple[np.ndarray, np.ndarray]],
@@ -464,9 +480,9 @@ def share_of_gap_all_scenes(policy: Sequence[tuple[np.ndarray, np.ndarray]],
     episodes): the K scenes where ``inside: [N]`` is true, in their order. An oracle row is costly, so it runs on
     a subset; ``share_of_gap`` on that subset alone carries the subset's draw of the policy's lead as well.
     The bootstrap is stratified: each resample draws K scenes from the oracle's and N - K from the others
-    (``scipy.stats.bootstrap``'s two independent samples), the oracle's scenes the same in both terms; fewer than
-    2 others are kept as they are. All N inside: ``share_of_gap`` of the policy on the oracle's episodes, where
-    those are all the episodes. Shares are clipped and undefined as there."""
+    (``_interval``'s strata), the oracle's scenes the same in both terms; fewer than 2 others are kept as they
+    are. All N inside: ``share_of_gap`` of the policy on the oracle's episodes, where those are all the episodes.
+    Shares are clipped and undefined as there."""
     inside = np.asarray(inside, bool)
     if inside.shape != (len(policy),) or len(base) != len(policy):
         raise ValueError(f"share_of_gap_all_scenes: policy, base and inside must cover the same scenes "
@@ -478,26 +494,15 @@ def share_of_gap_all_scenes(policy: Sequence[tuple[np.ndarray, np.ndarray]],
     in_cms, out_cms = cms[inside], cms[~inside]
     there_cms = _stacked_confusions([oracle, oracle_base], num_classes, "share_of_gap_all_scenes")  # [K, 2, ...]
 
-    def share(picks_in, picks_out, axis=-1):
+    def share(picks_in, picks_out):
         s = confusion_scores(_resampled_sum(in_cms, picks_in) + _resampled_sum(out_cms, picks_out))[statistic]
         there = confusion_scores(_resampled_sum(there_cms, picks_in))[statistic]
-        lead = there[..., 0] - there[..., 1]
-        ratio = (s[..., 0] - s[..., 1]) / np.where(lead > 0, lead, 1.0)
-        return np.where(lead > 0, np.clip(ratio, -SHARE_UNDEFINED, SHARE_UNDEFINED), SHARE_UNDEFINED)
+        return _share_ratio(s[..., 0] - s[..., 1], there[..., 0] - there[..., 1])
 
-    from scipy.stats import bootstrap
-
-    samples = (np.arange(len(in_cms)), np.arange(len(out_cms)))
-    estimate = float(share(*samples))
-    if len(in_cms) < 2:
+    if len(in_cms) < 2:  # (as share_of_gap: no interval)
+        estimate = float(share(np.arange(len(in_cms)), np.arange(len(out_cms))))
         return estimate, estimate, estimate
-    if len(out_cms) < 2:  # (a stratum of 0 or 1 scene is what it is: the oracle's alone drawn, as share_of_gap does)
-        rest = np.arange(len(out_cms))
-        return _interval(lambda picks: share(picks, np.broadcast_to(rest, (*picks.shape[:-1], len(rest)))),
-                         len(in_cms), confidence, resamples, seed)
-    result = bootstrap(samples, share, vectorized=True, axis=-1, confidence_level=confidence,
-                       n_resamples=resamples, method="percentile", rng=np.random.default_rng(seed))
-    return estimate, float(result.confidence_interval.low), float(result.confidence_interval.high)
+    return _interval(share, (len(in_cms), len(out_cms)), confidence, resamples, seed)
 
 
 def format_difference(estimate: float, low: float, high: float) -> str:

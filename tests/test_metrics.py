@@ -343,6 +343,13 @@ def test_the_share_with_the_lead_on_all_scenes_is_its_ratio_with_a_bootstrap_str
                      / (f1([oracle[i] for i in a]) - f1([oracle_base[i] for i in a])))
     assert low < share < high and (low, high) == pytest.approx(tuple(np.percentile(draws, [2.5, 97.5])),
                                                                 abs=0.05 * (high - low))
+    # Stratified: scenes alike within each stratum (the gain all on the oracle's scenes) give every resample the
+    # same pooled counts, so no spread; a bootstrap that let the oracle's count vary would have some.
+    same = [(np.arange(4), np.array(x)) for x in ([0, 1, 2, 0],) * 3 + ([0, 1, 0, 0],) * 5]
+    flat = [(np.arange(4), np.array([0, 1, 0, 0]))] * 8
+    lone = metrics.share_of_gap_all_scenes(same, flat, [(np.arange(4), np.arange(4))] * 3, flat[:3],
+                                           np.arange(8) < 3, 4, resamples=200)
+    assert 0 < lone[0] < 1 and lone == (lone[0], lone[0], lone[0])
     # Every scene the oracle's: share_of_gap itself, estimate and bounds.
     everywhere = labels(0.1)
     assert (metrics.share_of_gap_all_scenes(policy, base, everywhere, base, np.ones(80, bool), 4, resamples=300)

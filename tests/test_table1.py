@@ -28,6 +28,7 @@ from jaxcls.config import ConfigError, load_config, save_config
 from jaxcls.episode import protocol
 from jaxcls.experiments.table1 import data, runner, tables
 from jaxcls.experiments.table1.config import Table1Config
+from jaxcls.experiments.table1.scoring import format_share
 from jaxcls.planning import nbv
 from jaxcls.world.objects import ObjectSetConfig, object_set_from_config
 
@@ -730,22 +731,32 @@ def test_the_learned_row_is_paired_with_the_best_hand_made_policy_and_the_oracle
     assert "Oracle against the best policy: OracleRolloutGR - LearnedGR" in markdown
     assert "Oracle against the learned policy" not in markdown
     assert "The same share with the learned policy's lead" not in markdown  # (the oracle on every scene)
-    # The oracle on scenes 0 and 1 of 3: the share paired there, and with the learned policy's lead on all 3.
-    config = dataclasses.replace(config, oracle_scenes=2)
-    markdown = tables.tables(config, [r for r in records if r["row"] != "oracle_rollout_gr" or r["scene"] < 2], 4,
-                             None, ["x"])[0]
+    # The oracle on scenes 0 and 2 of 4: the share paired there, and with the learned policy's lead on all 4 (its
+    # interval a bootstrap stratified by those scenes: the same as the metric's with that mask).
+    truth = {s: [0, 1, 2, 3] for s in range(4)}
+    labels = {"info_gain_gr": [[0, 1, 0, 0], [0, 0, 2, 0], [0, 1, 2, 0], [0, 0, 0, 0]],
+              "learned_gr": [[0, 1, 2, 0], [0, 1, 2, 0], [0, 1, 2, 3], [0, 0, 0, 3]],
+              "oracle_rollout_gr": [[0, 1, 2, 3], None, [0, 1, 2, 3], None]}
+    records = [_record(row, s, 0, truth[s], [per_scene[s]] * 2) for row, per_scene in labels.items() for s in range(4)
+               if per_scene[s] is not None]
+    markdown = tables.tables(config, records, 4, None, ["x"])[0]
 
-    def f1_on(row, scenes):
-        return metrics.classification_scores(np.concatenate([truth[s] for s in scenes]),
-                                             np.concatenate([labels[row][s] for s in scenes]), 4).f1
+    def on(row, scenes):
+        return [(np.array(truth[s]), np.array(labels[row][s])) for s in scenes]
 
-    there = ((f1_on("learned_gr", [0, 1]) - f1_on("info_gain_gr", [0, 1]))
-             / (f1_on("oracle_rollout_gr", [0, 1]) - f1_on("info_gain_gr", [0, 1])))
-    wide = ((f1("learned_gr") - f1("info_gain_gr"))
-            / (f1_on("oracle_rollout_gr", [0, 1]) - f1_on("info_gain_gr", [0, 1])))
-    assert f"InfoGainGR) on the 2 scenes of all three: {there:+.2f} [" in markdown and f"{there:+.2f}" != f"{wide:+.2f}"
-    assert ("The same share with the learned policy's lead over InfoGainGR on all 3 scenes, the oracle's on its 2 "
-            f"(metrics.share_of_gap_all_scenes): {wide:+.2f} [") in markdown
+    there = metrics.share_of_gap(*(on(n, [0, 2]) for n in ("learned_gr", "info_gain_gr", "oracle_rollout_gr")), 4,
+                                 resamples=100)
+    wide = metrics.share_of_gap_all_scenes(on("learned_gr", range(4)), on("info_gain_gr", range(4)),
+                                           on("oracle_rollout_gr", [0, 2]), on("info_gain_gr", [0, 2]),
+                                           np.array([True, False, True, False]), 4, resamples=100)
+    assert wide[0] != there[0] and wide[1:] != (wide[0], wide[0])
+
+    def shown(x):
+        return "{} [{}, {}]".format(*map(format_share, x))
+
+    assert f"InfoGainGR) on the 2 scenes of all three: {shown(there)}" in markdown
+    assert ("The same share with the learned policy's lead over InfoGainGR on all 4 scenes, the oracle's on its 2 "
+            f"(metrics.share_of_gap_all_scenes): {shown(wide)}") in markdown
 
 
 def test_tables_only_reads_the_archived_episodes_and_refuses_a_folder_without_any(table1, tmp_path, capsys):
@@ -992,6 +1003,21 @@ def test_compare_runs_pairs_a_row_of_two_runs_episode_by_episode_after_checking_
     assert f"| +0.00 [+0.00, +0.00] | {share:+.2f} [" in text and share != everywhere
     assert f"| {f1[1] - f1[0]:+.3f} [" in text and f"| +0.00 [+0.00, +0.00] | {everywhere:+.2f} [" in text
     assert "its lead on all 3 scenes" in text
+    # The oracle on scenes 0 and 2 of 4 (not a prefix; 2 others to draw): B's all-scenes share is the metric's
+    # with that mask, interval included.
+    four = {"info_gain_gr": [wrong, half, wrong, wrong], "learned_gr": [half, half, right, wrong],
+            "oracle_gr": [right, None, right, None]}
+    a4 = [_record(row, s, 0, truth, [x]) for row, xs in four.items() for s, x in enumerate(xs) if x is not None]
+    b4 = [dict(r) for r in a4 if r["row"] != "oracle_gr"]
+    text4 = module.tables(a4, b4, ["c"], "learned_gr", "info_gain_gr", 4, 1, resamples=100)
+
+    def on(row, scenes):
+        return [(np.array(truth), np.array(four[row][s])) for s in scenes]
+
+    wide = metrics.share_of_gap_all_scenes(on("learned_gr", range(4)), on("info_gain_gr", range(4)),
+                                           on("oracle_gr", [0, 2]), on("info_gain_gr", [0, 2]),
+                                           np.array([True, False, True, False]), 4, resamples=100)
+    assert wide[1] < wide[2] and text4.rstrip().endswith("| {} [{}, {}] |".format(*map(format_share, wide)))
     assert "| OracleGR (B: 1, 1) | fewer than 2 scenes in common: no interval |" in text
     other = [dict(r, path=[5]) if r["row"] == "info_gain_gr" and r["scene"] == 1 else r for r in b]
     with pytest.raises(ValueError, match=r"info_gain_gr episode \(scene 1, run 0\) has another path"):

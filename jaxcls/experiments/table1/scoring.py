@@ -129,6 +129,7 @@ def differences(config: Table1Config, by: dict, c: str, classes: int,
                 scenes_of("learned_gr", T, wide), scenes_of(best_hand_made, T, wide), scenes_of(o, T, scenes),
                 scenes_of(best_hand_made, T, scenes), inside, classes, resamples=config.resamples)
             estimate, low, high = map(format_share, share)
+            why = f" (+inf: the oracle does not lead {a} there)" if "inf" in estimate + low + high else ""
             notes.append(f"The same share with the learned policy's lead over {a} on all {len(wide)} scenes, the "
                          f"oracle's on its {len(scenes)} (metrics.share_of_gap_all_scenes): {estimate} [{low}, "
                          f"{high}]{why}")
