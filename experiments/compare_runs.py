@@ -80,8 +80,8 @@ def tables(a: Records, b: Records, classifiers: list[str], row: str, reference: 
             raise ValueError(f"classifier {c!r}: the runs have no episode of {row} in common")
         (row_a, row_b), (ref_a, _) = pairs[c, row], pairs[c, reference]
         common = _keys(row_a) & _keys(ref_a)
-        every = {"A": _on(row_a, common, moves), "B": _on(row_b, common, moves), "ref": _on(ref_a, common, moves)}
-        diff = metrics.paired_difference(every["B"], every["A"], classes, resamples=resamples)
+        all_a, all_b, all_ref = (_on(x, common, moves) for x in (row_a, row_b, ref_a))
+        diff = metrics.paired_difference(all_b, all_a, classes, resamples=resamples)
         scenes = len({k[0] for k in common})
         lines += [f"#### Classifier `{c}`", "",
                   f"- {ref_label}: the same start, path and labels in all {checked} episodes both runs hold.",
@@ -107,8 +107,8 @@ def tables(a: Records, b: Records, classifiers: list[str], row: str, reference: 
             shares = [metrics.share_of_gap(p, base, oracle, classes, resamples=resamples) for p in (pa, pb)]
             there_diff = metrics.paired_difference(pb, pa, classes, resamples=resamples)
             inside = np.isin(sorted({k[0] for k in common}), sorted({k[0] for k in there}))  # (per_scene's order)
-            everywhere = [metrics.share_of_gap_all_scenes(every[r], every["ref"], oracle, base, inside, classes,
-                                                          resamples=resamples) for r in ("A", "B")]
+            everywhere = [metrics.share_of_gap_all_scenes(p, all_ref, oracle, base, inside, classes,
+                                                          resamples=resamples) for p in (all_a, all_b)]
             lines.append(f"{head} {metrics.format_difference(*lead)} | {_share(shares[0])} | {_share(shares[1])} | "
                          f"{metrics.format_difference(*there_diff)} | {_share(everywhere[0])} | "
                          f"{_share(everywhere[1])} |")

@@ -55,11 +55,15 @@ def differences(config: Table1Config, by: dict, c: str, classes: int,
         (name, None): lab for name, lab in (labels or {}).items()}
     scene_sets: dict[str, set] = {}
 
-    def scenes_of(name, move, keep=None):
-        """The row's labels per scene after ``move``, on the scenes ``keep`` only (all if None)."""
+    def scenes_in(name):
+        """The scenes the row has records of."""
         if name not in scene_sets:
             scene_sets[name] = {r["scene"] for r in by.get((c, name), [])}
-        key = (name, None if keep is None or keep >= scene_sets[name] else frozenset(keep))
+        return scene_sets[name]
+
+    def scenes_of(name, move, keep=None):
+        """The row's labels per scene after ``move``, on the scenes ``keep`` only (all if None)."""
+        key = (name, None if keep is None or keep >= scenes_in(name) else frozenset(keep))
         if key not in prepared:
             prepared[key] = protocol.scene_labels([r for r in by.get((c, name), [])
                                                    if key[1] is None or r["scene"] in key[1]])
@@ -111,28 +115,29 @@ def differences(config: Table1Config, by: dict, c: str, classes: int,
         sig = "" if lo <= 0 <= hi else " (the interval excludes 0)"
         notes.append(f"{prefix}{protocol.ROWS[a].label} - {protocol.ROWS[b].label}: "
                      f"{metrics.format_difference(d, lo, hi)}{sig}")
+    def shown(share, base):
+        """A share with its interval, and why it is infinite where it is."""
+        estimate, low, high = map(format_share, share)
+        why = f" (+inf: the oracle does not lead {base} there)" if "inf" in estimate + low + high else ""
+        return f"{estimate} [{low}, {high}]{why}"
+
     for o in oracles if best_hand_made else ():  # the share of the oracle's lead the learned policy closes
         three = ("learned_gr", best_hand_made, o)
-        scenes = set.intersection(*({r["scene"] for r in by[c, n]} for n in three))
+        scenes = set.intersection(*(scenes_in(n) for n in three))
         if len(scenes) < 2:  # (no interval)
             continue
         share = metrics.share_of_gap(*(scenes_of(n, T, scenes) for n in three), classes, resamples=config.resamples)
         ours, a, b = (protocol.ROWS[n].label for n in three)
-        estimate, low, high = map(format_share, share)
-        why = f" (+inf: the oracle does not lead {a} there)" if "inf" in estimate + low + high else ""
         notes.append(f"The share of the oracle's lead the learned policy closes: ({ours} - {a}) / ({b} - {a}) on the "
-                     f"{len(scenes)} scenes of all three: {estimate} [{low}, {high}]{why}")
-        wide = {r["scene"] for r in by[c, "learned_gr"]} & {r["scene"] for r in by[c, best_hand_made]}
+                     f"{len(scenes)} scenes of all three: {shown(share, a)}")
+        wide = scenes_in("learned_gr") & scenes_in(best_hand_made)
         if wide > scenes:  # (the oracle on fewer scenes: the learned policy's lead on all of them, too)
             inside = np.isin(sorted(wide), sorted(scenes))  # (scene_labels' order: by scene)
             share = metrics.share_of_gap_all_scenes(
                 scenes_of("learned_gr", T, wide), scenes_of(best_hand_made, T, wide), scenes_of(o, T, scenes),
                 scenes_of(best_hand_made, T, scenes), inside, classes, resamples=config.resamples)
-            estimate, low, high = map(format_share, share)
-            why = f" (+inf: the oracle does not lead {a} there)" if "inf" in estimate + low + high else ""
             notes.append(f"The same share with the learned policy's lead over {a} on all {len(wide)} scenes, the "
-                         f"oracle's on its {len(scenes)} (metrics.share_of_gap_all_scenes): {estimate} [{low}, "
-                         f"{high}]{why}")
+                         f"oracle's on its {len(scenes)} (metrics.share_of_gap_all_scenes): {shown(share, a)}")
     return notes
 
 
