@@ -16,6 +16,12 @@ the same start, path and labels in every episode both hold, else the runs are re
 the same share with each ``row``'s lead over the reference taken on all the paired episodes
 (``metrics.share_of_gap_all_scenes``: the oracle runs on a subset, whose draw of the lead it carries otherwise).
 The settings in which the two configs differ are listed first.
+
+Several pairs (``--a A1 --b B1 --a A2 --b B2 ...``), each pair on its own draw of scenes (another dataset seed or
+Table 1 seed), are pooled: each pair is checked as above, then pair i's scenes are numbered after pair i - 1's
+(``pool``) and the tables are those of one run on all the scenes, every draw's scenes resampled as one set (the
+draws are independent scenes of one distribution). A held-out draw where no policy was chosen, say, pooled with
+the one where it was. Pairs of the same draw are refused (their scenes would count twice).
 """
 
 from __future__ import annotations
@@ -116,36 +122,80 @@ def tables(a: Records, b: Records, classifiers: list[str], row: str, reference: 
     return "\n".join(lines)
 
 
+def pool(pairs: list[tuple[Records, Records]]) -> tuple[Records, Records]:
+    """One run A and one run B from pairs of runs on different draws of scenes: pair i's scene indices shifted past
+    every earlier pair's (the records are copied, not changed), so that no two draws share a scene."""
+    a, b, offset = [], [], 0
+    for x, y in pairs:
+        a += [dict(r, scene=int(r["scene"]) + offset) for r in x]
+        b += [dict(r, scene=int(r["scene"]) + offset) for r in y]
+        offset += 1 + max(int(r["scene"]) for r in x + y)
+    return a, b
+
+
+def _draw(config: Table1Config) -> tuple[int, int]:
+    """(dataset seed, Table 1 seed): what draws a run's scenes and its starts and keys."""
+    return data.dataset_config(config).seed, config.seed
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--a", required=True, help="a Table 1 run's config.yaml (A)")
-    parser.add_argument("--b", required=True, help="another run's config.yaml on the same scenes (B)")
+    parser.add_argument("--a", required=True, action="append",
+                        help="a Table 1 run's config.yaml (A); again for each further pair, pooled")
+    parser.add_argument("--b", required=True, action="append",
+                        help="another run's config.yaml on the same scenes as its --a (B)")
     parser.add_argument("--row", default="learned_gr", choices=sorted(protocol.ROWS), help="the row compared")
     parser.add_argument("--reference", default="info_gain_gr", choices=sorted(protocol.ROWS),
                         help="a row both ran alike: the check that the scenes agree, and the base of the share")
     parser.add_argument("--out", help="append the tables to this Markdown file")
     args = parser.parse_args(argv)
-    configs = [load_config(Table1Config, path) for path in (args.a, args.b)]
-    if configs[0].moves != configs[1].moves:
-        parser.error(f"{args.a} runs {configs[0].moves} moves, {args.b} {configs[1].moves}")
-    objects = [data.dataset_config(c).objects for c in configs]
-    if objects[0] != objects[1]:
-        parser.error(f"{args.a} and {args.b} score other object sets")
-    classifiers = [c for c in configs[0].classifiers if c in configs[1].classifiers]
+    if len(args.a) != len(args.b):
+        parser.error(f"{len(args.a)} --a and {len(args.b)} --b: give them in pairs")
+    paths = list(zip(args.a, args.b, strict=True))
+    configs = [(load_config(Table1Config, pa), load_config(Table1Config, pb)) for pa, pb in paths]
+    flat = [(path, config) for pair in zip(paths, configs, strict=True) for path, config in zip(*pair, strict=True)]
+    for path, config in flat[1:]:
+        if config.moves != flat[0][1].moves:
+            parser.error(f"{flat[0][0]} runs {flat[0][1].moves} moves, {path} {config.moves}")
+        if data.dataset_config(config).objects != data.dataset_config(flat[0][1]).objects:
+            parser.error(f"{flat[0][0]} and {path} score other object sets")
+    draws = [_draw(a) for a, _ in configs]
+    for i, (pair, draw) in enumerate(zip(paths, draws, strict=True)):
+        if draw in draws[:i]:
+            parser.error(f"{pair[0]} draws the same scenes as {paths[draws.index(draw)][0]} (dataset seed, Table 1 "
+                         f"seed {draw}): pooled, they would count twice")
+    classifiers = [c for c in flat[0][1].classifiers if all(c in config.classifiers for _, config in flat)]
     if not classifiers:
-        parser.error(f"{args.a} and {args.b} share no classifier")
+        parser.error(f"{', '.join(p for p, _ in flat)} share no classifier")
     runs = []
-    for path, config in zip((args.a, args.b), configs, strict=True):
+    for path, config in flat:
         records = data.stored_records(config, Path(config.out_dir) / "episodes.jsonl")
         if not records:
             parser.error(f"{path}: no stored episodes of this config in {config.out_dir}")
         runs.append(records)
-    classes = len(object_set_from_config(objects[0]).classes)
-    differ = [k for k in data.settings_differ(*configs) if k != "out_dir"]
-    head = (f"A: `{args.a}`; B: `{args.b}`; their settings differ in: {', '.join(differ) or 'nothing'}.\n\n")
+    pairs = list(zip(runs[::2], runs[1::2], strict=True))
+    classes = len(object_set_from_config(data.dataset_config(flat[0][1]).objects).classes)
+    head = []
+    for (pa, pb), (ca, cb) in zip(paths, configs, strict=True):
+        differ = [k for k in data.settings_differ(ca, cb) if k != "out_dir"]
+        head.append(f"A: `{pa}`; B: `{pb}`; their settings differ in: {', '.join(differ) or 'nothing'}.")
+    if len(pairs) > 1:
+        for name, i in (("A", 0), ("B", 1)):
+            differ = sorted({k for c in configs[1:] for k in data.settings_differ(configs[0][i], c[i])
+                             if k != "out_dir"})
+            head.append(f"The {name} runs differ in: {', '.join(differ) or 'nothing'}.")
+        head.append(f"Pooled: {len(pairs)} pairs, each its own draw of scenes (dataset seed, Table 1 seed: "
+                    f"{', '.join(map(str, draws))}), their scenes resampled as one set.")
     try:
-        report.publish(head + tables(*runs, classifiers, args.row, args.reference, classes, configs[0].moves,
-                                     configs[0].resamples), args.out)
+        for i, (a, b) in enumerate(pairs):  # (each pair checked on its own scenes, its errors named by them)
+            for c in classifiers:
+                try:
+                    check_same_scenes(data.paired_runs(a, b), c, args.reference)
+                except ValueError as e:
+                    raise ValueError(f"{paths[i][0]} and {paths[i][1]}: {e}") from None
+        report.publish("\n\n".join(head) + "\n\n" + tables(*pool(pairs), classifiers, args.row, args.reference,
+                                                            classes, flat[0][1].moves, flat[0][1].resamples),
+                       args.out)
     except ValueError as e:
         parser.error(str(e))
 

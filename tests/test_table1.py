@@ -1024,3 +1024,62 @@ def test_compare_runs_pairs_a_row_of_two_runs_episode_by_episode_after_checking_
         module.tables(a, other, ["c"], "learned_gr", "info_gain_gr", 4, 1, resamples=100)
     with pytest.raises(ValueError, match="share no vis_occl_gr episode"):
         module.tables(a, b, ["c"], "learned_gr", "vis_occl_gr", 4, 1, resamples=100)
+
+
+def test_compare_runs_pools_pairs_on_different_draws_as_one_run_and_refuses_a_draw_given_twice(tmp_path, capsys):
+    """``compare_runs.py --a A1 --b B1 --a A2 --b B2``: the tables of one run on both draws' scenes (pair 2's
+    numbered after pair 1's), each pair checked on its own; two pairs of one draw, or unpaired runs, are refused."""
+    spec = importlib.util.spec_from_file_location("compare_runs", ROOT / "experiments" / "compare_runs.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    truth, wrong, half, right = [0, 1, 2, 3], [0, 1, 0, 0], [0, 1, 2, 0], [0, 1, 2, 3]
+    labels = {  # per draw: each row's labels on scenes 0-2 (the oracle on the first 2)
+        1: {"info_gain_gr": [wrong, wrong, half], "learned_gr": [half, wrong, half], "oracle_gr": [right, right]},
+        2: {"info_gain_gr": [half, wrong, wrong], "learned_gr": [right, half, wrong], "oracle_gr": [right, half]}}
+    policy_b = {1: [half, half, right], 2: [right, right, half]}
+
+    def records(draw, run):
+        out = [_record(row, s, 0, truth, [x]) for row, xs in labels[draw].items() for s, x in enumerate(xs)]
+        if run == "b":
+            out = [r for r in out if r["row"] != "learned_gr" and r["row"] != "oracle_gr"]
+            out += [_record("learned_gr", s, 0, truth, [x]) for s, x in enumerate(policy_b[draw])]
+        return out
+
+    def store(draw, run, edit=lambda r: r):
+        folder = tmp_path / f"{run}{draw}"
+        folder.mkdir(exist_ok=True)
+        (folder / "episodes.jsonl").write_text("".join(json.dumps(edit(r)) + "\n" for r in records(draw, run)))
+        config = Table1Config(out_dir=str(folder), dataset_overrides=(f"seed={draw}",), moves=1, runs=1,
+                              rows=("info_gain_gr", "learned_gr", "oracle_gr"), oracle_scenes=2,
+                              classifiers={"c": ""}, learned_weights={"c": "real_like_paper"}, resamples=100)
+        save_config(config, folder / "config.yaml")
+        return str(folder / "config.yaml")
+
+    a1, b1, a2, b2 = store(1, "a"), store(1, "b"), store(2, "a"), store(2, "b")
+    out = tmp_path / "pooled.md"
+    module.main(["--a", a1, "--b", b1, "--a", a2, "--b", b2, "--out", str(out)])
+    text = out.read_text()
+
+    def shifted(draw, run):
+        return [dict(r, scene=r["scene"] + 3 * (draw - 1)) for r in records(draw, run)]
+
+    expected = module.tables(shifted(1, "a") + shifted(2, "a"), shifted(1, "b") + shifted(2, "b"), ["c"],
+                             "learned_gr", "info_gain_gr", 8, 1, resamples=100)
+    assert text.rstrip().endswith(expected.rstrip())
+    assert "Pooled: 2 pairs, each its own draw of scenes (dataset seed, Table 1 seed: (1, 0), (2, 0))" in text
+    assert "The A runs differ in: dataset_overrides." in text
+    f1 = [metrics.classification_scores(np.array(truth * 6), np.concatenate(rows), 8).f1
+          for rows in (labels[1]["learned_gr"] + labels[2]["learned_gr"], policy_b[1] + policy_b[2])]
+    assert f"- LearnedGR: B - A on 6 episodes of 6 scenes: {f1[1] - f1[0]:+.3f} [" in text
+    assert "| OracleGR (A: 4, 4) |" in text  # (both draws' oracle scenes)
+    with pytest.raises(SystemExit):
+        module.main(["--a", a1, "--b", b1, "--a", a1, "--b", b2])
+    assert "draws the same scenes as" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        module.main(["--a", a1, "--b", b1, "--a", a2])
+    assert "give them in pairs" in capsys.readouterr().err
+    b2_other = store(2, "b", lambda r: dict(r, path=[7]) if r["row"] == "info_gain_gr" and r["scene"] == 1 else r)
+    with pytest.raises(SystemExit):
+        module.main(["--a", a1, "--b", b1, "--a", a2, "--b", b2_other])
+    assert f"{a2} and {b2_other}: classifier 'c': info_gain_gr episode (scene 1, run 0) has another path" in \
+        capsys.readouterr().err
