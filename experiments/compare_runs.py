@@ -17,11 +17,14 @@ the same share with each ``row``'s lead over the reference taken on all the pair
 (``metrics.share_of_gap_all_scenes``: the oracle runs on a subset, whose draw of the lead it carries otherwise).
 The settings in which the two configs differ are listed first.
 
-Several pairs (``--a A1 --b B1 --a A2 --b B2 ...``), each pair on its own draw of scenes (another dataset seed or
-Table 1 seed), are pooled: each pair is checked as above, then pair i's scenes are numbered after pair i - 1's
-(``pool``) and the tables are those of one run on all the scenes, every draw's scenes resampled as one set (the
-draws are independent scenes of one distribution). A held-out draw where no policy was chosen, say, pooled with
-the one where it was. Pairs of the same draw are refused (their scenes would count twice).
+Several pairs (``--a A1 --b B1 --a A2 --b B2 ...``), each pair on its own draw of scenes (another dataset seed),
+are pooled: each pair is checked as above, then pair i's scenes are numbered after pair i - 1's (``pool``) and the
+tables are those of one run on all the scenes, every draw's scenes resampled as one set (the draws are
+independent scenes of one distribution): the oracle's scenes of every draw pin its lead, and every draw's scenes
+the policies'. Pairs of one dataset seed are refused: they hold the same scenes (another Table 1 seed changes only
+the starts), which would count twice. The A runs should run the same policy in ``row``, and the B runs likewise:
+where their settings differ, the keys are listed, for the reader to judge (a policy file and its shipped name,
+say). An oracle row pools over the pairs that hold it in the same run, A or B.
 """
 
 from __future__ import annotations
@@ -75,9 +78,10 @@ def _share(interval: tuple[float, float, float]) -> str:
 
 def tables(a: Records, b: Records, classifiers: list[str], row: str, reference: str, classes: int, moves: int,
            resamples: int = 2000) -> str:
-    """Markdown: per classifier, the reference check, B's ``row`` - A's on their paired episodes after ``moves``,
-    and each oracle row's (of run A or B) lead over ``reference`` with the shares of it both close, on the
-    episodes all of them hold (at least 2 scenes; fewer: said, no interval)."""
+    """Markdown: per classifier, the reference check, B's ``row`` - A's on their paired episodes after ``moves``
+    and each one's lead over ``reference`` there, and each oracle row's (of run A or B) lead over ``reference``
+    with the shares of it both close, on the episodes all of them hold (at least 2 scenes; fewer: said, no
+    interval)."""
     label, ref_label = protocol.ROWS[row].label, protocol.ROWS[reference].label
     lines, pairs = [], data.paired_runs(a, b)
     for c in classifiers:
@@ -88,11 +92,13 @@ def tables(a: Records, b: Records, classifiers: list[str], row: str, reference: 
         common = _keys(row_a) & _keys(ref_a)
         all_a, all_b, all_ref = (_on(x, common, moves) for x in (row_a, row_b, ref_a))
         diff = metrics.paired_difference(all_b, all_a, classes, resamples=resamples)
+        leads = [metrics.paired_difference(x, all_ref, classes, resamples=resamples) for x in (all_a, all_b)]
         scenes = len({k[0] for k in common})
         lines += [f"#### Classifier `{c}`", "",
                   f"- {ref_label}: the same start, path and labels in all {checked} episodes both runs hold.",
                   f"- {label}: B - A on {len(common)} episodes of {scenes} scenes: {metrics.format_difference(*diff)}",
-                  ""]
+                  f"- {label} - {ref_label} there: A {metrics.format_difference(*leads[0])}, "
+                  f"B {metrics.format_difference(*leads[1])}", ""]
         oracles = [(run_name, name, [r for r in run if r["classifier"] == c and r["row"] == name])
                    for run_name, run in (("A", a), ("B", b))
                    for name in sorted({r["row"] for r in run if r["classifier"] == c})
@@ -129,13 +135,13 @@ def pool(pairs: list[tuple[Records, Records]]) -> tuple[Records, Records]:
     for x, y in pairs:
         a += [dict(r, scene=int(r["scene"]) + offset) for r in x]
         b += [dict(r, scene=int(r["scene"]) + offset) for r in y]
-        offset += 1 + max(int(r["scene"]) for r in x + y)
+        offset += 1 + max((int(r["scene"]) for r in x + y), default=-1)
     return a, b
 
 
-def _draw(config: Table1Config) -> tuple[int, int]:
-    """(dataset seed, Table 1 seed): what draws a run's scenes and its starts and keys."""
-    return data.dataset_config(config).seed, config.seed
+def _draw(config: Table1Config) -> int:
+    """The dataset's seed: what draws a run's scenes (of one object set; a Table 1 seed draws only their starts)."""
+    return data.dataset_config(config).seed
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -162,8 +168,8 @@ def main(argv: list[str] | None = None) -> None:
     draws = [_draw(a) for a, _ in configs]
     for i, (pair, draw) in enumerate(zip(paths, draws, strict=True)):
         if draw in draws[:i]:
-            parser.error(f"{pair[0]} draws the same scenes as {paths[draws.index(draw)][0]} (dataset seed, Table 1 "
-                         f"seed {draw}): pooled, they would count twice")
+            parser.error(f"{pair[0]} draws the same scenes as {paths[draws.index(draw)][0]} (dataset seed {draw}): "
+                         "pooled, they would count twice")
     classifiers = [c for c in flat[0][1].classifiers if all(c in config.classifiers for _, config in flat)]
     if not classifiers:
         parser.error(f"{', '.join(p for p, _ in flat)} share no classifier")
@@ -184,7 +190,7 @@ def main(argv: list[str] | None = None) -> None:
             differ = sorted({k for c in configs[1:] for k in data.settings_differ(configs[0][i], c[i])
                              if k != "out_dir"})
             head.append(f"The {name} runs differ in: {', '.join(differ) or 'nothing'}.")
-        head.append(f"Pooled: {len(pairs)} pairs, each its own draw of scenes (dataset seed, Table 1 seed: "
+        head.append(f"Pooled: {len(pairs)} pairs, each its own draw of scenes (dataset seeds "
                     f"{', '.join(map(str, draws))}), their scenes resampled as one set.")
     try:
         for i, (a, b) in enumerate(pairs):  # (each pair checked on its own scenes, its errors named by them)

@@ -997,6 +997,7 @@ def test_compare_runs_pairs_a_row_of_two_runs_episode_by_episode_after_checking_
     b_f1 = metrics.classification_scores(np.array(truth * 3), np.array(half * 2 + right), 4).f1
     assert "- InfoGainGR: the same start, path and labels in all 3 episodes both runs hold." in text
     assert f"- LearnedGR: B - A on 3 episodes of 3 scenes: {b_f1 - f1[0]:+.3f} [" in text
+    assert f"- LearnedGR - InfoGainGR there: A +0.000 [+0.000, +0.000], B {b_f1 - f1[0]:+.3f} [" in text
     # The shares on A's oracle's 2 scenes (B's lead there: half's), and with the leads on all 3 (scene 2: right).
     share, everywhere = (f1[1] - f1[0]) / (f1[2] - f1[0]), (b_f1 - f1[0]) / (f1[2] - f1[0])
     assert f"| OracleGR (A: 2, 2) | {f1[2] - f1[0]:+.3f} [" in text
@@ -1028,7 +1029,8 @@ def test_compare_runs_pairs_a_row_of_two_runs_episode_by_episode_after_checking_
 
 def test_compare_runs_pools_pairs_on_different_draws_as_one_run_and_refuses_a_draw_given_twice(tmp_path, capsys):
     """``compare_runs.py --a A1 --b B1 --a A2 --b B2``: the tables of one run on both draws' scenes (pair 2's
-    numbered after pair 1's), each pair checked on its own; two pairs of one draw, or unpaired runs, are refused."""
+    numbered after the last scene of either run of pair 1), each pair checked on its own; two pairs of one
+    dataset seed (even with other Table 1 seeds), or unpaired runs, are refused."""
     spec = importlib.util.spec_from_file_location("compare_runs", ROOT / "experiments" / "compare_runs.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
@@ -1043,13 +1045,15 @@ def test_compare_runs_pools_pairs_on_different_draws_as_one_run_and_refuses_a_dr
         if run == "b":
             out = [r for r in out if r["row"] != "learned_gr" and r["row"] != "oracle_gr"]
             out += [_record("learned_gr", s, 0, truth, [x]) for s, x in enumerate(policy_b[draw])]
+        elif draw == 1:  # (a scene of A's alone, left out of the pairs: pair 2 is numbered after it)
+            out += [_record(row, 3, 0, truth, [right]) for row in ("info_gain_gr", "learned_gr")]
         return out
 
-    def store(draw, run, edit=lambda r: r):
-        folder = tmp_path / f"{run}{draw}"
+    def store(draw, run, edit=lambda r: r, seed=0):
+        folder = tmp_path / f"{run}{draw}_{seed}"
         folder.mkdir(exist_ok=True)
         (folder / "episodes.jsonl").write_text("".join(json.dumps(edit(r)) + "\n" for r in records(draw, run)))
-        config = Table1Config(out_dir=str(folder), dataset_overrides=(f"seed={draw}",), moves=1, runs=1,
+        config = Table1Config(out_dir=str(folder), dataset_overrides=(f"seed={draw}",), seed=seed, moves=1, runs=1,
                               rows=("info_gain_gr", "learned_gr", "oracle_gr"), oracle_scenes=2,
                               classifiers={"c": ""}, learned_weights={"c": "real_like_paper"}, resamples=100)
         save_config(config, folder / "config.yaml")
@@ -1061,20 +1065,26 @@ def test_compare_runs_pools_pairs_on_different_draws_as_one_run_and_refuses_a_dr
     text = out.read_text()
 
     def shifted(draw, run):
-        return [dict(r, scene=r["scene"] + 3 * (draw - 1)) for r in records(draw, run)]
+        return [dict(r, scene=r["scene"] + 4 * (draw - 1)) for r in records(draw, run)]
 
     expected = module.tables(shifted(1, "a") + shifted(2, "a"), shifted(1, "b") + shifted(2, "b"), ["c"],
                              "learned_gr", "info_gain_gr", 8, 1, resamples=100)
     assert text.rstrip().endswith(expected.rstrip())
-    assert "Pooled: 2 pairs, each its own draw of scenes (dataset seed, Table 1 seed: (1, 0), (2, 0))" in text
+    assert "Pooled: 2 pairs, each its own draw of scenes (dataset seeds 1, 2)" in text
     assert "The A runs differ in: dataset_overrides." in text
     f1 = [metrics.classification_scores(np.array(truth * 6), np.concatenate(rows), 8).f1
           for rows in (labels[1]["learned_gr"] + labels[2]["learned_gr"], policy_b[1] + policy_b[2])]
     assert f"- LearnedGR: B - A on 6 episodes of 6 scenes: {f1[1] - f1[0]:+.3f} [" in text
+    base = metrics.classification_scores(np.array(truth * 6), np.concatenate(
+        labels[1]["info_gain_gr"] + labels[2]["info_gain_gr"]), 8).f1
+    assert f"- LearnedGR - InfoGainGR there: A {f1[0] - base:+.3f} [" in text and f", B {f1[1] - base:+.3f} [" in text
     assert "| OracleGR (A: 4, 4) |" in text  # (both draws' oracle scenes)
     with pytest.raises(SystemExit):
         module.main(["--a", a1, "--b", b1, "--a", a1, "--b", b2])
     assert "draws the same scenes as" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # (another Table 1 seed: other starts on the same scenes)
+        module.main(["--a", a1, "--b", b1, "--a", store(1, "a", seed=1), "--b", store(1, "b", seed=1)])
+    assert "(dataset seed 1): pooled, they would count twice" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         module.main(["--a", a1, "--b", b1, "--a", a2])
     assert "give them in pairs" in capsys.readouterr().err

@@ -22,6 +22,9 @@ for b in rollout_labels/table1_real_like_paper_ppo ppo/table1_real_like_paper_pp
 done
 for b in ppo/table1_synthetic_paper_ppo250 ppo/table1_synthetic_paper_ppo250_scenes256_115 \
   ppo/table1_synthetic_paper_v3_val96_ppo300 ppo/table1_synthetic_paper_v3_val96_ppo300_scenes256_135; do run $R/ppo/table1_synthetic_paper_oracle $R/$b; done
+# The real-like layout-3 policies on the synthetic set against the synthetic PPO policy trained there.
+for b in ppo/table1_synthetic_paper_v3_val96_ppo300 ppo/table1_synthetic_paper_v3_val96_ppo300_scenes256_135; do
+  run $R/ppo/table1_synthetic_paper_ppo250 $R/$b; done
 # The second draw (dataset seed 2): its oracle is in the layout-3 policy's run (A there); then both draws pooled.
 S=$R/ppo/seed2
 for b in table1_real_like_paper_ppo_scenes256 table1_real_like_paper_v3 table1_real_like_paper_ppo; do
