@@ -139,11 +139,6 @@ def pool(pairs: list[tuple[Records, Records]]) -> tuple[Records, Records]:
     return a, b
 
 
-def _draw(config: Table1Config) -> int:
-    """The dataset's seed: what draws a run's scenes (of one object set; a Table 1 seed draws only their starts)."""
-    return data.dataset_config(config).seed
-
-
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--a", required=True, action="append",
@@ -160,12 +155,13 @@ def main(argv: list[str] | None = None) -> None:
     paths = list(zip(args.a, args.b, strict=True))
     configs = [(load_config(Table1Config, pa), load_config(Table1Config, pb)) for pa, pb in paths]
     flat = [(path, config) for pair in zip(paths, configs, strict=True) for path, config in zip(*pair, strict=True)]
-    for path, config in flat[1:]:
+    datasets = [data.dataset_config(config) for _, config in flat]
+    for (path, config), dataset in zip(flat[1:], datasets[1:], strict=True):
         if config.moves != flat[0][1].moves:
             parser.error(f"{flat[0][0]} runs {flat[0][1].moves} moves, {path} {config.moves}")
-        if data.dataset_config(config).objects != data.dataset_config(flat[0][1]).objects:
+        if dataset.objects != datasets[0].objects:
             parser.error(f"{flat[0][0]} and {path} score other object sets")
-    draws = [_draw(a) for a, _ in configs]
+    draws = [d.seed for d in datasets[::2]]  # (a pair's scenes: its dataset's seed; a Table 1 seed draws the starts)
     for i, (pair, draw) in enumerate(zip(paths, draws, strict=True)):
         if draw in draws[:i]:
             parser.error(f"{pair[0]} draws the same scenes as {paths[draws.index(draw)][0]} (dataset seed {draw}): "
@@ -180,7 +176,7 @@ def main(argv: list[str] | None = None) -> None:
             parser.error(f"{path}: no stored episodes of this config in {config.out_dir}")
         runs.append(records)
     pairs = list(zip(runs[::2], runs[1::2], strict=True))
-    classes = len(object_set_from_config(data.dataset_config(flat[0][1]).objects).classes)
+    classes = len(object_set_from_config(datasets[0].objects).classes)
     head = []
     for (pa, pb), (ca, cb) in zip(paths, configs, strict=True):
         differ = [k for k in data.settings_differ(ca, cb) if k != "out_dir"]
@@ -194,9 +190,10 @@ def main(argv: list[str] | None = None) -> None:
                     f"{', '.join(map(str, draws))}), their scenes resampled as one set.")
     try:
         for i, (a, b) in enumerate(pairs):  # (each pair checked on its own scenes, its errors named by them)
+            paired = data.paired_runs(a, b)
             for c in classifiers:
                 try:
-                    check_same_scenes(data.paired_runs(a, b), c, args.reference)
+                    check_same_scenes(paired, c, args.reference)
                 except ValueError as e:
                     raise ValueError(f"{paths[i][0]} and {paths[i][1]}: {e}") from None
         report.publish("\n\n".join(head) + "\n\n" + tables(*pool(pairs), classifiers, args.row, args.reference,
